@@ -1,0 +1,16 @@
+//! dc_loc: Doppler-compensated, uncertainty-aware loop closures from automotive radar (DC-Loc, ICRA 2022).
+//!
+//! The library is the algorithm core: no DDS, no async, no wall clock. Data flows one way:
+//! bytes ([`cloud`], [`io`]) -> radar scans ([`radar`]: Doppler compensation, per-point covariance,
+//! ego-motion and moving-object rejection) -> submaps ([`submap`]) -> registration ([`registration`],
+//! [`baselines`]) -> results. The node, the offline runner, the demo and the tests drive the same code.
+#![warn(missing_docs)]
+
+pub mod baselines;
+pub mod cloud;
+pub mod config;
+pub mod io;
+pub mod math;
+pub mod radar;
+pub mod registration;
+pub mod submap;

@@ -11,6 +11,7 @@ pub mod cloud;
 pub mod config;
 pub mod io;
 pub mod math;
+pub mod msgs;
 pub mod radar;
 pub mod registration;
 pub mod submap;

@@ -1,0 +1,389 @@
+//! ROS 2 message types as plain serde structs (field order exactly as in each `.msg`), shared by the
+//! node, the bag reader/writer and the simulator. No DDS here: CDR bytes come from serialising these.
+//!
+//! Entry points: one module per ROS package ([`builtin_interfaces`], [`std_msgs`], [`geometry_msgs`],
+//! [`sensor_msgs`], [`nav_msgs`], [`tf2_msgs`], [`rosgraph_msgs`], [`dc_loc`]).
+
+/// builtin_interfaces
+pub mod builtin_interfaces {
+    use crate::math::Stamp;
+    use serde::{Deserialize, Serialize};
+
+    /// builtin_interfaces/msg/Time
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    pub struct Time {
+        /// Seconds.
+        pub sec: i32,
+        /// Nanoseconds, [0, 1e9).
+        pub nanosec: u32,
+    }
+
+    impl From<Stamp> for Time {
+        fn from(s: Stamp) -> Self {
+            let (sec, nanosec) = s.to_sec_nanosec();
+            Time { sec, nanosec }
+        }
+    }
+    impl From<Time> for Stamp {
+        fn from(t: Time) -> Self {
+            Stamp::from_sec_nanosec(t.sec, t.nanosec)
+        }
+    }
+}
+
+/// std_msgs
+pub mod std_msgs {
+    use super::builtin_interfaces::Time;
+    use serde::{Deserialize, Serialize};
+
+    /// std_msgs/msg/Header
+    #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+    pub struct Header {
+        /// Acquisition time.
+        pub stamp: Time,
+        /// Frame of the data.
+        pub frame_id: String,
+    }
+}
+
+/// geometry_msgs
+pub mod geometry_msgs {
+    use super::std_msgs::Header;
+    use crate::math::{Iso3, Quat, Vec3};
+    use serde::{Deserialize, Serialize};
+
+    /// geometry_msgs/msg/Point
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Point {
+        /// m
+        pub x: f64,
+        /// m
+        pub y: f64,
+        /// m
+        pub z: f64,
+    }
+
+    /// geometry_msgs/msg/Vector3
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Vector3 {
+        /// x component
+        pub x: f64,
+        /// y component
+        pub y: f64,
+        /// z component
+        pub z: f64,
+    }
+
+    /// geometry_msgs/msg/Quaternion
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct Quaternion {
+        /// x
+        pub x: f64,
+        /// y
+        pub y: f64,
+        /// z
+        pub z: f64,
+        /// w
+        pub w: f64,
+    }
+
+    impl Default for Quaternion {
+        /// Identity (w = 1), as the ROS default.
+        fn default() -> Self {
+            Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 1.0,
+            }
+        }
+    }
+
+    /// geometry_msgs/msg/Pose
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Pose {
+        /// Position, m.
+        pub position: Point,
+        /// Orientation.
+        pub orientation: Quaternion,
+    }
+
+    /// geometry_msgs/msg/PoseWithCovariance
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct PoseWithCovariance {
+        /// The pose.
+        pub pose: Pose,
+        /// Row-major 6x6 covariance in x, y, z, rot x, rot y, rot z.
+        #[serde(with = "serde_big_array::BigArray")]
+        pub covariance: [f64; 36],
+    }
+
+    impl Default for PoseWithCovariance {
+        fn default() -> Self {
+            PoseWithCovariance {
+                pose: Pose::default(),
+                covariance: [0.0; 36],
+            }
+        }
+    }
+
+    /// geometry_msgs/msg/Twist
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Twist {
+        /// m/s
+        pub linear: Vector3,
+        /// rad/s
+        pub angular: Vector3,
+    }
+
+    /// geometry_msgs/msg/TwistWithCovariance
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct TwistWithCovariance {
+        /// The twist.
+        pub twist: Twist,
+        /// Row-major 6x6 covariance.
+        #[serde(with = "serde_big_array::BigArray")]
+        pub covariance: [f64; 36],
+    }
+
+    impl Default for TwistWithCovariance {
+        fn default() -> Self {
+            TwistWithCovariance {
+                twist: Twist::default(),
+                covariance: [0.0; 36],
+            }
+        }
+    }
+
+    /// geometry_msgs/msg/Transform
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Transform {
+        /// m
+        pub translation: Vector3,
+        /// Rotation.
+        pub rotation: Quaternion,
+    }
+
+    /// geometry_msgs/msg/TransformStamped
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct TransformStamped {
+        /// Stamp and parent frame.
+        pub header: Header,
+        /// Child frame.
+        pub child_frame_id: String,
+        /// Child frame in the parent frame.
+        pub transform: Transform,
+    }
+
+    impl From<&Iso3> for Pose {
+        fn from(t: &Iso3) -> Self {
+            let q = t.rotation.quaternion();
+            Pose {
+                position: Point {
+                    x: t.translation.x,
+                    y: t.translation.y,
+                    z: t.translation.z,
+                },
+                orientation: Quaternion {
+                    x: q.i,
+                    y: q.j,
+                    z: q.k,
+                    w: q.w,
+                },
+            }
+        }
+    }
+
+    impl From<&Iso3> for Transform {
+        fn from(t: &Iso3) -> Self {
+            let p = Pose::from(t);
+            Transform {
+                translation: Vector3 {
+                    x: p.position.x,
+                    y: p.position.y,
+                    z: p.position.z,
+                },
+                rotation: p.orientation,
+            }
+        }
+    }
+
+    impl Quaternion {
+        /// As a unit quaternion; `None` when not finite or of zero norm.
+        pub fn to_unit(&self) -> Option<Quat> {
+            let q = nalgebra::Quaternion::new(self.w, self.x, self.y, self.z);
+            let n = q.norm();
+            if !(n.is_finite() && n > 1e-9) {
+                return None;
+            }
+            Some(Quat::new_normalize(q))
+        }
+    }
+
+    impl Pose {
+        /// As an isometry; `None` when any value is not finite or the quaternion is zero.
+        pub fn to_iso3(&self) -> Option<Iso3> {
+            let p = Vec3::new(self.position.x, self.position.y, self.position.z);
+            if !p.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            Some(Iso3::from_parts(p.into(), self.orientation.to_unit()?))
+        }
+    }
+
+    impl Transform {
+        /// As an isometry; `None` when any value is not finite or the quaternion is zero.
+        pub fn to_iso3(&self) -> Option<Iso3> {
+            Pose {
+                position: Point {
+                    x: self.translation.x,
+                    y: self.translation.y,
+                    z: self.translation.z,
+                },
+                orientation: self.rotation,
+            }
+            .to_iso3()
+        }
+    }
+}
+
+/// sensor_msgs
+pub mod sensor_msgs {
+    use super::std_msgs::Header;
+    use serde::{Deserialize, Serialize};
+
+    /// sensor_msgs/msg/PointField
+    #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+    pub struct PointField {
+        /// Field name.
+        pub name: String,
+        /// Byte offset within a point.
+        pub offset: u32,
+        /// One of the `PointField::*` datatype constants.
+        pub datatype: u8,
+        /// Number of elements.
+        pub count: u32,
+    }
+
+    impl PointField {
+        /// int8
+        pub const INT8: u8 = 1;
+        /// uint8
+        pub const UINT8: u8 = 2;
+        /// int16
+        pub const INT16: u8 = 3;
+        /// uint16
+        pub const UINT16: u8 = 4;
+        /// int32
+        pub const INT32: u8 = 5;
+        /// uint32
+        pub const UINT32: u8 = 6;
+        /// float32
+        pub const FLOAT32: u8 = 7;
+        /// float64
+        pub const FLOAT64: u8 = 8;
+    }
+
+    /// sensor_msgs/msg/PointCloud2
+    #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+    pub struct PointCloud2 {
+        /// Stamp and sensor frame.
+        pub header: Header,
+        /// Rows.
+        pub height: u32,
+        /// Points per row.
+        pub width: u32,
+        /// Field layout.
+        pub fields: Vec<PointField>,
+        /// Byte order of `data`.
+        pub is_bigendian: bool,
+        /// Bytes per point.
+        pub point_step: u32,
+        /// Bytes per row.
+        pub row_step: u32,
+        /// The points.
+        #[serde(with = "serde_bytes")]
+        pub data: Vec<u8>,
+        /// True when no point is invalid.
+        pub is_dense: bool,
+    }
+}
+
+/// nav_msgs
+pub mod nav_msgs {
+    use super::geometry_msgs::{PoseWithCovariance, TwistWithCovariance};
+    use super::std_msgs::Header;
+    use serde::{Deserialize, Serialize};
+
+    /// nav_msgs/msg/Odometry
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Odometry {
+        /// Stamp and the frame of the pose (e.g. `odom`).
+        pub header: Header,
+        /// Frame of the twist (the body frame).
+        pub child_frame_id: String,
+        /// Body pose in `header.frame_id`.
+        pub pose: PoseWithCovariance,
+        /// Body velocity in `child_frame_id`.
+        pub twist: TwistWithCovariance,
+    }
+}
+
+/// tf2_msgs
+pub mod tf2_msgs {
+    use super::geometry_msgs::TransformStamped;
+    use serde::{Deserialize, Serialize};
+
+    /// tf2_msgs/msg/TFMessage
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct TFMessage {
+        /// The transforms.
+        pub transforms: Vec<TransformStamped>,
+    }
+}
+
+/// rosgraph_msgs
+pub mod rosgraph_msgs {
+    use super::builtin_interfaces::Time;
+    use serde::{Deserialize, Serialize};
+
+    /// rosgraph_msgs/msg/Clock
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    pub struct Clock {
+        /// Simulated time.
+        pub clock: Time,
+    }
+}
+
+/// This package's own messages (`msg/`).
+pub mod dc_loc {
+    use super::builtin_interfaces::Time;
+    use super::geometry_msgs::{Pose, PoseWithCovariance};
+    use super::std_msgs::Header;
+    use serde::{Deserialize, Serialize};
+
+    /// dc_loc/msg/LoopClosure (`msg/LoopClosure.msg`).
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct LoopClosure {
+        /// stamp: query keyframe time; frame_id: body frame.
+        pub header: Header,
+        /// Newer keyframe.
+        pub query_id: u64,
+        /// Older, revisited keyframe.
+        pub match_id: u64,
+        /// Query keyframe time.
+        pub query_stamp: Time,
+        /// Match keyframe time.
+        pub match_stamp: Time,
+        /// Odometry pose of the query keyframe.
+        pub query_odom_pose: Pose,
+        /// Odometry pose of the match keyframe.
+        pub match_odom_pose: Pose,
+        /// Query body frame in the match body frame; covariance row-major x y z rotx roty rotz.
+        pub relative_pose: PoseWithCovariance,
+        /// RANSAC inliers behind the estimate.
+        pub inliers: u32,
+        /// Match quality (higher is better).
+        pub score: f64,
+    }
+}

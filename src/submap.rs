@@ -1,1 +1,777 @@
-//! (being written)
+//! Odometry interpolation and submaps: the last N sweeps stacked in the body frame of the newest scan.
+//!
+//! Entry points: [`OdometryBuffer`] (stamped odometry poses, interpolated at scan stamps),
+//! [`SubmapBuilder`] (per radar, the last `size` scans after Doppler compensation, covariance and
+//! moving-object rejection), [`Submap`] and [`Submap::point_set`] (what registration consumes).
+//!
+//! A *sweep* with several radars: each radar keeps its own last `size` scans, so a submap holds the last
+//! `size` scans of every radar whatever their phase or rate (the DC-Loc authors likewise stack 10 sweeps per
+//! radar). Each scan is placed with the odometry pose interpolated at its own stamp, and the submap is
+//! expressed in the body frame at the newest scan's stamp (its *anchor*).
+
+use crate::config::ConfigError;
+use crate::math::{Iso3, Mat3, Stamp, Vec3, interpolate_iso3};
+use crate::radar::RadarScan;
+use crate::radar::doppler::{BodyPoint, RadarModel};
+use crate::radar::ego_motion::{EgoMotionConfig, FitDims, fit_radar_velocity, static_mask};
+use crate::registration::PointSet2;
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+
+/// Why odometry could not give a pose.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum OdometryError {
+    /// A sample older than the newest one arrived (a bag restarted, clocks jumped).
+    #[error("odometry stamp went backwards: {got:?} after {newest:?}")]
+    TimeWentBackwards {
+        /// Newest stamp held.
+        newest: Stamp,
+        /// Stamp received.
+        got: Stamp,
+    },
+    /// The pose is not finite.
+    #[error("odometry pose is not finite")]
+    NotFinite,
+    /// No odometry yet, or the request lies beyond the newest sample (wait for more).
+    #[error("no odometry at {at:?} yet (newest {newest:?})")]
+    NotYet {
+        /// Requested stamp.
+        at: Stamp,
+        /// Newest stamp held, if any.
+        newest: Option<Stamp>,
+    },
+    /// The request lies before the oldest sample held.
+    #[error("odometry at {at:?} is older than the buffer (oldest {oldest:?})")]
+    TooOld {
+        /// Requested stamp.
+        at: Stamp,
+        /// Oldest stamp held.
+        oldest: Stamp,
+    },
+    /// The two samples around the request are too far apart to interpolate between.
+    #[error("odometry gap of {gap:.3} s around {at:?}")]
+    Gap {
+        /// Requested stamp.
+        at: Stamp,
+        /// Gap between the bracketing samples, s.
+        gap: f64,
+    },
+}
+
+/// Odometry settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OdometryConfig {
+    /// How much odometry history to keep, s (default 30).
+    pub buffer_duration: f64,
+    /// Largest gap between two odometry samples that is still interpolated across, s (default 0.5).
+    pub max_gap: f64,
+    /// How far past the newest sample a pose may be extrapolated, s (default 0.05).
+    pub max_extrapolation: f64,
+}
+
+impl Default for OdometryConfig {
+    fn default() -> Self {
+        OdometryConfig {
+            buffer_duration: 30.0,
+            max_gap: 0.5,
+            max_extrapolation: 0.05,
+        }
+    }
+}
+
+impl OdometryConfig {
+    /// Rejects unusable values, naming the parameter under `prefix`.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        for (f, v) in [
+            ("buffer_duration", self.buffer_duration),
+            ("max_gap", self.max_gap),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::new(format!("{prefix}.{f}"), "must be > 0 s"));
+            }
+        }
+        if !(self.max_extrapolation.is_finite() && self.max_extrapolation >= 0.0) {
+            return Err(ConfigError::new(
+                format!("{prefix}.max_extrapolation"),
+                "must be >= 0 s",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Stamped odometry poses `t_odom_body`, interpolated at arbitrary stamps.
+#[derive(Debug, Clone)]
+pub struct OdometryBuffer {
+    cfg: OdometryConfig,
+    samples: VecDeque<(Stamp, Iso3)>,
+}
+
+impl OdometryBuffer {
+    /// An empty buffer.
+    pub fn new(cfg: OdometryConfig) -> Self {
+        OdometryBuffer {
+            cfg,
+            samples: VecDeque::new(),
+        }
+    }
+
+    /// Appends a sample. Stamps must not go backwards (the caller decides whether to [`Self::clear`]);
+    /// a repeated stamp replaces the previous sample.
+    pub fn push(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Result<(), OdometryError> {
+        let finite = t_odom_body.translation.vector.iter().all(|v| v.is_finite())
+            && t_odom_body.rotation.coords.iter().all(|v| v.is_finite());
+        if !finite {
+            return Err(OdometryError::NotFinite);
+        }
+        if let Some(&(newest, _)) = self.samples.back() {
+            if stamp < newest {
+                return Err(OdometryError::TimeWentBackwards { newest, got: stamp });
+            }
+            if stamp == newest {
+                self.samples.pop_back();
+            }
+        }
+        self.samples.push_back((stamp, t_odom_body));
+        while let (Some(&(old, _)), true) = (self.samples.front(), self.samples.len() > 2) {
+            if stamp.secs_since(old) > self.cfg.buffer_duration {
+                self.samples.pop_front();
+            } else {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// Forgets every sample (after time went backwards).
+    pub fn clear(&mut self) {
+        self.samples.clear();
+    }
+
+    /// The newest sample.
+    pub fn newest(&self) -> Option<(Stamp, Iso3)> {
+        self.samples.back().copied()
+    }
+
+    /// Number of samples held.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// True when no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// The body pose at `at`, interpolated between the bracketing samples (linear translation, geodesic
+    /// rotation), or extrapolated up to `max_extrapolation` past the newest one.
+    pub fn pose_at(&self, at: Stamp) -> Result<Iso3, OdometryError> {
+        let newest = self.samples.back().map(|s| s.0);
+        let (Some(&(t0, _)), Some(&(tn, pn))) = (self.samples.front(), self.samples.back()) else {
+            return Err(OdometryError::NotYet { at, newest });
+        };
+        if at < t0 {
+            return Err(OdometryError::TooOld { at, oldest: t0 });
+        }
+        if at >= tn {
+            if at.secs_since(tn) > self.cfg.max_extrapolation {
+                return Err(OdometryError::NotYet { at, newest });
+            }
+            if at == tn || self.samples.len() < 2 {
+                return Ok(pn);
+            }
+            let (tp, pp) = self.samples[self.samples.len() - 2];
+            return self.between((tp, pp), (tn, pn), at);
+        }
+        // First sample strictly after `at`.
+        let i = self.samples.partition_point(|s| s.0 <= at);
+        self.between(self.samples[i - 1], self.samples[i], at)
+    }
+
+    fn between(
+        &self,
+        a: (Stamp, Iso3),
+        b: (Stamp, Iso3),
+        at: Stamp,
+    ) -> Result<Iso3, OdometryError> {
+        let gap = b.0.secs_since(a.0);
+        if gap > self.cfg.max_gap {
+            return Err(OdometryError::Gap { at, gap });
+        }
+        if gap <= 0.0 {
+            return Ok(b.1);
+        }
+        Ok(interpolate_iso3(&a.1, &b.1, at.secs_since(a.0) / gap))
+    }
+
+    /// Body velocity (body frame, m/s) and yaw rate (rad/s) at `at`, by differences of the interpolated
+    /// poses over `at +- half_window` (the window is cut at the newest sample).
+    pub fn velocity_at(&self, at: Stamp, half_window: f64) -> Option<(Vec3, f64)> {
+        let h = Stamp::from_secs_f64(half_window).0;
+        let t0 = Stamp(at.0 - h);
+        let t1 = Stamp(at.0 + h).min(self.newest()?.0.max(at));
+        let span = t1.secs_since(t0);
+        if span <= 0.0 {
+            return None;
+        }
+        let (a, b, mid) = (
+            self.pose_at(t0).ok()?,
+            self.pose_at(t1).ok()?,
+            self.pose_at(at).ok()?,
+        );
+        let v_body = mid.rotation.inverse() * (b.translation.vector - a.translation.vector) / span;
+        let (_, _, dyaw) = (a.inverse() * b).rotation.euler_angles();
+        Some((v_body, dyaw / span))
+    }
+}
+
+/// Submap settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SubmapConfig {
+    /// Scans per radar stacked into a submap (default 10, the paper's N).
+    pub size: usize,
+    /// Scans older than the newest one by more than this are dropped, s (default 3.0): a submap never
+    /// spans a long stop in the data.
+    pub max_span: f64,
+}
+
+impl Default for SubmapConfig {
+    fn default() -> Self {
+        SubmapConfig {
+            size: 10,
+            max_span: 3.0,
+        }
+    }
+}
+
+impl SubmapConfig {
+    /// Rejects unusable values, naming the parameter under `prefix`.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        if self.size == 0 || self.size > 1000 {
+            return Err(ConfigError::new(
+                format!("{prefix}.size"),
+                "must be in 1..=1000 scans",
+            ));
+        }
+        if !(self.max_span.is_finite() && self.max_span > 0.0) {
+            return Err(ConfigError::new(
+                format!("{prefix}.max_span"),
+                "must be > 0 s",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A submap point, in the submap (anchor body) frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SubmapPoint {
+    /// Doppler-compensated position, m (eq. 4-5).
+    pub p: Vec3,
+    /// Covariance of `p`, m^2 (eq. 7-8).
+    pub cov: Mat3,
+    /// Measured (distorted) position, m.
+    pub p_raw: Vec3,
+    /// Covariance of `p_raw` (range and azimuth noise only), m^2.
+    pub cov_raw: Mat3,
+    /// Unit ray from the radar to the point.
+    pub ray: Vec3,
+    /// Measured radial velocity, m/s.
+    pub v_r: f64,
+    /// Index into [`Submap::scans`].
+    pub scan: u32,
+}
+
+/// One scan that went into a submap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SubmapScan {
+    /// Measurement time.
+    pub stamp: Stamp,
+    /// Radar index.
+    pub radar: usize,
+    /// Body pose at the scan's stamp in the anchor frame.
+    pub t_anchor_body: Iso3,
+    /// The radar's `beta`, s.
+    pub beta: f64,
+    /// Radar velocity fitted from this scan's Doppler (radar frame, m/s), when the fit succeeded.
+    pub doppler_velocity: Option<Vec3>,
+}
+
+/// The last N scans of every radar, in the body frame at the newest scan's stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Submap {
+    /// Stamp of the newest scan: the submap's frame is the body frame at this time.
+    pub anchor_stamp: Stamp,
+    /// Odometry pose of the anchor (`t_odom_anchor`).
+    pub t_odom_anchor: Iso3,
+    /// The points.
+    pub points: Vec<SubmapPoint>,
+    /// The scans, oldest first.
+    pub scans: Vec<SubmapScan>,
+}
+
+impl Submap {
+    /// Planar point set for registration: compensated (`p`, `cov`) or raw (`p_raw`, `cov_raw`) positions;
+    /// the covariance is the upper-left 2x2 block.
+    pub fn point_set(&self, compensated: bool) -> PointSet2 {
+        let mut out = PointSet2 {
+            points: Vec::with_capacity(self.points.len()),
+            covs: Vec::with_capacity(self.points.len()),
+        };
+        for q in &self.points {
+            let (p, c) = if compensated {
+                (q.p, q.cov)
+            } else {
+                (q.p_raw, q.cov_raw)
+            };
+            out.points.push(p.xy());
+            out.covs.push(c.fixed_view::<2, 2>(0, 0).into_owned());
+        }
+        out
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when the submap has no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+}
+
+/// What happened to one scan on its way into the submap window.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ScanReport {
+    /// Detections kept.
+    pub kept: usize,
+    /// Detections dropped as moving objects.
+    pub dynamic: usize,
+    /// Detections dropped because their ray was undefined (zero range, non-finite).
+    pub invalid: usize,
+    /// The Doppler ego-motion fit succeeded.
+    pub doppler_fit: bool,
+}
+
+#[derive(Debug, Clone)]
+struct StackedScan {
+    radar: usize,
+    stamp: Stamp,
+    t_odom_body: Iso3,
+    points: Vec<BodyPoint>,
+    doppler_velocity: Option<Vec3>,
+}
+
+/// Rolling window of processed scans, per radar, from which submaps are built.
+#[derive(Debug, Clone)]
+pub struct SubmapBuilder {
+    cfg: SubmapConfig,
+    ego: EgoMotionConfig,
+    radars: Vec<RadarModel>,
+    scans: VecDeque<StackedScan>,
+}
+
+impl SubmapBuilder {
+    /// A builder for the given radars (index = `RadarScan::radar`).
+    pub fn new(cfg: SubmapConfig, ego: EgoMotionConfig, radars: Vec<RadarModel>) -> Self {
+        SubmapBuilder {
+            cfg,
+            ego,
+            radars,
+            scans: VecDeque::new(),
+        }
+    }
+
+    /// The radars.
+    pub fn radars(&self) -> &[RadarModel] {
+        &self.radars
+    }
+
+    /// Forgets every scan (after time went backwards).
+    pub fn clear(&mut self) {
+        self.scans.clear();
+    }
+
+    /// Newest scan stamp held.
+    pub fn newest_stamp(&self) -> Option<Stamp> {
+        self.scans.iter().map(|s| s.stamp).max()
+    }
+
+    /// Adds one scan with the body pose at its stamp. Detections are compensated (eq. 4), given their
+    /// covariance (eq. 7-8), moved into the body frame (eq. 5); moving objects are dropped when
+    /// `reject_dynamic` is set, judged against the scan's own Doppler ego-motion fit, or, when that fails,
+    /// against `velocity_prior` (body velocity m/s and yaw rate rad/s, e.g. from odometry).
+    ///
+    /// `None` when `scan.radar` is not a configured radar.
+    pub fn add_scan(
+        &mut self,
+        scan: &RadarScan,
+        t_odom_body: Iso3,
+        velocity_prior: Option<(Vec3, f64)>,
+    ) -> Option<ScanReport> {
+        let model = self.radars.get(scan.radar)?;
+        let mut report = ScanReport::default();
+        // The prior seen by this radar: body velocity plus the yaw-rate lever arm, in the radar frame.
+        let prior_radar = velocity_prior.map(|(v, w)| {
+            let t = model.t_body_radar.translation.vector;
+            let v_at_radar = v + Vec3::new(-w * t.y, w * t.x, 0.0);
+            model.t_body_radar.rotation.inverse() * v_at_radar
+        });
+        let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, prior_radar, &self.ego).ok();
+        report.doppler_fit = fit.is_some();
+        let keep: Vec<bool> = match (&fit, prior_radar, self.ego.reject_dynamic) {
+            (_, _, false) => vec![true; scan.detections.len()],
+            (Some(f), _, true) => f.inliers.clone(),
+            (None, Some(p), true) => static_mask(&scan.detections, &p, self.ego.inlier_threshold),
+            (None, None, true) => vec![true; scan.detections.len()],
+        };
+        let mut points = Vec::with_capacity(scan.detections.len());
+        for (det, keep) in scan.detections.iter().zip(keep) {
+            match model.to_body(det) {
+                None => report.invalid += 1,
+                Some(_) if !keep => report.dynamic += 1,
+                Some(b) => points.push(b),
+            }
+        }
+        report.kept = points.len();
+        self.scans.push_back(StackedScan {
+            radar: scan.radar,
+            stamp: scan.stamp,
+            t_odom_body,
+            points,
+            doppler_velocity: fit.map(|f| f.v_radar),
+        });
+        self.trim();
+        Some(report)
+    }
+
+    fn trim(&mut self) {
+        let Some(newest) = self.newest_stamp() else {
+            return;
+        };
+        let max_span = self.cfg.max_span;
+        self.scans
+            .retain(|s| newest.secs_since(s.stamp) <= max_span);
+        for r in 0..self.radars.len() {
+            let count = self.scans.iter().filter(|s| s.radar == r).count();
+            let mut excess = count.saturating_sub(self.cfg.size);
+            // Scans arrive roughly in time order; drop this radar's oldest first.
+            while excess > 0 {
+                let oldest = self
+                    .scans
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| s.radar == r)
+                    .min_by_key(|(_, s)| s.stamp)
+                    .map(|(i, _)| i);
+                match oldest {
+                    Some(i) => {
+                        self.scans.remove(i);
+                    }
+                    None => break,
+                }
+                excess -= 1;
+            }
+        }
+    }
+
+    /// Scans currently held, over all radars.
+    pub fn scan_count(&self) -> usize {
+        self.scans.len()
+    }
+
+    /// Builds the submap in the body frame at the newest scan's stamp; `None` without scans.
+    pub fn build(&self) -> Option<Submap> {
+        let anchor = self.scans.iter().max_by_key(|s| s.stamp)?;
+        let t_anchor_odom = anchor.t_odom_body.inverse();
+        let mut order: Vec<&StackedScan> = self.scans.iter().collect();
+        order.sort_by_key(|s| (s.stamp, s.radar));
+        let mut sub = Submap {
+            anchor_stamp: anchor.stamp,
+            t_odom_anchor: anchor.t_odom_body,
+            points: Vec::with_capacity(order.iter().map(|s| s.points.len()).sum()),
+            scans: Vec::with_capacity(order.len()),
+        };
+        for (k, s) in order.iter().enumerate() {
+            let t_anchor_body = t_anchor_odom * s.t_odom_body;
+            let rot = t_anchor_body.rotation.to_rotation_matrix().into_inner();
+            let to_anchor = |p: Vec3| (t_anchor_body * nalgebra::Point3::from(p)).coords;
+            sub.scans.push(SubmapScan {
+                stamp: s.stamp,
+                radar: s.radar,
+                t_anchor_body,
+                beta: self.radars.get(s.radar).map_or(0.0, |m| m.beta),
+                doppler_velocity: s.doppler_velocity,
+            });
+            for b in &s.points {
+                sub.points.push(SubmapPoint {
+                    p: to_anchor(b.p),
+                    cov: rot * b.cov * rot.transpose(),
+                    p_raw: to_anchor(b.p_raw),
+                    cov_raw: rot * b.cov_raw * rot.transpose(),
+                    ray: rot * b.ray,
+                    v_r: b.v_r,
+                    scan: k as u32,
+                });
+            }
+        }
+        Some(sub)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{iso2_from_iso3, iso3_from_xyz_rpy};
+    use crate::radar::{Detection, RadarNoise};
+    use approx::assert_relative_eq;
+
+    fn odom_circle(buf: &mut OdometryBuffer, t_end: f64, rate: f64) {
+        // Constant speed 10 m/s, yaw rate 0.2 rad/s: an exact circle of radius 50 m.
+        let n = (t_end * rate) as usize;
+        for i in 0..=n {
+            let t = i as f64 / rate;
+            buf.push(Stamp::from_secs_f64(t), circle_pose(t)).unwrap();
+        }
+    }
+
+    fn circle_pose(t: f64) -> Iso3 {
+        let (v, w) = (10.0, 0.2);
+        let yaw = w * t;
+        iso3_from_xyz_rpy(
+            v / w * yaw.sin(),
+            v / w * (1.0 - yaw.cos()),
+            0.0,
+            0.0,
+            0.0,
+            yaw,
+        )
+    }
+
+    #[test]
+    fn interpolation_on_a_circle_and_its_limits() {
+        let mut buf = OdometryBuffer::new(OdometryConfig::default());
+        odom_circle(&mut buf, 5.0, 50.0);
+        for &t in &[0.0, 0.013, 1.0, 2.37, 4.999, 5.0] {
+            let p = buf.pose_at(Stamp::from_secs_f64(t)).unwrap();
+            let truth = circle_pose(t);
+            // Chord vs arc between 20 ms samples: <= v^2 w dt^2 / 8 ~ 1e-4 m.
+            assert_relative_eq!(
+                p.translation.vector,
+                truth.translation.vector,
+                epsilon = 2e-4
+            );
+            assert_relative_eq!(p.rotation.angle_to(&truth.rotation), 0.0, epsilon = 1e-9);
+        }
+        // 30 ms past the newest: extrapolated; 100 ms: not yet.
+        let e = buf.pose_at(Stamp::from_secs_f64(5.03)).unwrap();
+        assert_relative_eq!(
+            e.translation.vector,
+            circle_pose(5.03).translation.vector,
+            epsilon = 2e-3
+        );
+        assert!(matches!(
+            buf.pose_at(Stamp::from_secs_f64(5.1)),
+            Err(OdometryError::NotYet { .. })
+        ));
+        assert!(matches!(
+            buf.pose_at(Stamp::from_secs_f64(-0.1)),
+            Err(OdometryError::TooOld { .. })
+        ));
+        let (v, w) = buf.velocity_at(Stamp::from_secs_f64(2.0), 0.05).unwrap();
+        assert_relative_eq!(v, Vec3::new(10.0, 0.0, 0.0), epsilon = 1e-3);
+        assert_relative_eq!(w, 0.2, epsilon = 1e-6);
+        // Backwards time is refused and changes nothing.
+        let before = buf.len();
+        assert!(matches!(
+            buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0)),
+            Err(OdometryError::TimeWentBackwards { .. })
+        ));
+        assert_eq!(buf.len(), before);
+    }
+
+    #[test]
+    fn gaps_are_not_bridged() {
+        let mut buf = OdometryBuffer::new(OdometryConfig::default());
+        buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0))
+            .unwrap();
+        buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0))
+            .unwrap();
+        assert!(matches!(
+            buf.pose_at(Stamp::from_secs_f64(1.0)),
+            Err(OdometryError::Gap { .. })
+        ));
+        assert!(
+            buf.push(
+                Stamp::from_secs_f64(3.0),
+                Iso3::translation(f64::NAN, 0.0, 0.0)
+            )
+            .is_err()
+        );
+    }
+
+    /// A world of static points seen by a forward radar while driving the circle: every scan, placed with
+    /// interpolated odometry and compensated, lands its points on the true world points in the anchor frame.
+    #[test]
+    fn submap_stacks_compensated_scans_on_the_world() {
+        let mut odom = OdometryBuffer::new(OdometryConfig::default());
+        odom_circle(&mut odom, 3.0, 50.0);
+        let radar = RadarModel {
+            t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
+            beta: 0.04,
+            noise: RadarNoise::default(),
+        };
+        let world: Vec<Vec3> = (0..60)
+            .map(|i| {
+                let a = i as f64 * 0.37;
+                Vec3::new(40.0 + 30.0 * a.cos(), 25.0 + 30.0 * a.sin(), 0.5)
+            })
+            .collect();
+        let mut builder = SubmapBuilder::new(
+            SubmapConfig::default(),
+            EgoMotionConfig::default(),
+            vec![radar.clone()],
+        );
+        for k in 0..14 {
+            let t = 1.0 + k as f64 / 13.0;
+            let t_odom_body = circle_pose(t);
+            let (v_body, w) = (Vec3::new(10.0, 0.0, 0.0), 0.2);
+            let t_br = radar.t_body_radar.translation.vector;
+            let v_radar = radar.t_body_radar.rotation.inverse()
+                * (v_body + Vec3::new(-w * t_br.y, w * t_br.x, 0.0));
+            let t_odom_radar = t_odom_body * radar.t_body_radar;
+            let mut dets = Vec::new();
+            for q in &world {
+                let p = t_odom_radar.inverse() * nalgebra::Point3::from(*q);
+                let r = p.coords.norm();
+                if p.x <= 0.0 || r > 100.0 {
+                    continue;
+                }
+                let d = p.coords / r;
+                let v_r = -d.dot(&v_radar);
+                dets.push(Detection {
+                    p_radar: d * (r + 0.04 * v_r),
+                    v_r,
+                    rcs: None,
+                });
+            }
+            let scan = RadarScan {
+                radar: 0,
+                stamp: Stamp::from_secs_f64(t),
+                detections: dets,
+            };
+            let pose = odom.pose_at(scan.stamp).unwrap();
+            let prior = odom.velocity_at(scan.stamp, 0.05);
+            let rep = builder.add_scan(&scan, pose, prior).unwrap();
+            assert!(rep.doppler_fit);
+            assert_eq!(rep.dynamic, 0);
+        }
+        let sub = builder.build().unwrap();
+        assert_eq!(sub.scans.len(), 10, "only the last N = 10 scans");
+        assert_eq!(sub.anchor_stamp, Stamp::from_secs_f64(1.0 + 13.0 / 13.0));
+        let t_anchor_odom = circle_pose(2.0).inverse();
+        let truth: Vec<Vec3> = world
+            .iter()
+            .map(|q| (t_anchor_odom * nalgebra::Point3::from(*q)).coords)
+            .collect();
+        let mut worst_raw: f64 = 0.0;
+        for p in &sub.points {
+            let err = truth
+                .iter()
+                .map(|t| (t - p.p).norm())
+                .fold(f64::MAX, f64::min);
+            assert!(err < 1e-3, "compensated point off the world by {err}");
+            let err_raw = truth
+                .iter()
+                .map(|t| (t - p.p_raw).norm())
+                .fold(f64::MAX, f64::min);
+            worst_raw = worst_raw.max(err_raw);
+        }
+        assert!(
+            worst_raw > 0.3,
+            "the raw points do carry the Doppler distortion ({worst_raw})"
+        );
+        let ps = sub.point_set(true);
+        assert_eq!(ps.len(), sub.len());
+        assert_eq!(
+            iso2_from_iso3(&sub.scans[9].t_anchor_body)
+                .translation
+                .vector
+                .norm(),
+            0.0
+        );
+    }
+
+    #[test]
+    fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
+        let radars = vec![
+            RadarModel {
+                t_body_radar: Iso3::identity(),
+                beta: 0.04,
+                noise: RadarNoise::default(),
+            },
+            RadarModel {
+                t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, std::f64::consts::PI),
+                beta: 0.04,
+                noise: RadarNoise::default(),
+            },
+        ];
+        let cfg = SubmapConfig {
+            size: 3,
+            max_span: 3.0,
+        };
+        let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
+        for k in 0..8 {
+            for radar in 0..2 {
+                // Radar 1 faces backwards: it sees static points receding.
+                let v_radar = if radar == 0 {
+                    Vec3::new(10.0, 0.0, 0.0)
+                } else {
+                    Vec3::new(-10.0, 0.0, 0.0)
+                };
+                let mut dets: Vec<Detection> = (0..30)
+                    .map(|i| {
+                        let a = -1.0 + i as f64 / 15.0;
+                        let d = Vec3::new(a.cos(), a.sin(), 0.0);
+                        Detection {
+                            p_radar: d * (10.0 + i as f64),
+                            v_r: -d.dot(&v_radar),
+                            rcs: None,
+                        }
+                    })
+                    .collect();
+                // An oncoming car straight ahead.
+                dets.push(Detection {
+                    p_radar: Vec3::new(20.0, 0.5, 0.0),
+                    v_r: -25.0,
+                    rcs: None,
+                });
+                let scan = RadarScan {
+                    radar,
+                    stamp: Stamp::from_secs_f64(k as f64 * 0.077 + radar as f64 * 0.01),
+                    detections: dets,
+                };
+                let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+                assert_eq!(rep.dynamic, 1);
+                assert_eq!(rep.kept, 30);
+            }
+        }
+        assert_eq!(b.scan_count(), 6);
+        let sub = b.build().unwrap();
+        assert_eq!(sub.scans.iter().filter(|s| s.radar == 1).count(), 3);
+        assert!(
+            b.add_scan(
+                &RadarScan {
+                    radar: 5,
+                    ..Default::default()
+                },
+                Iso3::identity(),
+                None
+            )
+            .is_none()
+        );
+    }
+}

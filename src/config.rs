@@ -5,7 +5,11 @@
 //! Every `Default` is written by hand and documented; units are SI unless a name says otherwise.
 
 use crate::math::{Iso3, iso3_from_xyz_rpy};
+use crate::pipeline::{KeyframeConfig, LoopConfig};
 use crate::radar::RadarNoise;
+use crate::radar::ego_motion::EgoMotionConfig;
+use crate::registration::RegistrationConfig;
+use crate::submap::{OdometryConfig, SubmapConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -192,6 +196,18 @@ pub struct Config {
     pub radar_names: Vec<String>,
     /// Per-radar settings by name.
     pub radars: BTreeMap<String, RadarConfig>,
+    /// Odometry buffering and interpolation.
+    pub odometry: OdometryConfig,
+    /// Doppler ego-motion and moving-object rejection.
+    pub ego_motion: EgoMotionConfig,
+    /// Submap stacking.
+    pub submap: SubmapConfig,
+    /// Keyframe spacing.
+    pub keyframe: KeyframeConfig,
+    /// Revisit search and closure acceptance.
+    pub r#loop: LoopConfig,
+    /// Registration (descriptors, matching, RANSAC, LM).
+    pub registration: RegistrationConfig,
 }
 
 impl Default for Config {
@@ -203,6 +219,12 @@ impl Default for Config {
             body_frame: "base_link".into(),
             radar_names: vec!["front".into()],
             radars,
+            odometry: OdometryConfig::default(),
+            ego_motion: EgoMotionConfig::default(),
+            submap: SubmapConfig::default(),
+            keyframe: KeyframeConfig::default(),
+            r#loop: LoopConfig::default(),
+            registration: RegistrationConfig::default(),
         }
     }
 }
@@ -248,7 +270,12 @@ impl Config {
                 "configured but not listed in radar_names",
             ));
         }
-        Ok(())
+        self.odometry.validate("odometry")?;
+        self.ego_motion.validate("ego_motion")?;
+        self.submap.validate("submap")?;
+        self.keyframe.validate("keyframe")?;
+        self.r#loop.validate("loop")?;
+        self.registration.validate()
     }
 }
 

@@ -1,1 +1,17 @@
-//! (being written)
+//! Readers for recorded radar data files (no ROS involved).
+//!
+//! Entry points:
+//! - [`nuscenes_pcd`]: nuScenes ARS408 radar PCD files ([`nuscenes_pcd::NuscenesRadarPcd`], all 18
+//!   fields per point, the devkit's default filter [`nuscenes_pcd::NuscenesRadarFilter`], conversion to
+//!   [`Detection`] from the RAW `vx, vy` projected on the ray, and [`nuscenes_pcd::pcd_to_pointcloud2`]
+//!   which wraps the PCD records into the PointCloud2 that nuscenes2bag/nuscenes2mcap published).
+//! - [`vod`]: View-of-Delft 4D-radar `.bin` frames ([`vod::read_radar_bin`]), camera poses
+//!   ([`vod::VodPoses`]) and KITTI calibration ([`vod::KittiCalib::t_camera_radar`]).
+//!
+//! Every reader returns a typed error naming the file, header key or field at fault; none panics on
+//! malformed bytes.
+//!
+//! [`Detection`]: crate::radar::Detection
+
+pub mod nuscenes_pcd;
+pub mod vod;

@@ -892,8 +892,8 @@ fn speed_estimator_restarts_and_reports_failures() {
     // Same stamp again: restart, no estimate.
     assert!(est.push(at(1), scans[1].clone()).unwrap().is_none());
     assert!(est.forward_speed().is_none());
-    for k in 2..6 {
-        assert!(est.push(at(k), scans[k].clone()).unwrap().is_some());
+    for (k, scan) in scans.iter().enumerate().take(6).skip(2) {
+        assert!(est.push(at(k), scan.clone()).unwrap().is_some());
     }
     // An empty scan: an error, and the motion is forgotten.
     assert!(est.push(at(6), Vec::new()).is_err());

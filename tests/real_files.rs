@@ -16,24 +16,8 @@ use dc_loc::math::{Mat2, Mat3, Vec2, Vec3};
 use dc_loc::msgs::sensor_msgs::PointField;
 use dc_loc::msgs::std_msgs::Header;
 use nalgebra::Matrix4;
-use std::path::PathBuf;
-
-fn real_data() -> Option<PathBuf> {
-    let manifest = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let mut candidates = Vec::new();
-    if let Some(dir) = std::env::var_os("DC_LOC_REAL_DATA") {
-        candidates.push(PathBuf::from(dir));
-    }
-    candidates.push(manifest.join("../shared/data/real"));
-    candidates.push(manifest.join("../../shared/data/real"));
-    let found = candidates.iter().find(|p| p.is_dir()).cloned();
-    if found.is_none() {
-        eprintln!(
-            "SKIPPED: real data folder not found (tried {candidates:?}); set DC_LOC_REAL_DATA to run"
-        );
-    }
-    found
-}
+mod common;
+use common::real_data;
 
 const BACK_RIGHT: &str =
     "nuscenes-radar-pcd/n008-2018-08-01-15-34-25-0400__RADAR_BACK_RIGHT__1533152711219287.pcd";

@@ -25,6 +25,10 @@ pub struct EgoMotionConfig {
     pub reject_dynamic: bool,
     /// Largest |v_r + d . v| of a static detection, m/s (default 0.3: 3 sigma of the 0.1 m/s velocity noise).
     pub inlier_threshold: f64,
+    /// Lower bound of the adaptive inlier threshold, m/s (default 0.03). After RANSAC the threshold
+    /// shrinks to 3.5 robust sigmas of the residuals seen, within [this, `inlier_threshold`]; set it equal
+    /// to `inlier_threshold` for a fixed threshold.
+    pub min_inlier_threshold: f64,
     /// Fewest static detections for a fit to count (default 6).
     pub min_inliers: usize,
     /// Upper bound on RANSAC hypotheses (default 200; stops earlier once 99.9 % confident).
@@ -41,6 +45,7 @@ impl Default for EgoMotionConfig {
         EgoMotionConfig {
             reject_dynamic: true,
             inlier_threshold: 0.3,
+            min_inlier_threshold: 0.03,
             min_inliers: 6,
             max_iterations: 200,
             prior_tolerance: 3.0,
@@ -55,6 +60,13 @@ impl EgoMotionConfig {
         let n = |f: &str| format!("{prefix}.{f}");
         if !(self.inlier_threshold.is_finite() && self.inlier_threshold > 0.0) {
             return Err(ConfigError::new(n("inlier_threshold"), "must be > 0 m/s"));
+        }
+        if !(self.min_inlier_threshold > 0.0 && self.min_inlier_threshold <= self.inlier_threshold)
+        {
+            return Err(ConfigError::new(
+                n("min_inlier_threshold"),
+                "must be in (0, inlier_threshold] m/s",
+            ));
         }
         if self.min_inliers < 3 {
             return Err(ConfigError::new(n("min_inliers"), "must be at least 3"));
@@ -159,6 +171,7 @@ struct LinearRansac<'a> {
     b: &'a [f64],
     unknowns: usize,
     threshold: f64,
+    min_threshold: f64,
     prior: Option<(Vec3, f64)>,
 }
 
@@ -176,9 +189,9 @@ impl LinearRansac<'_> {
         self.b[i] - (0..self.unknowns).map(|k| a[k] * x[k]).sum::<f64>()
     }
 
-    fn consensus(&self, x: &Vec3) -> (usize, Vec<bool>) {
+    fn consensus(&self, x: &Vec3, threshold: f64) -> (usize, Vec<bool>) {
         let mask: Vec<bool> = (0..self.b.len())
-            .map(|i| self.residual(i, x).abs() <= self.threshold)
+            .map(|i| self.residual(i, x).abs() <= threshold)
             .collect();
         (mask.iter().filter(|m| **m).count(), mask)
     }
@@ -253,7 +266,7 @@ impl LinearRansac<'_> {
                     continue;
                 }
             }
-            let (count, _) = self.consensus(&x);
+            let (count, _) = self.consensus(&x, self.threshold);
             if best.is_none_or(|(c, _)| count > c) {
                 best = Some((count, x));
                 // Adaptive stop: 99.9 % confidence of one all-inlier minimal set.
@@ -276,16 +289,28 @@ impl LinearRansac<'_> {
                 need,
             });
         }
-        // Refine: least squares on the consensus, re-select, twice.
+        // Refine: least squares on the consensus, then re-select with a threshold adapted to the noise
+        // actually seen (3.5 robust sigmas from the median absolute residual, between `min_threshold` and
+        // the configured threshold): a radar with 0.01 m/s Doppler noise should not let slow walkers in.
         let mut cov = Mat3::zeros();
-        let (mut count, mut mask) = self.consensus(&x);
-        for _ in 0..3 {
+        let mut threshold = self.threshold;
+        let (mut count, mut mask) = self.consensus(&x, threshold);
+        for _ in 0..6 {
             let Some((xr, c)) = self.least_squares(&mask) else {
                 return Err(EgoMotionError::Degenerate);
             };
             x = xr;
             cov = c;
-            let (c2, m2) = self.consensus(&x);
+            if self.min_threshold < self.threshold {
+                let mut abs: Vec<f64> = (0..n)
+                    .filter(|&i| mask[i])
+                    .map(|i| self.residual(i, &x).abs())
+                    .collect();
+                abs.sort_by(f64::total_cmp);
+                let sigma = 1.4826 * abs.get(abs.len() / 2).copied().unwrap_or(self.threshold);
+                threshold = (3.5 * sigma).clamp(self.min_threshold, self.threshold);
+            }
+            let (c2, m2) = self.consensus(&x, threshold);
             if m2 == mask {
                 break;
             }
@@ -346,6 +371,7 @@ pub fn fit_radar_velocity(
         b: &b,
         unknowns: if full { 3 } else { 2 },
         threshold: cfg.inlier_threshold,
+        min_threshold: cfg.min_inlier_threshold,
         prior: prior.map(|p| {
             (
                 if full { p } else { Vec3::new(p.x, p.y, 0.0) },
@@ -398,6 +424,7 @@ pub fn fit_body_twist(
         b: &b,
         unknowns: 3,
         threshold: cfg.inlier_threshold,
+        min_threshold: cfg.min_inlier_threshold,
         prior: prior.map(|p| (p, cfg.prior_tolerance)),
     };
     let fit = solver.run(cfg)?;

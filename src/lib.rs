@@ -12,6 +12,7 @@ pub mod config;
 pub mod io;
 pub mod math;
 pub mod msgs;
+pub mod params;
 pub mod pipeline;
 pub mod radar;
 pub mod registration;

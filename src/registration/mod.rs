@@ -2,9 +2,21 @@
 //!
 //! Entry points: [`PointSet2`] (points with 2x2 covariances, the input of every method),
 //! [`RegistrationResult`] (output of every method, DC-Loc and baselines alike), [`RegistrationError`],
-//! [`covariance_ros_from_se2`].
+//! [`covariance_ros_from_se2`]; DC-Loc itself: [`RegistrationConfig`], [`PreparedSubmap`] (a submap
+//! with its descriptors and k-d trees, built once per keyframe), [`register`] / [`register_prepared`]
+//! (descriptors -> KNN -> RANSAC -> LM) and [`register_detailed`] (the same, with the
+//! correspondences and inliers). The steps are public for reuse (e.g. by the MC-RANSAC-style
+//! baseline): [`descriptor`] (RSD), [`matching`] (KNN), [`ransac`], [`lm`] (eq. 10), [`robust`].
 //! Naming: the *source* is the current (query) submap X, the *target* the previous (match) submap Y;
 //! `t_target_source` maps source coordinates into the target frame (paper: `T_b^p`), `d_i = y_i - T x_i`.
+//! Pose covariances are over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (right
+//! perturbation in the source body frame, GTSAM `Pose2` convention) before the ROS reordering.
+
+pub mod descriptor;
+pub mod lm;
+pub mod matching;
+pub mod ransac;
+pub mod robust;
 
 use crate::math::{Iso2, Mat2, Mat3, Mat6, Vec2};
 
@@ -97,6 +109,289 @@ pub fn covariance_ros_from_se2(cov_xy_theta: &Mat3) -> Mat6 {
         c[(k, k)] = UNOBSERVED_VARIANCE;
     }
     c
+}
+
+/// All DC-Loc registration parameters; mirrors the `registration` section of the params YAML.
+///
+/// Defaults are written out on each field; [`RegistrationConfig::validate`] rejects (never clamps)
+/// unusable values and names them as `registration.<section>.<field>`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RegistrationConfig {
+    /// Fewest points a submap must have (default 10).
+    pub min_points: usize,
+    /// Fewest RANSAC inliers for a result (default 10).
+    pub min_inliers: usize,
+    /// Smallest standard deviation of the inlier source points along their least-spread direction, m
+    /// (default 1.0). Below it the inliers lie on a line (or a point): descriptor matches can slide
+    /// along it, so the registration is refused rather than reported with a covariance that lies.
+    pub min_inlier_spread: f64,
+    /// Descriptors (RSD).
+    pub descriptor: descriptor::DescriptorConfig,
+    /// KNN matching in descriptor space.
+    pub matching: matching::MatchingConfig,
+    /// RANSAC.
+    pub ransac: ransac::RansacConfig,
+    /// Levenberg-Marquardt (eq. 10) and the covariance.
+    pub lm: lm::LmConfig,
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        RegistrationConfig {
+            min_points: 10,
+            min_inliers: 10,
+            min_inlier_spread: 1.0,
+            descriptor: descriptor::DescriptorConfig::default(),
+            matching: matching::MatchingConfig::default(),
+            ransac: ransac::RansacConfig::default(),
+            lm: lm::LmConfig::default(),
+        }
+    }
+}
+
+impl RegistrationConfig {
+    /// Rejects values that cannot work; the error names the parameter (`registration.*`).
+    pub fn validate(&self) -> Result<(), crate::config::ConfigError> {
+        use crate::config::ConfigError;
+        if self.min_points < 3 {
+            return Err(ConfigError::new(
+                "registration.min_points",
+                format!("{} is below 3", self.min_points),
+            ));
+        }
+        if self.min_inliers < 3 {
+            return Err(ConfigError::new(
+                "registration.min_inliers",
+                format!(
+                    "{} is below 3 (the covariance needs more pairs than unknowns)",
+                    self.min_inliers
+                ),
+            ));
+        }
+        if !(self.min_inlier_spread.is_finite() && self.min_inlier_spread >= 0.0) {
+            return Err(ConfigError::new(
+                "registration.min_inlier_spread",
+                format!("{} must be finite and >= 0 m", self.min_inlier_spread),
+            ));
+        }
+        self.descriptor.validate("registration.descriptor")?;
+        self.matching.validate("registration.matching")?;
+        self.ransac.validate("registration.ransac")?;
+        self.lm.validate("registration.lm")
+    }
+}
+
+/// A submap ready for matching: its points, descriptors and descriptor k-d tree. Build it once per
+/// keyframe and reuse it for every registration against that keyframe.
+#[derive(Debug)]
+pub struct PreparedSubmap {
+    points: PointSet2,
+    descriptors: Vec<descriptor::Descriptor>,
+    tree: matching::DescriptorTree,
+    descriptor_config: descriptor::DescriptorConfig,
+}
+
+impl PreparedSubmap {
+    /// Checks the points (finite, one covariance each, symmetric positive definite) and computes
+    /// the descriptors and their tree.
+    pub fn new(
+        points: PointSet2,
+        cfg: &descriptor::DescriptorConfig,
+    ) -> Result<Self, RegistrationError> {
+        check_point_set(&points)?;
+        let descriptors = descriptor::compute_descriptors(&points.points, cfg)?;
+        let tree = matching::descriptor_tree(&descriptors)?;
+        Ok(PreparedSubmap {
+            points,
+            descriptors,
+            tree,
+            descriptor_config: cfg.clone(),
+        })
+    }
+    /// The points and covariances.
+    pub fn points(&self) -> &PointSet2 {
+        &self.points
+    }
+    /// One descriptor per point.
+    pub fn descriptors(&self) -> &[descriptor::Descriptor] {
+        &self.descriptors
+    }
+    /// The descriptor k-d tree.
+    pub fn tree(&self) -> &matching::DescriptorTree {
+        &self.tree
+    }
+    /// The descriptor settings it was built with.
+    pub fn descriptor_config(&self) -> &descriptor::DescriptorConfig {
+        &self.descriptor_config
+    }
+}
+
+fn check_point_set(set: &PointSet2) -> Result<(), RegistrationError> {
+    if set.covs.len() != set.points.len() {
+        return Err(RegistrationError::Numerical(format!(
+            "{} points but {} covariances",
+            set.points.len(),
+            set.covs.len()
+        )));
+    }
+    for (i, (p, c)) in set.points.iter().zip(&set.covs).enumerate() {
+        let finite = p.iter().chain(c.iter()).all(|v| v.is_finite());
+        let det = c[(0, 0)] * c[(1, 1)] - c[(0, 1)] * c[(1, 0)];
+        if !finite || c[(0, 0)] <= 0.0 || det <= 0.0 {
+            return Err(RegistrationError::Numerical(format!(
+                "point {i}: non-finite position or covariance not positive definite"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Everything [`register_detailed`] found, for evaluation and plots.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegistrationDetail {
+    /// The result as every method reports it.
+    pub result: RegistrationResult,
+    /// 3x3 covariance over `(x, y, theta)`, `T_true = T_est * Exp(delta)`.
+    pub covariance_se2: Mat3,
+    /// Candidate correspondences from descriptor matching.
+    pub candidates: Vec<ransac::Correspondence>,
+    /// Indices into `candidates` of the RANSAC inliers that went into LM.
+    pub inliers: Vec<usize>,
+    /// The RANSAC estimate (LM's initial guess).
+    pub t_ransac: Iso2,
+    /// RANSAC draws.
+    pub ransac_iterations: usize,
+}
+
+/// DC-Loc registration of the current submap (`source`) against a previous one (`target`).
+///
+/// Prepares both (descriptors) and runs [`register_prepared`]. When the target is a keyframe matched
+/// many times, prepare it once with [`PreparedSubmap::new`] instead.
+pub fn register(
+    source: &PointSet2,
+    target: &PointSet2,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationResult, RegistrationError> {
+    check_sizes(source.len(), target.len(), cfg)?;
+    let s = PreparedSubmap::new(source.clone(), &cfg.descriptor)?;
+    let t = PreparedSubmap::new(target.clone(), &cfg.descriptor)?;
+    register_prepared(&s, &t, cfg)
+}
+
+/// As [`register`], on prepared submaps.
+pub fn register_prepared(
+    source: &PreparedSubmap,
+    target: &PreparedSubmap,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationResult, RegistrationError> {
+    register_detailed(source, target, cfg).map(|d| d.result)
+}
+
+fn check_sizes(ns: usize, nt: usize, cfg: &RegistrationConfig) -> Result<(), RegistrationError> {
+    let need = cfg.min_points.max(2);
+    for have in [ns, nt] {
+        if have < need {
+            return Err(RegistrationError::TooFewPoints { have, need });
+        }
+    }
+    Ok(())
+}
+
+/// The DC-Loc pipeline, steps in order: KNN in descriptor space -> RANSAC -> geometry check ->
+/// LM on eq. 10 -> covariance.
+pub fn register_detailed(
+    source: &PreparedSubmap,
+    target: &PreparedSubmap,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationDetail, RegistrationError> {
+    check_sizes(source.points.len(), target.points.len(), cfg)?;
+    if source.descriptor_config != target.descriptor_config {
+        return Err(RegistrationError::Numerical(
+            "source and target descriptors were built with different settings".into(),
+        ));
+    }
+    // 1. Coarse association: K nearest neighbours in descriptor space (RSD).
+    let candidates = matching::match_descriptors(
+        &source.descriptors,
+        &target.descriptors,
+        &target.tree,
+        Some(&source.tree),
+        &cfg.matching,
+    );
+    // 2. RANSAC on a planar rigid motion removes the false matches.
+    let rs = ransac::ransac(&source.points, &target.points, &candidates, &cfg.ransac)?;
+    if rs.inliers.len() < cfg.min_inliers {
+        return Err(RegistrationError::TooFewInliers {
+            have: rs.inliers.len(),
+            need: cfg.min_inliers,
+        });
+    }
+    let pairs: Vec<(usize, usize)> = rs
+        .inliers
+        .iter()
+        .map(|&k| {
+            let c = &candidates[k];
+            (c.source as usize, c.target as usize)
+        })
+        .collect();
+    // 3. Inliers along a line (or on a point) cannot fix the motion along it: refuse.
+    let spread = min_spread(pairs.iter().map(|&(i, _)| source.points.points[i]));
+    if spread < cfg.min_inlier_spread {
+        return Err(RegistrationError::Numerical(format!(
+            "degenerate inlier geometry: spread {spread:.3} m along the thinnest direction is below \
+             registration.min_inlier_spread = {} m",
+            cfg.min_inlier_spread
+        )));
+    }
+    // 4. Uncertainty-aware refinement, eq. (10), from the RANSAC estimate; covariance at the optimum.
+    let lm = lm::refine(
+        &source.points,
+        &target.points,
+        &pairs,
+        &rs.t_target_source,
+        &cfg.lm,
+    )?;
+    let result = RegistrationResult {
+        t_target_source: lm.t_target_source,
+        covariance: covariance_ros_from_se2(&lm.covariance),
+        converged: lm.converged,
+        iterations: lm.iterations,
+        inliers: pairs.len(),
+        candidates: candidates.len(),
+        cost: lm.cost,
+    };
+    Ok(RegistrationDetail {
+        result,
+        covariance_se2: lm.covariance,
+        candidates,
+        inliers: rs.inliers,
+        t_ransac: rs.t_target_source,
+        ransac_iterations: rs.iterations,
+    })
+}
+
+/// Standard deviation of points along their least-spread direction, m (0 for fewer than 2 points).
+fn min_spread(points: impl Iterator<Item = Vec2> + Clone) -> f64 {
+    let (mut n, mut sum) = (0.0, Vec2::zeros());
+    for p in points.clone() {
+        n += 1.0;
+        sum += p;
+    }
+    if n < 2.0 {
+        return 0.0;
+    }
+    let mean = sum / n;
+    let mut c = Mat2::zeros();
+    for p in points {
+        let d = p - mean;
+        c += d * d.transpose();
+    }
+    c /= n;
+    let tr = c[(0, 0)] + c[(1, 1)];
+    let det = c[(0, 0)] * c[(1, 1)] - c[(0, 1)] * c[(1, 0)];
+    let lmin = 0.5 * tr - (0.25 * tr * tr - det).max(0.0).sqrt();
+    lmin.max(0.0).sqrt()
 }
 
 #[cfg(test)]

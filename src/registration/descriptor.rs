@@ -89,6 +89,14 @@ pub struct DescriptorConfig {
     pub angular_weight: f64,
     /// Normalisation (default `hellinger`).
     pub normalisation: Normalisation,
+    /// Most points used as neighbours (the "support"): above it the statistics are taken over a
+    /// fixed pseudo-random subset of this size (default 1500). Bounds the cost for dense submaps and,
+    /// with the normalisation, makes dense and sparse submaps of a place look alike.
+    pub max_support: usize,
+    /// Most points that get a descriptor (the "keypoints"): above it a fixed pseudo-random subset
+    /// (default 1000). A submap stacks several scans, so each reflector appears several times and
+    /// a subset still holds most reflectors; this bounds the matching database.
+    pub max_keypoints: usize,
 }
 
 impl Default for DescriptorConfig {
@@ -100,6 +108,8 @@ impl Default for DescriptorConfig {
             angular_bins: 6,
             angular_weight: 1.0,
             normalisation: Normalisation::Hellinger,
+            max_support: 1500,
+            max_keypoints: 500,
         }
     }
 }
@@ -148,6 +158,15 @@ impl DescriptorConfig {
                 ),
             ));
         }
+        if self.max_support < 2 {
+            return Err(ConfigError::new(name("max_support"), "must be at least 2"));
+        }
+        if self.max_keypoints < 2 {
+            return Err(ConfigError::new(
+                name("max_keypoints"),
+                "must be at least 2",
+            ));
+        }
         if !(self.angular_weight.is_finite() && self.angular_weight >= 0.0) {
             return Err(ConfigError::new(
                 name("angular_weight"),
@@ -158,33 +177,65 @@ impl DescriptorConfig {
     }
 }
 
-/// A k-d tree over 2-D points (for neighbourhood queries).
+/// A k-d tree over 2-D points (for neighbourhood queries); item = index into the support list.
 pub type PointTree = ImmutableKdTree<f64, 2>;
 
-/// Builds the 2-D point tree used by [`compute_descriptors_with_tree`].
-///
-/// Errors only when the point count does not fit the tree's `u32` item index.
-pub fn point_tree(points: &[Vec2]) -> Result<PointTree, RegistrationError> {
-    let pts: Vec<[f64; 2]> = points.iter().map(|p| [p.x, p.y]).collect();
-    PointTree::new_from_slice(&pts)
-        .map_err(|e| RegistrationError::Numerical(format!("point k-d tree: {e}")))
+/// A pseudo-random subset of `0..n` of size `max` (all of `0..n` when `n <= max`), ascending.
+/// Deterministic: the same `(n, max, seed)` always gives the same subset.
+pub fn subset_indices(n: usize, max: usize, seed: u64) -> Vec<u32> {
+    let mut idx: Vec<u32> = (0..n as u32).collect();
+    if n > max {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        // Partial Fisher-Yates: the first `max` entries become a uniform random subset.
+        for i in 0..max {
+            let j = rng.random_range(i..n);
+            idx.swap(i, j);
+        }
+        idx.truncate(max);
+        idx.sort_unstable();
+    }
+    idx
 }
 
-/// Descriptors of all points (see the module doc). Points must be finite; `cfg` must be valid.
+const SUPPORT_SEED: u64 = 0x5D_5E1E_C701;
+const KEYPOINT_SEED: u64 = 0x4B_E7B0_1A72;
+
+/// The keypoints of a submap of `n` points: the points that get a descriptor (all, or a fixed
+/// pseudo-random subset of `cfg.max_keypoints`).
+pub fn keypoint_indices(n: usize, cfg: &DescriptorConfig) -> Vec<u32> {
+    subset_indices(n, cfg.max_keypoints, KEYPOINT_SEED)
+}
+
+/// Descriptors of the points `keypoints` (indices into `points`), in that order (see the module
+/// doc). Points must be finite; `cfg` must be valid.
+///
+/// Errors only when the support does not fit the k-d tree's `u32` item index.
 pub fn compute_descriptors(
     points: &[Vec2],
+    keypoints: &[u32],
     cfg: &DescriptorConfig,
 ) -> Result<Vec<Descriptor>, RegistrationError> {
+    let support = subset_indices(points.len(), cfg.max_support, SUPPORT_SEED);
+    let coords: Vec<[f64; 2]> = support
+        .iter()
+        .map(|&i| {
+            let p = points[i as usize];
+            [p.x, p.y]
+        })
+        .collect();
+    let tree = PointTree::new_from_slice(&coords)
+        .map_err(|e| RegistrationError::Numerical(format!("point k-d tree: {e}")))?;
     Ok(compute_descriptors_with_tree(
-        points,
-        &point_tree(points)?,
-        cfg,
+        points, keypoints, &support, &tree, cfg,
     ))
 }
 
-/// As [`compute_descriptors`], reusing a tree built over `points` by [`point_tree`].
+/// As [`compute_descriptors`], with a tree built over `points[support[k]]` (item `k`).
 pub fn compute_descriptors_with_tree(
     points: &[Vec2],
+    keypoints: &[u32],
+    support: &[u32],
     tree: &PointTree,
     cfg: &DescriptorConfig,
 ) -> Vec<Descriptor> {
@@ -194,79 +245,107 @@ pub fn compute_descriptors_with_tree(
         _ => cfg.angular_bins.min(DESCRIPTOR_DIM - nr),
     };
     let r2 = cfg.radius * cfg.radius;
-    let inv_width = nr as f64 / cfg.radius;
-    let sector_scale = na as f64 / std::f64::consts::TAU;
-    let mut out = Vec::with_capacity(points.len());
-    // Scratch reused for every point: no allocation per point.
+    let inv_width = (nr as f64 / cfg.radius) as f32;
+    let sector_scale = (na as f64 / std::f64::consts::TAU) as f32;
+    let mut out = Vec::with_capacity(keypoints.len());
+    // Scratch reused for every point: no allocation per point once the buffers have grown.
     let mut radial = [0.0f64; DESCRIPTOR_DIM];
     let mut angular = [0.0f64; DESCRIPTOR_DIM];
-    let mut spec_re = [0.0f64; DESCRIPTOR_DIM];
-    let mut spec_im = [0.0f64; DESCRIPTOR_DIM];
-    for (idx, p) in points.iter().enumerate() {
+    let (mut dx, mut dy, mut rho) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut zr, mut zi) = (Vec::new(), Vec::new());
+    for &idx in keypoints {
+        let Some(p) = points.get(idx as usize) else {
+            out.push([0.0; DESCRIPTOR_DIM]);
+            continue;
+        };
         radial[..nr].fill(0.0);
-        spec_re[..na].fill(0.0);
-        spec_im[..na].fill(0.0);
         angular[..na].fill(0.0);
-        let mut count = 0.0f64;
+        // 1. Gather the neighbours' offsets (the point itself and exact duplicates, at distance 0,
+        //    are not neighbours).
+        dx.clear();
+        dy.clear();
+        rho.clear();
         tree.query(&[p.x, p.y])
             .within::<SquaredEuclidean<f64>>(r2)
             .unsorted()
             .visit(|res| {
-                let j = res.item as usize;
-                if j == idx || res.distance <= 0.0 {
+                if res.distance <= 0.0 {
                     return;
                 }
-                let Some(q) = points.get(j) else { return };
-                let rho = res.distance.sqrt();
-                count += 1.0;
-                // Radial ring, soft assignment between the two nearest ring centres.
-                let f = rho * inv_width - 0.5;
-                if f <= 0.0 {
-                    radial[0] += 1.0;
-                } else {
-                    let i0 = f as usize;
-                    if i0 + 1 >= nr {
-                        radial[nr - 1] += 1.0;
-                    } else {
-                        let w1 = f - i0 as f64;
-                        radial[i0] += 1.0 - w1;
-                        radial[i0 + 1] += w1;
-                    }
-                }
-                if na == 0 {
+                let Some(q) = support
+                    .get(res.item as usize)
+                    .and_then(|&j| points.get(j as usize))
+                else {
                     return;
-                }
-                let (ux, uy) = ((q.x - p.x) / rho, (q.y - p.y) / rho);
-                match cfg.angular {
-                    AngularStatistic::Spectrum => {
-                        // exp(i k phi) by repeated complex multiplication: no trigonometry.
-                        let (mut zr, mut zi) = (ux, uy);
-                        for k in 0..na {
-                            spec_re[k] += zr;
-                            spec_im[k] += zi;
-                            let nzr = zr * ux - zi * uy;
-                            zi = zr * uy + zi * ux;
-                            zr = nzr;
+                };
+                dx.push((q.x - p.x) as f32);
+                dy.push((q.y - p.y) as f32);
+                rho.push(res.distance as f32);
+            });
+        let count = rho.len() as f64;
+        // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise.
+        for r in rho.iter_mut() {
+            *r = r.sqrt();
+        }
+        // Radial ring, soft assignment between the two nearest ring centres. Four interleaved
+        // histograms break the store-to-load dependency between neighbours in the same ring.
+        let mut hist = [[0.0f32; DESCRIPTOR_DIM]; 4];
+        let last = (nr - 1) as f32;
+        for (c, &r) in rho.iter().enumerate() {
+            let f = (r * inv_width - 0.5).clamp(0.0, last);
+            let i0 = (f as usize).min(nr - 1);
+            let w1 = f - i0 as f32;
+            let h = &mut hist[c & 3];
+            h[i0] += 1.0 - w1;
+            if i0 + 1 < nr {
+                h[i0 + 1] += w1;
+            }
+        }
+        for (k, v) in radial.iter_mut().enumerate().take(nr) {
+            *v = (hist[0][k] + hist[1][k] + hist[2][k] + hist[3][k]) as f64;
+        }
+        if na > 0 {
+            for ((x, y), r) in dx.iter_mut().zip(dy.iter_mut()).zip(&rho) {
+                *x /= r;
+                *y /= r;
+            }
+        }
+        match cfg.angular {
+            AngularStatistic::Spectrum if na > 0 => {
+                // sum_q exp(i k phi_q), k = 1..na, by repeated complex multiplication.
+                zr.clear();
+                zr.extend_from_slice(&dx);
+                zi.clear();
+                zi.extend_from_slice(&dy);
+                for (k, a) in angular.iter_mut().enumerate().take(na) {
+                    let (sr, si) = (sum_lanes(&zr), sum_lanes(&zi));
+                    *a = (sr * sr + si * si).sqrt();
+                    if k + 1 < na {
+                        for ((r, i), (ux, uy)) in
+                            zr.iter_mut().zip(zi.iter_mut()).zip(dx.iter().zip(&dy))
+                        {
+                            let nr_ = *r * ux - *i * uy;
+                            *i = *r * uy + *i * ux;
+                            *r = nr_;
                         }
                     }
-                    AngularStatistic::Sectors => {
-                        let phi = uy.atan2(ux).rem_euclid(std::f64::consts::TAU);
-                        // Soft assignment between the two nearest sector centres (cyclic).
-                        let f = phi * sector_scale - 0.5;
-                        let f = if f < 0.0 { f + na as f64 } else { f };
-                        let i0 = (f as usize).min(na - 1);
-                        let w1 = f - i0 as f64;
-                        angular[i0] += 1.0 - w1;
-                        angular[(i0 + 1) % na] += w1;
-                    }
-                    AngularStatistic::None => {}
                 }
-            });
-        if cfg.angular == AngularStatistic::Spectrum {
-            for k in 0..na {
-                angular[k] = (spec_re[k] * spec_re[k] + spec_im[k] * spec_im[k]).sqrt();
             }
-        } else if cfg.angular == AngularStatistic::Sectors && na > 0 {
+            AngularStatistic::Sectors if na > 0 => {
+                for (x, y) in dx.iter().zip(&dy) {
+                    let phi = y.atan2(*x).rem_euclid(std::f32::consts::TAU);
+                    // Soft assignment between the two nearest sector centres (cyclic).
+                    let f = phi * sector_scale - 0.5;
+                    let f = if f < 0.0 { f + na as f32 } else { f };
+                    let i0 = (f as usize).min(na - 1);
+                    let w1 = (f - i0 as f32).clamp(0.0, 1.0) as f64;
+                    angular[i0] += 1.0 - w1;
+                    angular[(i0 + 1) % na] += w1;
+                }
+            }
+            _ => {}
+        }
+        if cfg.angular == AngularStatistic::Sectors && na > 0 {
             let (mut best, mut best_v) = (0usize, f64::NEG_INFINITY);
             for (k, &v) in angular[..na].iter().enumerate() {
                 if v > best_v {
@@ -279,6 +358,19 @@ pub fn compute_descriptors_with_tree(
         out.push(finish(&radial[..nr], &angular[..na], count, cfg));
     }
     out
+}
+
+/// Sum in f64 of eight interleaved f32 partial sums (vectorisable, unlike a sequential fold).
+fn sum_lanes(v: &[f32]) -> f64 {
+    let mut acc = [0.0f32; 8];
+    let mut chunks = v.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, x) in acc.iter_mut().zip(c) {
+            *a += x;
+        }
+    }
+    let tail: f32 = chunks.remainder().iter().sum();
+    acc.iter().map(|&a| a as f64).sum::<f64>() + tail as f64
 }
 
 /// Normalises and packs the two parts into one descriptor.
@@ -344,6 +436,10 @@ mod tests {
     use super::*;
     use crate::math::Iso2;
 
+    fn all(n: usize) -> Vec<u32> {
+        (0..n as u32).collect()
+    }
+
     fn scatter(n: usize, seed: u64) -> Vec<Vec2> {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
@@ -385,8 +481,8 @@ mod tests {
                     .iter()
                     .map(|p| (t * nalgebra::Point2::from(*p)).coords)
                     .collect();
-                let a = compute_descriptors(&pts, &cfg).unwrap();
-                let b = compute_descriptors(&moved, &cfg).unwrap();
+                let a = compute_descriptors(&pts, &all(pts.len()), &cfg).unwrap();
+                let b = compute_descriptors(&moved, &all(moved.len()), &cfg).unwrap();
                 let mut worst = 0.0f32;
                 let mut mismatched = 0;
                 for (da, db) in a.iter().zip(&b) {
@@ -422,7 +518,7 @@ mod tests {
             ..DescriptorConfig::default()
         };
         let pts = vec![Vec2::new(0.0, 0.0), Vec2::new(0.0, 6.25)];
-        let d = compute_descriptors(&pts, &cfg).unwrap();
+        let d = compute_descriptors(&pts, &all(pts.len()), &cfg).unwrap();
         // 6.25 m / 2.5 m = 2.5 -> f = 2.0: all weight on ring 2.
         assert!((d[0][2] - 1.0).abs() < 1e-6 && d[0][1].abs() < 1e-6 && d[0][3].abs() < 1e-6);
         for k in 0..6 {
@@ -430,7 +526,7 @@ mod tests {
         }
         // Halfway between ring centres 2 and 3 splits the weight.
         let pts = vec![Vec2::new(0.0, 0.0), Vec2::new(7.5, 0.0)];
-        let d = compute_descriptors(&pts, &cfg).unwrap();
+        let d = compute_descriptors(&pts, &all(pts.len()), &cfg).unwrap();
         assert!((d[0][2] - 0.5).abs() < 1e-6 && (d[0][3] - 0.5).abs() < 1e-6);
         // Two opposite neighbours: odd harmonics cancel, even ones add.
         let pts = vec![
@@ -438,7 +534,7 @@ mod tests {
             Vec2::new(5.0, 0.0),
             Vec2::new(-5.0, 0.0),
         ];
-        let d = compute_descriptors(&pts, &cfg).unwrap();
+        let d = compute_descriptors(&pts, &all(pts.len()), &cfg).unwrap();
         assert!(d[0][10].abs() < 1e-6 && (d[0][11] - 2.0).abs() < 1e-6);
     }
 
@@ -458,8 +554,8 @@ mod tests {
                 normalisation,
                 ..DescriptorConfig::default()
             };
-            let a = compute_descriptors(&pts, &cfg).unwrap();
-            let b = compute_descriptors(&doubled, &cfg).unwrap();
+            let a = compute_descriptors(&pts, &all(pts.len()), &cfg).unwrap();
+            let b = compute_descriptors(&doubled, &all(pts.len()), &cfg).unwrap();
             for (da, db) in a.iter().zip(&b) {
                 let e = da
                     .iter()

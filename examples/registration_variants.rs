@@ -11,7 +11,8 @@
 //! target keypoints: `hit@K` = share whose counterpart is among their K nearest target descriptors;
 //! `prec` = share of candidate correspondences (k = 3) that are true (what RANSAC sees); `succ` =
 //! share of pairs the full pipeline registers within 0.5 m and 1 deg; `t_err` = mean translation
-//! error of those, m; `r_err` = mean rotation error, mrad; `cpu` = thread CPU time per pair
+//! error of those, m; `r_err` = mean rotation error, mrad; `nees` = mean NEES of those (3 when the
+//! reported covariance is consistent); `cpu` = thread CPU time per pair
 //! (descriptors of both submaps + matching + RANSAC + LM), ms (10 ms ticks summed over all pairs).
 
 #[path = "../tests/support/radar_scene.rs"]
@@ -170,6 +171,21 @@ fn main() {
         ("k 3 ratio 0.9", edit(|c| c.matching.ratio = 0.9)),
         ("queries 200", edit(|c| c.matching.max_queries = 200)),
         ("queries 800", edit(|c| c.matching.max_queries = 800)),
+        (
+            "ransac maha gate 3",
+            edit(|c| c.ransac.mahalanobis_gate = 3.0),
+        ),
+        ("no re-selection", edit(|c| c.reselect_rounds = 0)),
+        ("LM no U.E.", edit(|c| c.lm.use_uncertainty = false)),
+        (
+            "LM Huber 1.5",
+            edit(|c| {
+                c.lm.robust = dc_loc::registration::robust::RobustLoss {
+                    kind: dc_loc::registration::robust::RobustKind::Huber,
+                    scale: 1.5,
+                }
+            }),
+        ),
     ];
     println!("pairs per scenario: {pairs}");
     for sc in &scenarios {
@@ -180,14 +196,25 @@ fn main() {
         }
         println!("\n## {}", sc.name);
         println!(
-            "{:<22} {:>5} {:>6} {:>6} {:>6} {:>6} {:>5} {:>6} {:>6} {:>6}",
-            "variant", "pts", "hit@1", "hit@3", "hit@5", "prec", "succ", "t_err", "r_err", "cpu"
+            "{:<22} {:>5} {:>6} {:>6} {:>6} {:>6} {:>5} {:>6} {:>6} {:>5} {:>6}",
+            "variant",
+            "pts",
+            "hit@1",
+            "hit@3",
+            "hit@5",
+            "prec",
+            "succ",
+            "t_err",
+            "r_err",
+            "nees",
+            "cpu"
         );
         for (name, edit) in &variants {
             let mut rng = StdRng::seed_from_u64(7);
             let (mut hits, mut cand_ok, mut cand_all, mut n_true) = ([0usize; 3], 0, 0, 0);
             let (mut succ, mut t_err_sum, mut r_err_sum, mut cpu, mut pts) =
                 (0usize, 0.0, 0.0, 0.0, 0usize);
+            let mut nees_sum = 0.0;
             let mut cfg = RegistrationConfig::default();
             edit(&mut cfg);
             let mut nn = Vec::new();
@@ -246,12 +273,18 @@ fn main() {
                         succ += 1;
                         t_err_sum += te;
                         r_err_sum += re;
+                        let e = dc_loc::registration::lm::se2_log(
+                            &(det.result.t_target_source.inverse() * t),
+                        );
+                        if let Some(inf) = det.covariance_se2.try_inverse() {
+                            nees_sum += e.dot(&(inf * e));
+                        }
                     }
                 }
             }
             let f = |h: usize| 100.0 * h as f64 / n_true.max(1) as f64;
             println!(
-                "{:<22} {:>5} {:>5.1}% {:>5.1}% {:>5.1}% {:>5.1}% {:>4.0}% {:>6.3} {:>6.2} {:>6.2}",
+                "{:<22} {:>5} {:>5.1}% {:>5.1}% {:>5.1}% {:>5.1}% {:>4.0}% {:>6.3} {:>6.2} {:>5.2} {:>6.2}",
                 name,
                 pts / (2 * pairs),
                 f(hits[0]),
@@ -261,6 +294,7 @@ fn main() {
                 100.0 * succ as f64 / pairs as f64,
                 t_err_sum / succ.max(1) as f64,
                 1e3 * r_err_sum / succ.max(1) as f64,
+                nees_sum / succ.max(1) as f64,
                 1e3 * cpu / pairs as f64
             );
         }

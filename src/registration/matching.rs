@@ -13,10 +13,17 @@
 //! The scan stores the target descriptors in blocks of 8 (struct of arrays) so that the compiler
 //! vectorises the distance over 8 targets at a time.
 //!
-//! Cost control: the cost is `queries x targets x dimension`; at most `max_queries` source points are
-//! queried (a fixed pseudo-random subset), which bounds the time for dense submaps while leaving
-//! RANSAC plenty of true matches. Optional Lowe ratio test generalised to K: keep the m-th neighbour
-//! only if its distance is below `ratio` times the distance of the (K+1)-th.
+//! Cost control: the cost is `queries x targets x dimension`; the targets are the target submap's
+//! keypoints and at most `max_queries` of the source keypoints are queried (a fixed pseudo-random
+//! subset), which bounds the time for dense submaps while leaving RANSAC plenty of true matches.
+//! Optional Lowe ratio test generalised to K: keep the m-th neighbour only if its distance is below
+//! `ratio` times the distance of the (K+1)-th.
+//!
+//! Measured (examples/registration_variants.rs): k = 1, 3 and 5 and the ratio test all registered
+//! every synthetic pair; k = 1 or a 0.9 ratio raise the share of true candidates (e.g. 34 % -> 44 % /
+//! 53 % at 1000 points) but drop true matches that k = 3 keeps, so the default stays at the
+//! paper's plain KNN with k = 3. 200 queries instead of 400 raised the translation error by about
+//! a third; 800 lowered it by a tenth at twice the matching cost.
 
 use crate::registration::RegistrationError;
 use crate::registration::descriptor::{DESCRIPTOR_DIM, Descriptor};

@@ -337,7 +337,8 @@ fn classify(
             match c.try_inverse() {
                 Some(w) => {
                     let m2 = d.dot(&(w * d));
-                    if !(m2 <= cfg.mahalanobis_gate * cfg.mahalanobis_gate) {
+                    // NaN fails the gate too.
+                    if m2.is_nan() || m2 > cfg.mahalanobis_gate * cfg.mahalanobis_gate {
                         continue;
                     }
                     m2

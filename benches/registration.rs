@@ -1,0 +1,80 @@
+//! DC-Loc registration speed: descriptors of both submaps + KNN matching + RANSAC + LM for one pair,
+//! single thread, on synthetic submaps of about 1000 and 5000 points (10 stacked scans with the
+//! paper's noise, 20 % clutter, yaw in +-pi, translation in +-10 m; tests/support/radar_scene.rs).
+//!
+//! `cargo bench --bench registration`. Targets: 1000-point pair <= 3 ms median, 5000-point pair
+//! <= 20 ms median on one core.
+
+#[path = "../tests/support/radar_scene.rs"]
+mod radar_scene;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use dc_loc::math::Iso2;
+use dc_loc::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
+use radar_scene::*;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use std::hint::black_box;
+
+/// Four pairs of about `n` points each (cycled through by the benchmark).
+fn pairs(n: usize, seed: u64) -> Vec<Pair> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let p_detect = if n > 2000 { 0.9 } else { 0.5 };
+    let view = View {
+        t_world_sensor: Iso2::identity(),
+        max_range: 100.0,
+        half_fov: std::f64::consts::PI,
+        p_detect,
+        clutter_ratio: 0.2,
+        sweeps: 10,
+    };
+    // Points per reflector: 10 scans x p_d x 1.2 (clutter) x ~0.76 (share of reflectors in range).
+    let reflectors = (n as f64 / (10.0 * p_detect * 1.2 * 0.76)) as usize;
+    (0..4)
+        .map(|_| {
+            let scene = random_scene(&mut rng, reflectors, 115.0);
+            let t = random_motion(&mut rng, 10.0);
+            independent_pair(&mut rng, &scene, t, view, view, &Noise::default())
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let cfg = RegistrationConfig::default();
+    for (name, n) in [("pair_1000_points", 1000usize), ("pair_5000_points", 5000)] {
+        let set = pairs(n, n as u64);
+        let mean_pts = set
+            .iter()
+            .map(|p| p.source.set.len() + p.target.set.len())
+            .sum::<usize>()
+            / (2 * set.len());
+        eprintln!("{name}: {mean_pts} points per submap on average");
+        let mut k = 0usize;
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                let p = &set[k % set.len()];
+                k += 1;
+                let s = PreparedSubmap::new(p.source.set.clone(), &cfg).unwrap();
+                let t = PreparedSubmap::new(p.target.set.clone(), &cfg).unwrap();
+                black_box(register_prepared(&s, &t, &cfg).unwrap())
+            })
+        });
+        // The same with the target prepared beforehand (a keyframe matched again).
+        let prepared: Vec<PreparedSubmap> = set
+            .iter()
+            .map(|p| PreparedSubmap::new(p.target.set.clone(), &cfg).unwrap())
+            .collect();
+        let mut k = 0usize;
+        c.bench_function(&format!("{name}_target_prepared"), |b| {
+            b.iter(|| {
+                let i = k % set.len();
+                k += 1;
+                let s = PreparedSubmap::new(set[i].source.set.clone(), &cfg).unwrap();
+                black_box(register_prepared(&s, &prepared[i], &cfg).unwrap())
+            })
+        });
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,626 @@
+//! Uncertainty-aware refinement (paper eq. 10) by Levenberg-Marquardt on SE(2), and the covariance of
+//! the result.
+//!
+//! Entry points: [`LmConfig`], [`refine`] (LM from an initial guess on given correspondences),
+//! [`LmResult`], [`CovarianceMode`]; the SE(2) maps [`se2_exp`] and [`se2_log`]; [`pair_terms`] (one
+//! residual's cost, gradient and Gauss-Newton block, public so that tests can check it against finite
+//! differences).
+//!
+//! Problem: `T* = argmin_T 1/2 sum_i rho(s_i)`, `s_i = d_i^T W_i d_i`, `d_i = y_i - T x_i`,
+//! `W_i = (Sigma_y,i + R Sigma_x,i R^T)^-1` (eq. 10), or `W_i = I / isotropic_sigma^2` when the
+//! uncertainty is switched off (the ablation's "no U.E." rows).
+//!
+//! Conventions:
+//! - Perturbation on the right, in the source (query) body frame: `T <- T * Exp(delta)`,
+//!   `delta = (dx, dy, dtheta)`. This is GTSAM's `Pose2` convention, so the returned 3x3 covariance is
+//!   over `delta` with `T_true = T_est * Exp(delta)` and can go straight into a `BetweenFactor<Pose2>`.
+//! - Derivatives: the *gradient* differentiates through the rotation inside `R Sigma_x R^T`, so LM
+//!   converges to a true stationary point of eq. 10 and its cost test and its step agree. The
+//!   Gauss-Newton *Hessian* leaves that term out (it is second order: it vanishes with the residuals);
+//!   this is the usual GICP approximation and keeps the normal matrix positive semi-definite.
+
+use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
+use crate::registration::robust::RobustLoss;
+use crate::registration::{PointSet2, RegistrationError};
+use serde::{Deserialize, Serialize};
+
+/// How the covariance of the estimate is computed at the optimum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CovarianceMode {
+    /// Inverse of the robust-weighted Gauss-Newton information `sum rho'_i J_i^T W_i J_i`. Trusts the
+    /// point covariances; with a robust loss it overstates the uncertainty a little on clean data.
+    Information,
+    /// Model-based sandwich: `kappa (sum J_i^T W_i J_i)^-1`, with `kappa` the asymptotic variance
+    /// factor of the robust M-estimator when the whitened residuals are standard normal (Huber 1981).
+    /// Trusts the point covariances.
+    Expected,
+    /// Empirical sandwich (Huber-White) `A^-1 B A^-1` with `A` the robust Hessian and
+    /// `B = sum rho'^2 g_i g_i^T` from the actual residuals, scaled by `n / (n - 3)`. Honest even when
+    /// the point covariances are mis-scaled (e.g. the isotropic "no U.E." weights); noisier when
+    /// there are few correspondences.
+    Sandwich,
+}
+
+/// Levenberg-Marquardt settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LmConfig {
+    /// Weight residuals by the point covariances (eq. 10); `false` gives the isotropic "no U.E."
+    /// ablation (default true).
+    pub use_uncertainty: bool,
+    /// Standard deviation of each residual component when `use_uncertainty` is false, m
+    /// (default 0.5). Scales the isotropic weights so that `robust.scale` keeps its meaning in sigma.
+    pub isotropic_sigma: f64,
+    /// Robust loss on the squared normalised residual (default Cauchy, scale 3.0).
+    pub robust: RobustLoss,
+    /// Iteration limit (default 50).
+    pub max_iterations: usize,
+    /// Converged when a step is shorter than this (norm of `(dx, dy, dtheta)` in m and rad; default 1e-7).
+    pub step_tolerance: f64,
+    /// Converged when an accepted step lowers the cost by less than this fraction (default 1e-10).
+    pub cost_tolerance: f64,
+    /// Initial damping relative to the diagonal of the normal matrix (default 1e-4).
+    pub initial_lambda: f64,
+    /// Covariance estimator (default `sandwich`; see [`CovarianceMode`] and the consistency test).
+    pub covariance: CovarianceMode,
+}
+
+impl Default for LmConfig {
+    fn default() -> Self {
+        LmConfig {
+            use_uncertainty: true,
+            isotropic_sigma: 0.5,
+            robust: RobustLoss::default(),
+            max_iterations: 50,
+            step_tolerance: 1e-7,
+            cost_tolerance: 1e-10,
+            initial_lambda: 1e-4,
+            covariance: CovarianceMode::Sandwich,
+        }
+    }
+}
+
+impl LmConfig {
+    /// Rejects unusable values; `prefix` is the dotted section name (e.g. `registration.lm`).
+    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
+        use crate::config::ConfigError;
+        let pos = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(ConfigError::new(
+                    format!("{prefix}.{name}"),
+                    format!("{v} must be finite and > 0"),
+                ))
+            }
+        };
+        pos("isotropic_sigma", self.isotropic_sigma)?;
+        pos("step_tolerance", self.step_tolerance)?;
+        pos("cost_tolerance", self.cost_tolerance)?;
+        pos("initial_lambda", self.initial_lambda)?;
+        if self.max_iterations == 0 {
+            return Err(ConfigError::new(
+                format!("{prefix}.max_iterations"),
+                "must be at least 1",
+            ));
+        }
+        self.robust.validate(&format!("{prefix}.robust"))
+    }
+}
+
+/// What [`refine`] returns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LmResult {
+    /// Source frame in the target frame.
+    pub t_target_source: Iso2,
+    /// Covariance over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (m^2, m rad, rad^2).
+    pub covariance: Mat3,
+    /// Robust-weighted Gauss-Newton information `sum rho' J^T W J` at the optimum.
+    pub information: Mat3,
+    /// Final cost `1/2 sum rho(s_i)`.
+    pub cost: f64,
+    /// Iterations (linearisations) used.
+    pub iterations: usize,
+    /// A tolerance was met before the iteration limit.
+    pub converged: bool,
+}
+
+/// `Exp` of se(2): `delta = (x, y, theta)` to a rigid motion (`t = V(theta) (x, y)`).
+pub fn se2_exp(delta: &Vec3) -> Iso2 {
+    let th = delta[2];
+    let (a, b) = v_coeffs(th);
+    let t = Vec2::new(a * delta[0] - b * delta[1], b * delta[0] + a * delta[1]);
+    Iso2::new(t, th)
+}
+
+/// `Log` of SE(2), inverse of [`se2_exp`]; theta in (-pi, pi].
+pub fn se2_log(t: &Iso2) -> Vec3 {
+    let th = t.rotation.angle();
+    let (a, b) = v_coeffs(th);
+    let p = t.translation.vector;
+    let k = 1.0 / (a * a + b * b);
+    Vec3::new(k * (a * p.x + b * p.y), k * (-b * p.x + a * p.y), th)
+}
+
+/// `sin(th)/th` and `(1 - cos(th))/th`, with series near zero.
+fn v_coeffs(th: f64) -> (f64, f64) {
+    if th.abs() < 1e-6 {
+        (1.0 - th * th / 6.0, th / 2.0 - th * th * th / 24.0)
+    } else {
+        (th.sin() / th, (1.0 - th.cos()) / th)
+    }
+}
+
+/// `[0 -1; 1 0] v`: the generator of planar rotation applied to `v`.
+#[inline]
+fn perp(v: &Vec2) -> Vec2 {
+    Vec2::new(-v.y, v.x)
+}
+
+/// One residual's contribution, for a pose `t` and a matched pair.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairTerms {
+    /// Squared normalised residual `s = d^T W d`.
+    pub s: f64,
+    /// `1/2 rho(s)`.
+    pub cost: f64,
+    /// Exact gradient of `1/2 rho(s)` w.r.t. the right perturbation `delta`, through the weight too.
+    pub gradient: Vec3,
+    /// Gauss-Newton block `rho'(s) J^T W J` (weight derivative left out; see the module doc).
+    pub hessian_gn: Mat3,
+    /// `J^T W d`, with `J = d(d)/d(delta) = -R [I | perp(x)]`; the score of this pair before `rho'`.
+    pub jtwd: Vec3,
+    /// `J^T W J`.
+    pub jtwj: Mat3,
+    /// `rho'(s)`.
+    pub drho: f64,
+    /// `rho''(s)`.
+    pub ddrho: f64,
+}
+
+/// Cost, exact gradient and Gauss-Newton block of one residual `d = y - T x` (eq. 10).
+///
+/// `cov` = `Some((Sigma_x, Sigma_y))` weights by `(Sigma_y + R Sigma_x R^T)^-1`; `None` by
+/// `I / iso_var`. Returns `None` when the combined covariance is not positive definite.
+pub fn pair_terms(
+    t: &Iso2,
+    x: &Vec2,
+    y: &Vec2,
+    cov: Option<(&Mat2, &Mat2)>,
+    iso_var: f64,
+    robust: &RobustLoss,
+) -> Option<PairTerms> {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    let d = y - (r * x + t.translation.vector);
+    // J = d(d)/d(delta) = -R [I | perp(x)] (2x3)
+    let rp = r * perp(x);
+    let (w, c_theta) = match cov {
+        Some((sx, sy)) => {
+            let c = sy + r * sx * r.transpose();
+            let w = inverse_spd2(&c)?;
+            // d/dtheta of R Rot(theta) Sx Rot(theta)^T R^T at 0, with G = [0 -1; 1 0]: R (G Sx - Sx G) R^T
+            let g = Mat2::new(0.0, -1.0, 1.0, 0.0);
+            let c_th = r * (g * sx - sx * g) * r.transpose();
+            (w, Some(c_th))
+        }
+        None => (Mat2::identity() / iso_var, None),
+    };
+    let wd = w * d;
+    let s = d.dot(&wd);
+    let (rho, drho, ddrho) = robust.rho(s);
+    // J^T W d and J^T W J with J = -[R | R perp(x)]
+    let jtwd = -Vec3::new(
+        r[(0, 0)] * wd.x + r[(1, 0)] * wd.y,
+        r[(0, 1)] * wd.x + r[(1, 1)] * wd.y,
+        rp.dot(&wd),
+    );
+    let rt_w_r = r.transpose() * w * r;
+    let rt_w_rp = r.transpose() * (w * rp);
+    let rp_w_rp = rp.dot(&(w * rp));
+    let jtwj = Mat3::new(
+        rt_w_r[(0, 0)],
+        rt_w_r[(0, 1)],
+        rt_w_rp.x,
+        rt_w_r[(1, 0)],
+        rt_w_r[(1, 1)],
+        rt_w_rp.y,
+        rt_w_rp.x,
+        rt_w_rp.y,
+        rp_w_rp,
+    );
+    // ds/ddelta = 2 J^T W d + e_theta d^T (dW/dtheta) d, dW/dtheta = -W C_theta W.
+    let mut ds = 2.0 * jtwd;
+    if let Some(c_th) = c_theta {
+        ds[2] -= wd.dot(&(c_th * wd));
+    }
+    Some(PairTerms {
+        s,
+        cost: 0.5 * rho,
+        gradient: 0.5 * drho * ds,
+        hessian_gn: drho * jtwj,
+        jtwd,
+        jtwj,
+        drho,
+        ddrho,
+    })
+}
+
+/// Inverse of a symmetric 2x2 matrix that must be positive definite (finite, det > 0, trace > 0).
+#[inline]
+fn inverse_spd2(c: &Mat2) -> Option<Mat2> {
+    let det = c[(0, 0)] * c[(1, 1)] - c[(0, 1)] * c[(1, 0)];
+    let tr = c[(0, 0)] + c[(1, 1)];
+    if !(det.is_finite() && det > 1e-300 && tr > 0.0) {
+        return None;
+    }
+    Some(Mat2::new(c[(1, 1)], -c[(0, 1)], -c[(1, 0)], c[(0, 0)]) / det)
+}
+
+struct Totals {
+    cost: f64,
+    gradient: Vec3,
+    hessian: Mat3,
+}
+
+fn totals(
+    t: &Iso2,
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    cfg: &LmConfig,
+) -> Result<Totals, RegistrationError> {
+    let iso_var = cfg.isotropic_sigma * cfg.isotropic_sigma;
+    let mut out = Totals {
+        cost: 0.0,
+        gradient: Vec3::zeros(),
+        hessian: Mat3::zeros(),
+    };
+    for &(i, j) in pairs {
+        let cov = cfg
+            .use_uncertainty
+            .then(|| (&source.covs[i], &target.covs[j]));
+        let p = pair_terms(
+            t,
+            &source.points[i],
+            &target.points[j],
+            cov,
+            iso_var,
+            &cfg.robust,
+        )
+        .ok_or_else(|| {
+            RegistrationError::Numerical(format!(
+                "point covariance of pair (source {i}, target {j}) is not positive definite"
+            ))
+        })?;
+        out.cost += p.cost;
+        out.gradient += p.gradient;
+        out.hessian += p.hessian_gn;
+    }
+    Ok(out)
+}
+
+/// Levenberg-Marquardt on eq. 10 from `initial` over the pairs `(source index, target index)`.
+///
+/// Errors: fewer than 2 pairs, an index out of range or a covariance that is not positive definite,
+/// or an information matrix that is singular at the optimum (e.g. all source points identical:
+/// the rotation is unobservable) - never a covariance that claims more than the data hold.
+pub fn refine(
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    initial: &Iso2,
+    cfg: &LmConfig,
+) -> Result<LmResult, RegistrationError> {
+    if pairs.len() < 2 {
+        return Err(RegistrationError::TooFewInliers {
+            have: pairs.len(),
+            need: 2,
+        });
+    }
+    check_sets(source, target, pairs)?;
+    let mut t = *initial;
+    let mut cur = totals(&t, source, target, pairs, cfg)?;
+    let mut lambda = cfg.initial_lambda;
+    let mut converged = false;
+    let mut iterations = 0;
+    while iterations < cfg.max_iterations {
+        iterations += 1;
+        let mut stepped = false;
+        // Inner loop: raise the damping until a step lowers the cost.
+        for _ in 0..30 {
+            let mut a = cur.hessian;
+            for k in 0..3 {
+                a[(k, k)] += lambda * cur.hessian[(k, k)].max(1e-12);
+            }
+            let Some(delta) = a.cholesky().map(|c| -c.solve(&cur.gradient)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            if !delta.iter().all(|v| v.is_finite()) {
+                return Err(RegistrationError::Numerical("non-finite LM step".into()));
+            }
+            let t_new = t * se2_exp(&delta);
+            let new = totals(&t_new, source, target, pairs, cfg)?;
+            if new.cost <= cur.cost {
+                let small_step = delta.norm() < cfg.step_tolerance;
+                let small_gain = cur.cost - new.cost <= cfg.cost_tolerance * cur.cost.max(1e-300);
+                t = t_new;
+                cur = new;
+                lambda = (lambda * 0.1).max(1e-12);
+                stepped = true;
+                converged = small_step || small_gain;
+                break;
+            }
+            if delta.norm() < cfg.step_tolerance {
+                // The step is too small to change the cost: we are at the minimum.
+                converged = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if converged || !stepped {
+            break;
+        }
+    }
+    let covariance = covariance_at(&t, source, target, pairs, cfg)?;
+    Ok(LmResult {
+        t_target_source: t,
+        covariance,
+        information: cur.hessian,
+        cost: cur.cost,
+        iterations,
+        converged,
+    })
+}
+
+fn check_sets(
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+) -> Result<(), RegistrationError> {
+    if source.covs.len() != source.points.len() || target.covs.len() != target.points.len() {
+        return Err(RegistrationError::Numerical(
+            "point set has a different number of covariances than points".into(),
+        ));
+    }
+    for &(i, j) in pairs {
+        if i >= source.len() || j >= target.len() {
+            return Err(RegistrationError::Numerical(format!(
+                "correspondence ({i}, {j}) out of range ({} source, {} target points)",
+                source.len(),
+                target.len()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Inverse of a 3x3 information matrix, refused when it is not well conditioned.
+fn checked_inverse(m: &Mat3, what: &str) -> Result<Mat3, RegistrationError> {
+    let sym = (m + m.transpose()) * 0.5;
+    let eig = sym.symmetric_eigenvalues();
+    let (lo, hi) = (eig.min(), eig.max());
+    if !(lo.is_finite() && hi.is_finite() && hi > 0.0 && lo > 1e-10 * hi) {
+        return Err(RegistrationError::Numerical(format!(
+            "{what} is singular (eigenvalues {lo:.3e} .. {hi:.3e}): the pose is not observable"
+        )));
+    }
+    sym.try_inverse()
+        .map(|i| (i + i.transpose()) * 0.5)
+        .ok_or_else(|| RegistrationError::Numerical(format!("{what} is not invertible")))
+}
+
+/// The covariance of the estimate at `t` (see [`CovarianceMode`]).
+pub fn covariance_at(
+    t: &Iso2,
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    cfg: &LmConfig,
+) -> Result<Mat3, RegistrationError> {
+    check_sets(source, target, pairs)?;
+    let iso_var = cfg.isotropic_sigma * cfg.isotropic_sigma;
+    let mut info_robust = Mat3::zeros();
+    let mut info_plain = Mat3::zeros();
+    let mut a = Mat3::zeros();
+    let mut b = Mat3::zeros();
+    for &(i, j) in pairs {
+        let cov = cfg
+            .use_uncertainty
+            .then(|| (&source.covs[i], &target.covs[j]));
+        let p = pair_terms(
+            t,
+            &source.points[i],
+            &target.points[j],
+            cov,
+            iso_var,
+            &cfg.robust,
+        )
+        .ok_or_else(|| RegistrationError::Numerical("covariance not positive definite".into()))?;
+        info_robust += p.hessian_gn;
+        info_plain += p.jtwj;
+        // Hessian of 1/2 rho(s) in the Gauss-Newton sense, with the rho'' curvature (Triggs 2000).
+        a += p.hessian_gn + 2.0 * p.ddrho * p.jtwd * p.jtwd.transpose();
+        b += (p.drho * p.drho) * p.jtwd * p.jtwd.transpose();
+    }
+    match cfg.covariance {
+        CovarianceMode::Information => checked_inverse(&info_robust, "information matrix"),
+        CovarianceMode::Expected => Ok(robust_variance_factor(&cfg.robust)
+            * checked_inverse(&info_plain, "information matrix")?),
+        CovarianceMode::Sandwich => {
+            let n = pairs.len() as f64;
+            if n <= 3.0 {
+                return Err(RegistrationError::TooFewInliers {
+                    have: pairs.len(),
+                    need: 4,
+                });
+            }
+            // A can lose definiteness when many residuals sit on the descending part of Cauchy:
+            // fall back to the Gauss-Newton part, which is PSD.
+            let a_inv = checked_inverse(&a, "robust Hessian")
+                .or_else(|_| checked_inverse(&info_robust, "information matrix"))?;
+            // B must be well conditioned too, otherwise the sandwich claims certainty the data lack.
+            checked_inverse(&b, "score covariance")?;
+            let c = a_inv * b * a_inv * (n / (n - 3.0));
+            Ok((c + c.transpose()) * 0.5)
+        }
+    }
+}
+
+/// Asymptotic variance factor `E[rho'^2 s] / 2 / (E[rho' + rho'' s])^2` of the robust M-estimator for
+/// 2-D whitened residuals (`s ~ chi^2_2`, density `exp(-s/2)/2`); 1 for least squares.
+pub fn robust_variance_factor(robust: &RobustLoss) -> f64 {
+    // Midpoint rule on u = 1 - exp(-s/2) in (0, 1): s = -2 ln(1 - u), density becomes uniform.
+    let n = 4000;
+    let (mut num, mut den) = (0.0, 0.0);
+    for k in 0..n {
+        let u = (k as f64 + 0.5) / n as f64;
+        let s = -2.0 * (1.0 - u).ln();
+        let (_, d1, d2) = robust.rho(s);
+        num += d1 * d1 * s;
+        den += d1 + d2 * s;
+    }
+    let num = num / n as f64 / 2.0;
+    let den = den / n as f64;
+    num / (den * den)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::registration::robust::RobustKind;
+
+    fn spd(a: f64, b: f64, c: f64) -> Mat2 {
+        // L L^T with L lower triangular [a 0; b c]
+        let l = Mat2::new(a, 0.0, b, c);
+        l * l.transpose()
+    }
+
+    #[test]
+    fn exp_log_round_trip() {
+        for d in [
+            Vec3::new(1.0, -2.0, 0.3),
+            Vec3::new(0.1, 0.2, -3.0),
+            Vec3::new(5.0, 1.0, 1e-9),
+            Vec3::new(0.0, 0.0, 0.0),
+        ] {
+            let back = se2_log(&se2_exp(&d));
+            assert!((back - d).norm() < 1e-9, "{d} -> {back}");
+        }
+    }
+
+    #[test]
+    fn residual_jacobian_matches_finite_differences() {
+        let t = Iso2::new(Vec2::new(3.0, -1.0), 2.2);
+        let x = Vec2::new(12.0, 7.0);
+        let y = Vec2::new(-4.0, 9.0);
+        let r = t.rotation.to_rotation_matrix().into_inner();
+        let rp = r * perp(&x);
+        let h = 1e-6;
+        for k in 0..3 {
+            let mut e = Vec3::zeros();
+            e[k] = h;
+            let dp = y - (t * se2_exp(&e) * nalgebra::Point2::from(x)).coords;
+            let dm = y - (t * se2_exp(&-e) * nalgebra::Point2::from(x)).coords;
+            let fd = (dp - dm) / (2.0 * h);
+            let an = if k < 2 {
+                -Vec2::new(r[(0, k)], r[(1, k)])
+            } else {
+                -rp
+            };
+            assert!((fd - an).norm() < 1e-7, "column {k}: fd {fd} analytic {an}");
+        }
+    }
+
+    /// The gradient must include the rotation dependence of W = (Sy + R Sx R^T)^-1: compare the
+    /// analytic gradient with central differences of the exact cost.
+    #[test]
+    fn gradient_matches_finite_differences_through_weights() {
+        let sx = spd(0.3, 1.2, 0.4); // strongly anisotropic, rotated
+        let sy = spd(0.5, -0.2, 0.9);
+        let x = Vec2::new(30.0, -12.0);
+        let t = Iso2::new(Vec2::new(2.0, 5.0), -0.7);
+        let y = (t * nalgebra::Point2::from(x)).coords + Vec2::new(0.8, -1.1);
+        for kind in [RobustKind::None, RobustKind::Cauchy, RobustKind::Huber] {
+            let robust = RobustLoss { kind, scale: 1.3 };
+            let p = pair_terms(&t, &x, &y, Some((&sx, &sy)), 1.0, &robust).unwrap();
+            let cost = |e: &Vec3| {
+                pair_terms(&(t * se2_exp(e)), &x, &y, Some((&sx, &sy)), 1.0, &robust)
+                    .unwrap()
+                    .cost
+            };
+            let h = 1e-6;
+            let mut fd = Vec3::zeros();
+            for k in 0..3 {
+                let mut e = Vec3::zeros();
+                e[k] = h;
+                fd[k] = (cost(&e) - cost(&-e)) / (2.0 * h);
+            }
+            let err = (fd - p.gradient).norm() / fd.norm();
+            assert!(err < 1e-6, "{kind:?}: fd {fd} analytic {}", p.gradient);
+            // The weight-derivative term is not negligible here: freezing W gives a different theta
+            // component, so this test would catch its omission.
+            let frozen = p.drho * p.jtwd;
+            assert!((frozen[2] - fd[2]).abs() > 1e-3 * fd[2].abs());
+        }
+    }
+
+    /// The Gauss-Newton block is the exact Hessian of the cost at a zero residual (where the weight
+    /// derivative and rho'' terms vanish).
+    #[test]
+    fn gauss_newton_block_is_hessian_at_zero_residual() {
+        let sx = spd(0.3, 1.2, 0.4);
+        let sy = spd(0.5, -0.2, 0.9);
+        let x = Vec2::new(30.0, -12.0);
+        let t = Iso2::new(Vec2::new(2.0, 5.0), -0.7);
+        let y = (t * nalgebra::Point2::from(x)).coords;
+        let robust = RobustLoss::default();
+        let p = pair_terms(&t, &x, &y, Some((&sx, &sy)), 1.0, &robust).unwrap();
+        let grad = |e: &Vec3| {
+            pair_terms(&(t * se2_exp(e)), &x, &y, Some((&sx, &sy)), 1.0, &robust)
+                .unwrap()
+                .gradient
+        };
+        let h = 1e-6;
+        for k in 0..3 {
+            let mut e = Vec3::zeros();
+            e[k] = h;
+            let col = (grad(&e) - grad(&-e)) / (2.0 * h);
+            let an = p.hessian_gn.column(k).into_owned();
+            assert!(
+                (col - an).norm() < 1e-5 * an.norm().max(1.0),
+                "col {k}: {col} vs {an}"
+            );
+        }
+    }
+
+    #[test]
+    fn variance_factor_of_least_squares_is_one_and_robust_above_one() {
+        assert!((robust_variance_factor(&RobustLoss::none()) - 1.0).abs() < 1e-3);
+        let k = robust_variance_factor(&RobustLoss::default());
+        assert!(k > 1.0 && k < 1.2, "Cauchy c=3 factor {k}");
+    }
+
+    #[test]
+    fn identical_source_points_give_an_error_not_a_covariance() {
+        let src = PointSet2::isotropic(vec![Vec2::new(5.0, 5.0); 20], 0.3);
+        let tgt = PointSet2::isotropic(vec![Vec2::new(1.0, 2.0); 20], 0.3);
+        let pairs: Vec<_> = (0..20).map(|i| (i, i)).collect();
+        for mode in [
+            CovarianceMode::Information,
+            CovarianceMode::Expected,
+            CovarianceMode::Sandwich,
+        ] {
+            let cfg = LmConfig {
+                covariance: mode,
+                ..LmConfig::default()
+            };
+            let r = refine(&src, &tgt, &pairs, &Iso2::identity(), &cfg);
+            assert!(
+                matches!(r, Err(RegistrationError::Numerical(_))),
+                "{mode:?}: {r:?}"
+            );
+        }
+    }
+}

@@ -557,6 +557,11 @@ fn round_trip_of_every_message_type() {
         assert_eq!(odom.len(), 6);
         assert!(odom.iter().all(|m| m.topic() == "/odom"));
         assert!(odom.windows(2).all(|w| w[0].log_time < w[1].log_time));
+        let two = reader
+            .messages_on(&["/tf_static", "/loop_closures"])
+            .unwrap();
+        assert_eq!(two.map(Result::unwrap).count(), 2);
+        assert_eq!(reader.messages_on(&["/nope"]).unwrap().count(), 0);
     }
 }
 

@@ -336,6 +336,8 @@ struct IndexedSource {
     reader: IndexedReader,
     channels: HashMap<u16, Arc<ChannelMeta>>,
     buf: Vec<u8>,
+    /// Whether `channels` is a topic selection (then other channels are skipped, not errors).
+    selective: bool,
 }
 
 impl IndexedSource {
@@ -350,6 +352,13 @@ impl IndexedSource {
         let mut options = IndexedReaderOptions::new()
             .with_order(ReadOrder::LogTime)
             .with_record_length_limit(MAX_RECORD_BYTES);
+        // Channels to yield. (An empty topic set means "all" to the mcap reader, so the selection
+        // is also applied here.)
+        let channels: HashMap<u16, Arc<ChannelMeta>> = channels
+            .iter()
+            .filter(|(_, (meta, _))| topics.is_none_or(|t| t.contains(&meta.topic.as_str())))
+            .map(|(id, (meta, _))| (*id, meta.clone()))
+            .collect();
         if let Some(topics) = topics {
             options = options.include_topics(topics.iter().copied());
         }
@@ -359,11 +368,9 @@ impl IndexedSource {
             file,
             len,
             reader,
-            channels: channels
-                .iter()
-                .map(|(id, (meta, _))| (*id, meta.clone()))
-                .collect(),
+            channels,
             buf: Vec::new(),
+            selective: topics.is_some(),
         })
     }
 
@@ -371,6 +378,9 @@ impl IndexedSource {
         enum Step {
             Load(u64, usize),
             Message(mcap::records::MessageHeader, Vec<u8>),
+        }
+        if self.selective && self.channels.is_empty() {
+            return None;
         }
         loop {
             // The event borrows the reader: turn it into an owned step first.
@@ -391,6 +401,9 @@ impl IndexedSource {
                 }
                 Step::Message(header, data) => {
                     let Some(channel) = self.channels.get(&header.channel_id) else {
+                        if self.selective {
+                            continue;
+                        }
                         return Some(Err(BagError::UnknownChannel {
                             path: self.path.clone(),
                             channel_id: header.channel_id,

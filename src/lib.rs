@@ -6,6 +6,7 @@
 //! [`baselines`]) -> results. The node, the offline runner, the demo and the tests drive the same code.
 #![warn(missing_docs)]
 
+pub mod bag;
 pub mod baselines;
 pub mod cloud;
 pub mod config;

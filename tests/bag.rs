@@ -2,13 +2,15 @@
 //! - CDR bytes made by the Python rosbags library (tests/fixtures/cdr_fixtures.json, from
 //!   tests/python/make_cdr_fixtures.py), byte for byte, both endiannesses;
 //! - a bag written by rosbags (tests/fixtures/rosbags_bag, from tests/python/make_rosbags_bag.py);
-//! - rosbags reading the bags written here (tests/python/check_bag_with_rosbags.py), when a Python with
-//!   rosbags is available (`DC_LOC_PYTHON`, else `<repo>/.venv/bin/python`; skipped with a message
-//!   when neither is);
+//! - rosbags reading the bags written here (tests/python/check_bag_with_rosbags.py) in the ROS 2 test
+//!   venv (tests/python/setup_venv.sh, made on first use);
 //! - rosbag2's schema layout rules, worked out by hand for the known types.
 //!
 //! Plus round trips of every message type, truncated and corrupted files (errors, never panics),
 //! per-message decode failures that do not stop iteration, and byte-identical output.
+
+#[path = "python/venv.rs"]
+mod venv;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -710,39 +712,10 @@ fn reads_a_bag_written_by_rosbags() {
     assert_eq!(times, want_times);
 }
 
-/// The Python interpreter with rosbags: `DC_LOC_PYTHON` (then it must work), else
-/// `<repo>/.venv/bin/python` if it has rosbags; `None` (with the reason printed) otherwise.
-fn rosbags_python() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("DC_LOC_PYTHON") {
-        return Some(PathBuf::from(p));
-    }
-    let venv = Path::new(REPO).join(".venv/bin/python");
-    if !venv.exists() {
-        eprintln!(
-            "SKIPPED the rosbags check: no DC_LOC_PYTHON and no {} (tests/python/setup_venv.sh makes it)",
-            venv.display()
-        );
-        return None;
-    }
-    let has_rosbags = Command::new(&venv)
-        .args(["-c", "import rosbags"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !has_rosbags {
-        eprintln!(
-            "SKIPPED the rosbags check: {} has no rosbags",
-            venv.display()
-        );
-        return None;
-    }
-    Some(venv)
-}
-
 #[test]
 fn rosbags_reads_the_bags_written_here() {
-    let Some(python) = rosbags_python() else {
-        return;
-    };
+    // The ROS 2 test venv (made on first use by tests/python/setup_venv.sh) has rosbags: mandatory.
+    let python = venv::venv_python();
     let messages = drive();
     let dir = write_bag(&scratch("rosbags_check").join("py_drive"), &messages);
     let topics: Vec<Value> = expected_topics(&messages)

@@ -379,7 +379,8 @@ impl Default for RouteConfig {
 }
 
 impl RouteConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
+    /// Rejects corner lists that do not form a simple closed loop of proper corners.
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let n = self.corners.len();
         if n < 3 {
             return Err(err("route.corners", "at least 3 corners are required"));

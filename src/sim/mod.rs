@@ -142,8 +142,8 @@ impl SimSetup {
             &cfg.laps,
             &cfg.drive,
             cfg.world.street.ego_lane_offset(),
-        );
-        let world = World::generate(cfg, line);
+        )?;
+        let world = World::generate(cfg, line)?;
         let radars = cfg.radar_list();
         Ok(SimSetup {
             config: cfg.clone(),
@@ -179,26 +179,28 @@ impl SimSetup {
         self.config.to_config()
     }
 
-    /// Stamp of scan `k` of radar `radar` (its phase, period and jitter).
-    fn scan_time(&self, radar: usize, k: u64) -> f64 {
-        let r = &self.radars[radar];
+    /// Time of scan `k` of radar `radar` after the start (its phase, period and jitter), s.
+    fn scan_time(&self, radar: usize, k: u64) -> Option<f64> {
+        let r = self.radars.get(radar)?;
         let mut rng = StdRng::seed_from_u64(self.scan_seed(radar, k));
         let jitter: f64 = rng.sample::<f64, _>(StandardNormal) * r.stamp_jitter;
-        (r.phase + k as f64 / r.rate + jitter).max(0.0)
+        Some((r.phase + k as f64 / r.rate + jitter).max(0.0))
     }
     fn scan_seed(&self, radar: usize, k: u64) -> u64 {
         stream_seed(self.config.seed, TAG_SCAN + radar as u64, k)
     }
 
-    /// Simulates scan `k` of radar `radar`.
-    pub fn scan(&self, radar: usize, k: u64, noise: &NoiseSampler) -> SimScan {
+    /// Simulates scan `k` of radar `radar` (`None` for an unknown radar index); `noise` from
+    /// `NoiseSampler::new(&config.noise)`.
+    pub fn scan(&self, radar: usize, k: u64, noise: &NoiseSampler) -> Option<SimScan> {
+        let rc = self.radars.get(radar)?;
+        let rays = self.rays.get(radar)?;
         let mut rng = StdRng::seed_from_u64(self.scan_seed(radar, k));
         let _jitter: f64 = rng.sample(StandardNormal); // consumed as in `scan_time`
-        let t = self.scan_time(radar, k);
+        let t = self.scan_time(radar, k)?;
         let stamp = self.stamp_at(t);
         // Evaluate the world at the rounded stamp so the truth matches the stamp exactly.
         let ego = self.trajectory.state(self.time_of(stamp));
-        let rc = &self.radars[radar];
         let motion = RadarMotion::new(
             ego.t_map_body.translation.vector,
             ego.heading,
@@ -211,7 +213,7 @@ impl SimSetup {
         let (detections, truth, dropout) = sensor::simulate_scan(
             &self.world,
             rc,
-            &self.rays[radar],
+            rays,
             &motion,
             ego.lap.lap,
             &movers,
@@ -219,7 +221,7 @@ impl SimSetup {
             noise,
             &mut rng,
         );
-        SimScan {
+        Some(SimScan {
             scan: RadarScan {
                 radar,
                 stamp,
@@ -230,7 +232,7 @@ impl SimSetup {
             speed: ego.speed,
             yaw_rate: ego.yaw_rate,
             dropout,
-        }
+        })
     }
 }
 
@@ -275,7 +277,7 @@ impl Simulator {
     }
 
     fn scan_time_checked(&self, r: usize, k: u64) -> Option<f64> {
-        let t = self.setup.scan_time(r, k);
+        let t = self.setup.scan_time(r, k)?;
         (t <= self.setup.trajectory.duration()).then_some(t)
     }
     fn periodic(&self, k: u64, rate: f64) -> Option<Stamp> {
@@ -323,7 +325,7 @@ impl Iterator for Simulator {
             }
             _ => {
                 let k = self.next_scan[r];
-                let s = self.setup.scan(r, k, &self.noise);
+                let s = self.setup.scan(r, k, &self.noise)?;
                 self.next_scan[r] += 1;
                 self.scan_t[r] = self.scan_time_checked(r, k + 1);
                 SimEvent::Scan(s)
@@ -377,13 +379,18 @@ pub fn simulate(cfg: &SimConfig) -> Result<SimDrive, ConfigError> {
 }
 
 impl SimDrive {
-    /// The pipeline configuration matching the simulated radars.
+    /// The pipeline configuration matching the simulated radars: `radar_names[i]` is radar index `i` of
+    /// the scans (`RadarScan::radar`), `radars[name]` its topic, frame id, extrinsic, `beta` and noise.
     pub fn to_config(&self) -> Config {
         self.setup.to_config()
     }
     /// The exact ground-truth ego state at `stamp`.
     pub fn state_at(&self, stamp: Stamp) -> EgoState {
         self.setup.state_at(stamp)
+    }
+    /// Lap, direction and U-turn flag at `stamp`.
+    pub fn lap_at(&self, stamp: Stamp) -> LapInfo {
+        self.setup.state_at(stamp).lap
     }
     /// The map-frame pose of the odometry frame.
     pub fn t_map_odom(&self) -> Iso2 {

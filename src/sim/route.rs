@@ -167,6 +167,8 @@ pub struct CornerInfo {
     pub d_out: Vec2,
     /// Both streets continue past the corner.
     pub junction: bool,
+    /// Radius of the constant-curvature part, m.
+    pub radius: f64,
 }
 
 /// The closed road centre line, parametrised by arc length `s` in `[0, length)` (wrapped outside).
@@ -179,8 +181,10 @@ pub struct Centerline {
 }
 
 impl Centerline {
-    /// Builds the loop; `ConfigError` when two corners overlap (a straight would get a negative length).
+    /// Builds the loop; `ConfigError` when the corners do not form a simple loop or two corners overlap
+    /// (a straight would get a negative length).
     pub fn new(route: &RouteConfig) -> Result<Self, ConfigError> {
+        route.validate()?;
         let n = route.corners.len();
         let vtx = |i: usize| {
             let c = &route.corners[i % n];
@@ -277,6 +281,7 @@ impl Centerline {
                 d_in: (vtx(i + n) - vtx(i + n - 1)).normalize(),
                 d_out: (vtx(i + 1) - vtx(i)).normalize(),
                 junction: route.corners[i].junction,
+                radius: route.corners[i].radius,
             });
             let len = if i == 0 {
                 0.5 * straight_len[0]
@@ -446,7 +451,38 @@ pub struct Trajectory {
 impl Trajectory {
     /// Plans the drive: `laps` in order, with a left U-turn around the start point whenever the
     /// direction changes; `ego_offset` is the lane offset to the right of the direction of travel, m.
-    pub fn new(line: Centerline, laps: &[LapConfig], drive: &DriveConfig, ego_offset: f64) -> Self {
+    /// The drive starts at the first lap's cruise speed (or slower if it starts in a corner).
+    pub fn new(
+        line: Centerline,
+        laps: &[LapConfig],
+        drive: &DriveConfig,
+        ego_offset: f64,
+    ) -> Result<Self, ConfigError> {
+        if laps.is_empty() {
+            return Err(ConfigError::new("laps", "at least one lap is required"));
+        }
+        if let Some(i) = laps
+            .iter()
+            .position(|l| !(l.speed.is_finite() && l.speed >= 1.0))
+        {
+            return Err(ConfigError::new(
+                format!("laps[{i}].speed"),
+                "must be >= 1 m/s",
+            ));
+        }
+        let min_radius = line
+            .corners()
+            .iter()
+            .map(|c| c.radius)
+            .fold(f64::INFINITY, f64::min);
+        if !(ego_offset.is_finite() && ego_offset > 0.0 && ego_offset < min_radius) {
+            return Err(ConfigError::new(
+                "world.street",
+                format!(
+                    "lane offset {ego_offset} m must be > 0 and below the tightest corner radius"
+                ),
+            ));
+        }
         let l = line.length();
         let th0 = line.heading(0.0);
         let mut legs: Vec<Leg> = Vec::new();
@@ -515,7 +551,7 @@ impl Trajectory {
             lap_times: Vec::new(),
         };
         traj.plan_speed(laps, drive);
-        traj
+        Ok(traj)
     }
 
     fn plan_speed(&mut self, laps: &[LapConfig], drive: &DriveConfig) {

@@ -1,6 +1,6 @@
 //! The simulated city: streets, buildings, street furniture, vegetation, parked cars and moving road users.
 //!
-//! Entry points: [`World::generate`] (deterministic from a seed), [`World`] and its object lists
+//! Entry points: [`World::generate`] (deterministic from a seed), [`World::empty`], [`World`] and its object lists
 //! ([`Wall`], [`Scatterer`], [`Bush`], [`CarBox`], [`Mover`]), [`World::movers_at`] (road users at a time),
 //! [`TargetKind`].
 //!
@@ -11,6 +11,7 @@
 //! streets. The far end of each side street is closed by a building. Objects carry an `id` (unique over
 //! the world) so that detections can name what they hit.
 
+use crate::config::ConfigError;
 use crate::math::Vec2;
 use crate::sim::config::{SimConfig, WorldConfig};
 use crate::sim::route::Centerline;
@@ -277,8 +278,9 @@ struct StraightSide {
 }
 
 impl World {
-    /// Generates the world for a validated configuration (all randomness from `cfg.seed`).
-    pub fn generate(cfg: &SimConfig, line: Centerline) -> World {
+    /// Generates the world (all randomness from `cfg.seed`); `ConfigError` if `cfg` does not validate.
+    pub fn generate(cfg: &SimConfig, line: Centerline) -> Result<World, ConfigError> {
+        cfg.validate()?;
         let mut rng = StdRng::seed_from_u64(super::stream_seed(cfg.seed, 0x57_4f_52_4c_44, 0));
         let wc = &cfg.world;
         let mut w = World {
@@ -392,7 +394,24 @@ impl World {
         w.furniture(&mut rng, wc, &gardens);
         w.parking(&mut rng, wc);
         w.traffic(&mut rng, wc);
-        w
+        Ok(w)
+    }
+
+    /// A world with the loop's corridor but no objects (for sensor tests that place objects by hand;
+    /// ids must then be set by the caller).
+    pub fn empty(line: Centerline, laps: usize) -> World {
+        World {
+            line,
+            streets: Vec::new(),
+            walls: Vec::new(),
+            scatterers: Vec::new(),
+            bushes: Vec::new(),
+            parked: Vec::new(),
+            movers: Vec::new(),
+            side_streets: Vec::new(),
+            laps,
+            next_id: 0,
+        }
     }
 
     fn id(&mut self) -> u32 {
@@ -769,7 +788,7 @@ mod tests {
 
     fn world() -> World {
         let cfg = SimConfig::default();
-        World::generate(&cfg, Centerline::new(&cfg.route).unwrap())
+        World::generate(&cfg, Centerline::new(&cfg.route).unwrap()).unwrap()
     }
 
     /// No wall stands inside a street and the ego lane is clear of every object.

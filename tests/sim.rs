@@ -185,6 +185,20 @@ fn scan_statistics_look_like_an_ars408() {
             .filter(|s| s.dropout == Dropout::Empty)
             .all(|s| s.scan.detections.is_empty())
     );
+    // The merged event stream holds everything once, in time order, ground truth first at equal stamps.
+    let ev: Vec<_> = d.events().collect();
+    assert_eq!(
+        ev.len(),
+        d.ground_truth.len() + d.odometry.len() + d.scans.len()
+    );
+    let stamp = |e: &dc_loc::sim::SimEventRef| match e {
+        dc_loc::sim::SimEventRef::GroundTruth(g) => g.stamp,
+        dc_loc::sim::SimEventRef::Odometry(o) => o.stamp,
+        dc_loc::sim::SimEventRef::Scan(s) => s.scan.stamp,
+    };
+    assert!(ev.windows(2).all(|w| stamp(&w[0]) <= stamp(&w[1])));
+    assert!(matches!(ev[0], dc_loc::sim::SimEventRef::GroundTruth(_)));
+    assert_eq!(stamp(&ev[0]), Stamp::from_secs_f64(1.7e9));
     // 13 Hz: consecutive scans 1/13 s apart (up to the jitter).
     for w in d.scans.windows(2) {
         let dt = w[1].scan.stamp.secs_since(w[0].scan.stamp);

@@ -60,6 +60,11 @@ fn range(name: &str, r: [f64; 2], strict: bool) -> Result<(), ConfigError> {
 }
 
 /// Root of the simulator configuration.
+///
+/// The default world (seed 1): a 2.11 km road loop (2.14 km driven in the outer lane) with 7 corners of
+/// 15 to 150 m radius, 5 junctions and 9 side streets, inside a 920 x 600 m city of about 880 wall
+/// segments, 550 poles, trunks and building corners, 100 bushes, 340 parked cars (over both laps) and
+/// 60 road users. Lap 1 (72 km/h cruise) takes 131 s at a mean 59 km/h, lap 2 (40 km/h) 195 s.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
@@ -68,7 +73,8 @@ pub struct SimConfig {
     /// Time of the first sample, s since the Unix epoch (default 1_700_000_000, so bag times look real).
     pub start_time: f64,
     /// The laps, in driving order (default: 72 km/h, then 40 km/h, both forward, as the paper's CARLA
-    /// drives). A change of direction between two laps inserts a U-turn at the lap start.
+    /// drives); 1 to 64 laps. A change of direction between two laps inserts a U-turn at the lap start.
+    /// A slower lap slows down after its lap line, so its first tens of metres run faster.
     pub laps: Vec<LapConfig>,
     /// Vehicle dynamics limits.
     pub drive: DriveConfig,
@@ -829,7 +835,7 @@ impl TrafficConfig {
 }
 
 /// Everything along the road.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct WorldConfig {
     /// Street cross-section.
@@ -844,6 +850,21 @@ pub struct WorldConfig {
     pub parking: ParkingConfig,
     /// Moving vehicles and pedestrians.
     pub traffic: TrafficConfig,
+}
+
+impl Default for WorldConfig {
+    /// Each section's default: a four-lane city street with parking, street lights, some tree rows,
+    /// buildings with gaps and setbacks, side streets every 110-240 m, 8 vehicles per km and direction.
+    fn default() -> Self {
+        WorldConfig {
+            street: StreetConfig::default(),
+            facades: FacadeConfig::default(),
+            side_streets: SideStreetConfig::default(),
+            furniture: FurnitureConfig::default(),
+            parking: ParkingConfig::default(),
+            traffic: TrafficConfig::default(),
+        }
+    }
 }
 
 impl WorldConfig {
@@ -1279,6 +1300,22 @@ mod tests {
         let mut c = SimConfig::default();
         c.world.street.building_line = 9.0;
         assert_eq!(c.validate().unwrap_err().name, "world.street.building_line");
+    }
+
+    #[test]
+    fn serde_round_trip() {
+        // (serde_json's default float parser may be 1 ulp off, so use values it reads back exactly.)
+        let mut c = SimConfig::with_preset(RadarPreset::Custom);
+        c.radars = vec![SimRadarConfig {
+            phase: 0.01,
+            extrinsic: [1.0, -0.5, 0.5, 0.0, 0.0, 0.25],
+            ..SimRadarConfig::default()
+        }];
+        c.laps[1].reverse = true;
+        c.noise.model = NoiseModel::Gamma;
+        c.validate().unwrap();
+        let back: SimConfig = serde_json::from_str(&serde_json::to_string(&c).unwrap()).unwrap();
+        assert_eq!(back, c);
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //!
 //! As in the paper's evaluation, a pair is the nearest ground-truth position on an earlier lap within a
 //! distance (5 m in the paper); an optional heading gate keeps only passes in (roughly) the same
-//! direction. U-turn samples are never matched.
+//! direction. U-turn samples are never matched. A reverse lap drives the opposite lane, two lane offsets
+//! (10.5 m by default) from the forward laps, so a 5 m gate pairs it with no forward lap.
 
 use crate::math::{Stamp, Vec2, wrap_angle};
 use crate::sim::odometry::PoseSample;

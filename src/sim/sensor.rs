@@ -1,6 +1,7 @@
 //! One radar scan: what an ARS408-like radar reports from the world at one instant.
 //!
-//! Entry points: [`simulate_scan`], [`DetectionTruth`], [`Dropout`], [`RadarMotion`], [`Reflectivity`].
+//! Entry points: [`simulate_scan`], [`occlusion_rays`], [`DetectionTruth`], [`Dropout`], [`RadarMotion`],
+//! [`Reflectivity`].
 //!
 //! Steps, in order:
 //! 1. Radar pose and velocity in the map frame: `v_radar = v_body + omega x t_body_radar` (lever arm).
@@ -113,7 +114,7 @@ struct DepthBuffer<'a> {
 }
 
 /// Unit rays of the occlusion bins over `[-half_fov, half_fov]`.
-pub(crate) fn occlusion_rays(half_fov: f64) -> Vec<Vec2> {
+pub fn occlusion_rays(half_fov: f64) -> Vec<Vec2> {
     let n = ((2.0 * half_fov / OCCLUSION_BIN).ceil() as usize).max(1) + 1;
     (0..n)
         .map(|i| {

@@ -15,4 +15,5 @@ pub mod math;
 pub mod msgs;
 pub mod radar;
 pub mod registration;
+pub mod sim;
 pub mod submap;

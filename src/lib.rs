@@ -6,6 +6,7 @@
 //! [`baselines`]) -> results. The node, the offline runner, the demo and the tests drive the same code.
 #![warn(missing_docs)]
 
+pub mod bag;
 pub mod baselines;
 pub mod cloud;
 pub mod config;
@@ -16,4 +17,5 @@ pub mod params;
 pub mod pipeline;
 pub mod radar;
 pub mod registration;
+pub mod sim;
 pub mod submap;

@@ -1,7 +1,7 @@
 //! Doppler compensation and per-point uncertainty (paper eq. 4-8).
 //!
 //! Entry points: [`compensate`] (eq. 4), [`jacobian`] (eq. 8), [`polar_covariance`] (eq. 7),
-//! [`RadarModel`] (one radar's extrinsic, `beta` and noise) and [`RadarModel::process`], which turns a
+//! [`RadarModel`] (one radar's extrinsic, `beta` and noise) and [`RadarModel::to_body`], which turns a
 //! scan into [`BodyPoint`]s in the body frame (eq. 5) carrying both the compensated and the raw position
 //! and their covariances, so every ablation row can be built from the same data.
 //!

@@ -85,7 +85,9 @@ impl ParamSet {
             if doc.is_null() {
                 return Ok(set);
             }
-            return Err(ParamError::Yaml("top level must be a map of node names".into()));
+            return Err(ParamError::Yaml(
+                "top level must be a map of node names".into(),
+            ));
         };
         let fq = fully_qualified(namespace, node_name);
         for (key, section) in top {
@@ -96,7 +98,9 @@ impl ParamSet {
                 Some(Value::Object(m)) => m.clone(),
                 Some(Value::Null) | None => continue,
                 Some(_) => {
-                    return Err(ParamError::Yaml(format!("`{key}.ros__parameters` must be a map")));
+                    return Err(ParamError::Yaml(format!(
+                        "`{key}.ros__parameters` must be a map"
+                    )));
                 }
             };
             flatten_into("", &Value::Object(params), &mut set.entries);
@@ -123,7 +127,11 @@ fn node_key_matches(key: &str, fq: &str, node_name: &str) -> bool {
     if let Some(rest) = key.strip_prefix("/**/") {
         return rest == node_name;
     }
-    let k = if key.starts_with('/') { key.to_string() } else { format!("/{key}") };
+    let k = if key.starts_with('/') {
+        key.to_string()
+    } else {
+        format!("/{key}")
+    };
     k == fq
 }
 
@@ -131,7 +139,11 @@ fn flatten_into(prefix: &str, v: &Value, out: &mut Vec<(String, Value)>) {
     match v {
         Value::Object(m) => {
             for (k, child) in m {
-                let name = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                let name = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
                 flatten_into(&name, child, out);
             }
         }
@@ -197,17 +209,31 @@ fn coerce(name: &str, default: &Value, given: &Value) -> Result<Value, ParamErro
 /// Applies parameters to the defaults and validates: `Config::default()` -> radars from `radar_names`
 /// -> every parameter in order -> [`Config::validate`].
 pub fn apply(params: &ParamSet) -> Result<Config, ParamError> {
-    let mut tree = serde_json::to_value(Config::default()).map_err(|e| ParamError::Yaml(e.to_string()))?;
-    let radar_default = serde_json::to_value(RadarConfig::default()).map_err(|e| ParamError::Yaml(e.to_string()))?;
+    let mut tree =
+        serde_json::to_value(Config::default()).map_err(|e| ParamError::Yaml(e.to_string()))?;
+    let radar_default = serde_json::to_value(RadarConfig::default())
+        .map_err(|e| ParamError::Yaml(e.to_string()))?;
     // 1. The radar list decides which radar sections exist.
-    let names_param = params.entries.iter().rev().find(|(n, _)| n == "radar_names");
+    let names_param = params
+        .entries
+        .iter()
+        .rev()
+        .find(|(n, _)| n == "radar_names");
     if let Some((_, v)) = names_param {
-        let v = coerce("radar_names", &Value::Array(vec![Value::String(String::new())]), v)?;
+        let v = coerce(
+            "radar_names",
+            &Value::Array(vec![Value::String(String::new())]),
+            v,
+        )?;
         let mut radars = Map::new();
         for n in v.as_array().into_iter().flatten() {
             let name = n.as_str().unwrap_or_default().to_string();
             if name.is_empty() || name.contains('.') {
-                return Err(ConfigError::new("radar_names", format!("`{name}` is not a usable radar name")).into());
+                return Err(ConfigError::new(
+                    "radar_names",
+                    format!("`{name}` is not a usable radar name"),
+                )
+                .into());
             }
             radars.insert(name, radar_default.clone());
         }
@@ -222,7 +248,9 @@ pub fn apply(params: &ParamSet) -> Result<Config, ParamError> {
         let mut node = &mut tree;
         for part in name.split('.') {
             node = match node {
-                Value::Object(m) => m.get_mut(part).ok_or_else(|| ParamError::Unknown(name.clone()))?,
+                Value::Object(m) => m
+                    .get_mut(part)
+                    .ok_or_else(|| ParamError::Unknown(name.clone()))?,
                 _ => return Err(ParamError::Unknown(name.clone())),
             };
         }
@@ -269,8 +297,14 @@ other_node:
         assert_eq!(cfg.radar_names, vec!["front", "rear"]);
         assert_eq!(cfg.radars["front"].beta, 0.05);
         assert_eq!(cfg.radars["rear"].extrinsic[5], 3.14159);
-        assert_eq!(cfg.radars["rear"].beta, 0.04, "unset fields keep the defaults");
-        assert_eq!(cfg.r#loop.search_radius, 20.0, "integer literal accepted for a double");
+        assert_eq!(
+            cfg.radars["rear"].beta, 0.04,
+            "unset fields keep the defaults"
+        );
+        assert_eq!(
+            cfg.r#loop.search_radius, 20.0,
+            "integer literal accepted for a double"
+        );
         // Another node name only gets the wildcard section.
         let other = apply(&ParamSet::from_yaml(YAML, "/", "dc_loc").unwrap()).unwrap();
         assert_eq!(other.body_frame, "base_footprint");
@@ -288,7 +322,10 @@ other_node:
 
         let mut bad = set.clone();
         bad.set_override("radars.rear.betta:=0.02").unwrap();
-        assert_eq!(apply(&bad), Err(ParamError::Unknown("radars.rear.betta".into())));
+        assert_eq!(
+            apply(&bad),
+            Err(ParamError::Unknown("radars.rear.betta".into()))
+        );
         let mut bad = set.clone();
         bad.set_override("submap.size:=ten").unwrap();
         assert!(matches!(apply(&bad), Err(ParamError::Type { name, .. }) if name == "submap.size"));
@@ -297,7 +334,9 @@ other_node:
         assert!(matches!(apply(&bad), Err(ParamError::Type { name, .. }) if name == "submap.size"));
         let mut bad = set.clone();
         bad.set_override("radars.front.beta:=-3").unwrap();
-        assert!(matches!(apply(&bad), Err(ParamError::Invalid(e)) if e.name == "radars.front.beta"));
+        assert!(
+            matches!(apply(&bad), Err(ParamError::Invalid(e)) if e.name == "radars.front.beta")
+        );
         let mut bad = set.clone();
         bad.set_override("radars.front:=1").unwrap();
         assert_eq!(apply(&bad), Err(ParamError::Unknown("radars.front".into())));

@@ -15,7 +15,9 @@ use crate::math::{Iso3, Mat6, Stamp, iso2_from_iso3, iso3_from_iso2};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
-use crate::registration::{PreparedSubmap, RegistrationError, RegistrationResult, register_prepared};
+use crate::registration::{
+    PreparedSubmap, RegistrationError, RegistrationResult, register_prepared,
+};
 use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
 use kiddo::SquaredEuclidean;
 use serde::{Deserialize, Serialize};
@@ -47,13 +49,22 @@ impl KeyframeConfig {
     /// Rejects unusable values, naming the parameter under `prefix`.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         if !(self.distance.is_finite() && self.distance > 0.0) {
-            return Err(ConfigError::new(format!("{prefix}.distance"), "must be > 0 m"));
+            return Err(ConfigError::new(
+                format!("{prefix}.distance"),
+                "must be > 0 m",
+            ));
         }
         if !(self.angle.is_finite() && self.angle > 0.0) {
-            return Err(ConfigError::new(format!("{prefix}.angle"), "must be > 0 rad"));
+            return Err(ConfigError::new(
+                format!("{prefix}.angle"),
+                "must be > 0 rad",
+            ));
         }
         if self.min_points < 10 {
-            return Err(ConfigError::new(format!("{prefix}.min_points"), "must be at least 10"));
+            return Err(ConfigError::new(
+                format!("{prefix}.min_points"),
+                "must be at least 10",
+            ));
         }
         Ok(())
     }
@@ -101,20 +112,32 @@ impl LoopConfig {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(ConfigError::new(format!("{prefix}.{f}"), format!("{v} must be > 0")))
+                Err(ConfigError::new(
+                    format!("{prefix}.{f}"),
+                    format!("{v} must be > 0"),
+                ))
             }
         };
         pos("search_radius", self.search_radius)?;
         pos("maximum_translation_std", self.maximum_translation_std)?;
         pos("maximum_rotation_std", self.maximum_rotation_std)?;
         if !(self.minimum_path_gap.is_finite() && self.minimum_path_gap >= 0.0) {
-            return Err(ConfigError::new(format!("{prefix}.minimum_path_gap"), "must be >= 0 m"));
+            return Err(ConfigError::new(
+                format!("{prefix}.minimum_path_gap"),
+                "must be >= 0 m",
+            ));
         }
         if self.maximum_candidates == 0 {
-            return Err(ConfigError::new(format!("{prefix}.maximum_candidates"), "must be at least 1"));
+            return Err(ConfigError::new(
+                format!("{prefix}.maximum_candidates"),
+                "must be at least 1",
+            ));
         }
         if self.minimum_inliers < 3 {
-            return Err(ConfigError::new(format!("{prefix}.minimum_inliers"), "must be at least 3"));
+            return Err(ConfigError::new(
+                format!("{prefix}.minimum_inliers"),
+                "must be at least 3",
+            ));
         }
         Ok(())
     }
@@ -313,13 +336,17 @@ impl Pipeline {
     /// A pipeline for a validated configuration.
     pub fn new(cfg: Config) -> Result<Self, ConfigError> {
         cfg.validate()?;
-        let radars: Vec<RadarModel> = cfg.radar_list().into_iter().map(|(_, r)| RadarModel::from(r)).collect();
+        let radars: Vec<RadarModel> = cfg
+            .radar_list()
+            .into_iter()
+            .map(|(_, r)| RadarModel::from(r))
+            .collect();
         Ok(Pipeline {
             odom: OdometryBuffer::new(cfg.odometry.clone()),
             builder: SubmapBuilder::new(cfg.submap.clone(), cfg.ego_motion.clone(), radars),
             pending: VecDeque::new(),
             keyframes: Vec::new(),
-            tree: kiddo::MutableKdTree::new(),
+            tree: kiddo::MutableKdTree::default(),
             last_keyframe: None,
             path_distance: 0.0,
             last_odom: None,
@@ -370,7 +397,10 @@ impl Pipeline {
                 self.last_odom = None;
                 self.newest_input = Some(stamp);
                 self.stats.time_resets += 1;
-                out.push(Event::TimeReset { previous: prev, got: stamp });
+                out.push(Event::TimeReset {
+                    previous: prev,
+                    got: stamp,
+                });
                 return;
             }
         }
@@ -390,7 +420,11 @@ impl Pipeline {
             Ok(()) => {}
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
                 // Within the tolerance: an out-of-order sample, not a restart.
-                self.drop(DropReason::BadOdometry, format!("odometry out of order: {got:?} after {newest:?}"), &mut out);
+                self.drop(
+                    DropReason::BadOdometry,
+                    format!("odometry out of order: {got:?} after {newest:?}"),
+                    &mut out,
+                );
                 return out;
             }
             Err(e) => {
@@ -411,16 +445,25 @@ impl Pipeline {
     pub fn push_cloud(&mut self, radar: usize, cloud: &PointCloud2) -> Vec<Event> {
         let mut out = Vec::new();
         let Some(name) = self.cfg.radar_names.get(radar) else {
-            self.drop(DropReason::UnknownRadar, format!("radar index {radar}"), &mut out);
+            self.drop(
+                DropReason::UnknownRadar,
+                format!("radar index {radar}"),
+                &mut out,
+            );
             return out;
         };
         let Some(rc) = self.cfg.radars.get(name) else {
-            self.drop(DropReason::UnknownRadar, format!("radar `{name}`"), &mut out);
+            self.drop(
+                DropReason::UnknownRadar,
+                format!("radar `{name}`"),
+                &mut out,
+            );
             return out;
         };
         match decode_detections(cloud, &rc.fields) {
             Ok(decoded) => {
-                self.stats.detections_invalid += (decoded.skipped_nonfinite + decoded.skipped_zero_range) as u64;
+                self.stats.detections_invalid +=
+                    (decoded.skipped_nonfinite + decoded.skipped_zero_range) as u64;
                 let scan = RadarScan {
                     radar,
                     stamp: cloud.header.stamp.into(),
@@ -428,7 +471,11 @@ impl Pipeline {
                 };
                 out.extend(self.push_scan(scan));
             }
-            Err(e) => self.drop(DropReason::BadCloud, format!("radar `{name}`: {e}"), &mut out),
+            Err(e) => self.drop(
+                DropReason::BadCloud,
+                format!("radar `{name}`: {e}"),
+                &mut out,
+            ),
         }
         out
     }
@@ -437,7 +484,11 @@ impl Pipeline {
     pub fn push_scan(&mut self, scan: RadarScan) -> Vec<Event> {
         let mut out = Vec::new();
         if scan.radar >= self.cfg.radar_names.len() {
-            self.drop(DropReason::UnknownRadar, format!("radar index {}", scan.radar), &mut out);
+            self.drop(
+                DropReason::UnknownRadar,
+                format!("radar index {}", scan.radar),
+                &mut out,
+            );
             return out;
         }
         self.check_time(scan.stamp, &mut out);
@@ -445,7 +496,10 @@ impl Pipeline {
             if let Some(old) = self.pending.pop_front() {
                 self.drop(
                     DropReason::QueueFull,
-                    format!("no odometry up to {:.3} s; dropped the oldest waiting scan", old.stamp.as_secs_f64()),
+                    format!(
+                        "no odometry up to {:.3} s; dropped the oldest waiting scan",
+                        old.stamp.as_secs_f64()
+                    ),
                     &mut out,
                 );
             }
@@ -470,10 +524,16 @@ impl Pipeline {
                     continue;
                 }
             };
-            let Some(scan) = self.pending.pop_front() else { break };
+            let Some(scan) = self.pending.pop_front() else {
+                break;
+            };
             let prior = self.odom.velocity_at(scan.stamp, 0.05);
             let Some(rep) = self.builder.add_scan(&scan, pose, prior) else {
-                self.drop(DropReason::UnknownRadar, format!("radar index {}", scan.radar), out);
+                self.drop(
+                    DropReason::UnknownRadar,
+                    format!("radar index {}", scan.radar),
+                    out,
+                );
                 continue;
             };
             self.stats.scans += 1;
@@ -502,7 +562,10 @@ impl Pipeline {
         while let Some(s) = self.pending.pop_front() {
             self.drop(
                 DropReason::NoOdometry,
-                format!("input ended before odometry reached {:.3} s", s.stamp.as_secs_f64()),
+                format!(
+                    "input ended before odometry reached {:.3} s",
+                    s.stamp.as_secs_f64()
+                ),
                 &mut out,
             );
         }
@@ -520,11 +583,13 @@ impl Pipeline {
             }
         }
         // Only with a full window: every radar has its N scans (or the window spans max_span).
-        let Some(submap) = self.builder.build() else { return };
+        let Some(submap) = self.builder.build() else {
+            return;
+        };
         if submap.len() < self.cfg.keyframe.min_points {
             return;
         }
-        let prepared = match PreparedSubmap::new(submap.point_set(true), &self.cfg.registration.descriptor) {
+        let prepared = match PreparedSubmap::new(submap.point_set(true), &self.cfg.registration) {
             Ok(p) => p,
             Err(e) => {
                 log::warn!("keyframe skipped: {e}");
@@ -557,7 +622,12 @@ impl Pipeline {
             self.search_revisits(&kf, out);
         }
         let p = kf.t_odom_body.translation.vector;
-        self.tree.add(&[p.x, p.y], id);
+        // Ids fit u32 (kiddo's item type) for four billion keyframes; beyond, the search ignores them.
+        if let Ok(item) = u32::try_from(id) {
+            if let Err(e) = self.tree.add(&[p.x, p.y], item) {
+                log::warn!("keyframe {id} not indexed for revisit search: {e:?}");
+            }
+        }
         self.keyframes.push(kf);
     }
 
@@ -565,22 +635,24 @@ impl Pipeline {
         let lc = &self.cfg.r#loop;
         let p = query.t_odom_body.translation.vector;
         let r2 = lc.search_radius * lc.search_radius;
-        let mut candidates: Vec<(f64, u64)> = self
-            .tree
-            .within::<SquaredEuclidean>(&[p.x, p.y], r2)
-            .into_iter()
-            .map(|n| (n.distance, n.item))
-            .filter(|&(_, id)| {
-                self.keyframes
-                    .get(id as usize)
-                    .is_some_and(|k| query.path_distance - k.path_distance >= lc.minimum_path_gap)
-            })
-            .collect();
+        let mut candidates: Vec<(f64, u64)> = Vec::new();
+        self.tree
+            .query(&[p.x, p.y])
+            .within::<SquaredEuclidean<f64>>(r2)
+            .unsorted()
+            .visit(|n| candidates.push((n.distance, u64::from(n.item))));
+        candidates.retain(|&(_, id)| {
+            self.keyframes
+                .get(id as usize)
+                .is_some_and(|k| query.path_distance - k.path_distance >= lc.minimum_path_gap)
+        });
         candidates.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         candidates.truncate(lc.maximum_candidates);
         let mut best: Option<LoopClosure> = None;
         for (_, id) in candidates {
-            let Some(cand) = self.keyframes.get(id as usize) else { continue };
+            let Some(cand) = self.keyframes.get(id as usize) else {
+                continue;
+            };
             self.stats.registrations += 1;
             let res = register_prepared(&query.prepared, &cand.prepared, &self.cfg.registration);
             match self.gate(query, cand, res) {
@@ -591,8 +663,18 @@ impl Pipeline {
                 }
                 Err((reason, detail)) => {
                     *self.stats.rejected.entry(reason).or_default() += 1;
-                    log::debug!("revisit {} -> {} rejected ({}): {detail}", query.id, id, reason.name());
-                    out.push(Event::Rejected { query_id: query.id, match_id: id, reason, detail });
+                    log::debug!(
+                        "revisit {} -> {} rejected ({}): {detail}",
+                        query.id,
+                        id,
+                        reason.name()
+                    );
+                    out.push(Event::Rejected {
+                        query_id: query.id,
+                        match_id: id,
+                        reason,
+                        detail,
+                    });
                 }
             }
         }
@@ -621,13 +703,19 @@ impl Pipeline {
             return Err((RejectReason::FewInliers, format!("{} inliers", r.inliers)));
         }
         if !r.converged {
-            return Err((RejectReason::NotConverged, format!("{} iterations", r.iterations)));
+            return Err((
+                RejectReason::NotConverged,
+                format!("{} iterations", r.iterations),
+            ));
         }
         let xy = r.covariance.fixed_view::<2, 2>(0, 0).into_owned();
         let t_std = xy.symmetric_eigenvalues().max().max(0.0).sqrt();
         let r_std = r.covariance[(5, 5)].max(0.0).sqrt();
         if !(t_std <= lc.maximum_translation_std && r_std <= lc.maximum_rotation_std) {
-            return Err((RejectReason::Uncertain, format!("std {t_std:.3} m, {r_std:.4} rad")));
+            return Err((
+                RejectReason::Uncertain,
+                format!("std {t_std:.3} m, {r_std:.4} rad"),
+            ));
         }
         Ok(LoopClosure {
             query_id: query.id,
@@ -639,8 +727,11 @@ impl Pipeline {
             t_match_query: iso3_from_iso2(&r.t_target_source),
             covariance: r.covariance,
             inliers: r.inliers as u32,
-            score: if r.candidates > 0 { r.inliers as f64 / r.candidates as f64 } else { 0.0 },
+            score: if r.candidates > 0 {
+                r.inliers as f64 / r.candidates as f64
+            } else {
+                0.0
+            },
         })
     }
 }
-

@@ -176,6 +176,7 @@ impl SimConfig {
             body_frame: self.body_frame.clone(),
             radar_names: names,
             radars,
+            ..Config::default()
         }
     }
 

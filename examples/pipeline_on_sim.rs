@@ -1,0 +1,58 @@
+//! Scratch: the pipeline over the default simulated drive, closures against ground truth.
+use dc_loc::math::{iso2_from_iso3, iso3_from_iso2, wrap_angle};
+use dc_loc::pipeline::{Event, Pipeline};
+use dc_loc::sim::{SimConfig, SimEventRef, simulate};
+use std::time::Instant;
+
+fn main() {
+    let mut cfg = SimConfig::default();
+    if std::env::args().any(|a| a == "--perfect") {
+        cfg.odometry = dc_loc::sim::config::OdometrySimConfig::perfect();
+    }
+    let t0 = Instant::now();
+    let drive = simulate(&cfg).unwrap();
+    println!("sim {:.2} s", t0.elapsed().as_secs_f64());
+    let mut p = Pipeline::new(drive.to_config()).unwrap();
+    let t0 = Instant::now();
+    let mut closures = Vec::new();
+    for ev in drive.events() {
+        let out = match ev {
+            SimEventRef::Odometry(o) => p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)),
+            SimEventRef::Scan(s) => p.push_scan(s.scan.clone()),
+            SimEventRef::GroundTruth(_) => continue,
+        };
+        for e in out {
+            if let Event::Closure(c) = e {
+                closures.push(c);
+            }
+        }
+    }
+    println!(
+        "pipeline {:.2} s, {:?}",
+        t0.elapsed().as_secs_f64(),
+        p.stats()
+    );
+    let mut bad = 0;
+    let (mut st, mut sr) = (0.0, 0.0);
+    for c in &closures {
+        let q = drive.state_at(c.query_stamp).t_map_body;
+        let m = drive.state_at(c.match_stamp).t_map_body;
+        let truth = m.inverse() * q;
+        let est = iso2_from_iso3(&c.t_match_query);
+        let et = (truth.translation.vector - est.translation.vector).norm();
+        let er = wrap_angle(truth.rotation.angle() - est.rotation.angle()).abs();
+        st += et;
+        sr += er;
+        if et > 1.0 {
+            bad += 1;
+        }
+    }
+    let n = closures.len().max(1) as f64;
+    println!(
+        "closures {} bad {} mean t {:.3} m mean r {:.4} rad",
+        closures.len(),
+        bad,
+        st / n,
+        sr / n
+    );
+}

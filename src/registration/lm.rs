@@ -312,6 +312,36 @@ pub fn refine(
     initial: &Iso2,
     cfg: &LmConfig,
 ) -> Result<LmResult, RegistrationError> {
+    let p = refine_pose(source, target, pairs, initial, cfg)?;
+    let covariance = covariance_at(&p.t_target_source, source, target, pairs, cfg)?;
+    Ok(LmResult {
+        t_target_source: p.t_target_source,
+        covariance,
+        information: p.information,
+        cost: p.cost,
+        iterations: p.iterations,
+        converged: p.converged,
+    })
+}
+
+/// What [`refine_pose`] returns: [`LmResult`] without the covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct LmPose {
+    pub(crate) t_target_source: Iso2,
+    pub(crate) information: Mat3,
+    pub(crate) cost: f64,
+    pub(crate) iterations: usize,
+    pub(crate) converged: bool,
+}
+
+/// The LM iterations of [`refine`] without the covariance (for intermediate solves).
+pub(crate) fn refine_pose(
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    initial: &Iso2,
+    cfg: &LmConfig,
+) -> Result<LmPose, RegistrationError> {
     if pairs.len() < 2 {
         return Err(RegistrationError::TooFewInliers {
             have: pairs.len(),
@@ -363,10 +393,8 @@ pub fn refine(
             break;
         }
     }
-    let covariance = covariance_at(&t, source, target, pairs, cfg)?;
-    Ok(LmResult {
+    Ok(LmPose {
         t_target_source: t,
-        covariance,
         information: cur.hessian,
         cost: cur.cost,
         iterations,

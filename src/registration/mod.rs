@@ -131,17 +131,18 @@ pub struct RegistrationConfig {
     /// After LM, candidates within this many sigma of the estimate (Mahalanobis with the LM weights)
     /// become the inliers, one per source and per target point, and LM runs again (default 3.5:
     /// 99.8 % of 2-D Gaussian residuals); see [`register_correspondences`]. Measured on the
-    /// synthetic scenes: without the re-selection the pipeline's mean NEES was 9-19 (ideal 3),
-    /// with it 3.0-5.7; keeping one pair per source point with the smallest residual gave 6.5-15.6.
+    /// synthetic scenes (mean NEES of the pipeline, ideal 3, before `covariance_scale`): 13-20
+    /// without the re-selection, 3.1-4.3 with it; keeping one pair per source point with the
+    /// smallest residual instead (measured with 500 keypoints) gave 6.5-15.6.
     pub reselect_gate: f64,
     /// Rounds of that re-selection; 0 = off (default 2).
     pub reselect_rounds: usize,
-    /// Factor on the reported covariance (default 1.5). LM's covariance is consistent when the
+    /// Factor on the reported covariance (default 1.3). LM's covariance is consistent when the
     /// correspondences are right (tests/registration.rs, `covariance_is_consistent`); descriptor
     /// association also accepts neighbouring reflectors within the gate, whose offsets bias the
-    /// estimate beyond what the residual scatter shows. On the synthetic street scenes of
-    /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.0-5.7 (ideal 3)
-    /// without this factor; 1.5 centres it. Set 1.0 for the bare estimator.
+    /// estimate beyond what the residual scatter shows. On the four synthetic scenarios of
+    /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.1-4.3 (ideal 3)
+    /// without this factor, 2.4-3.3 with 1.3. Set 1.0 for the bare estimator.
     pub covariance_scale: f64,
     /// Descriptors (RSD).
     pub descriptor: descriptor::DescriptorConfig,
@@ -161,7 +162,7 @@ impl Default for RegistrationConfig {
             min_inlier_spread: 1.0,
             reselect_gate: 3.5,
             reselect_rounds: 2,
-            covariance_scale: 1.5,
+            covariance_scale: 1.3,
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
             ransac: ransac::RansacConfig::default(),
@@ -427,7 +428,8 @@ fn ransac_and_refine(
     };
     let mut pairs = pairs_of(&inliers);
     check_inliers(source, &pairs, cfg)?;
-    let mut lm = lm::refine(source, target, &pairs, &rs.t_target_source, &cfg.lm)?;
+    let mut lm = lm::refine_pose(source, target, &pairs, &rs.t_target_source, &cfg.lm)?;
+    let mut iterations = lm.iterations;
     for _ in 0..cfg.reselect_rounds {
         let sel = reselect(source, target, &candidates, &lm.t_target_source, cfg);
         if sel == inliers {
@@ -435,16 +437,19 @@ fn ransac_and_refine(
         }
         let new_pairs = pairs_of(&sel);
         check_inliers(source, &new_pairs, cfg)?;
-        lm = lm::refine(source, target, &new_pairs, &lm.t_target_source, &cfg.lm)?;
+        lm = lm::refine_pose(source, target, &new_pairs, &lm.t_target_source, &cfg.lm)?;
+        iterations += lm.iterations;
         inliers = sel;
         pairs = new_pairs;
     }
-    let covariance_se2 = lm.covariance * cfg.covariance_scale;
+    // Covariance at the optimum; also refuses an unobservable pose (singular information).
+    let covariance = lm::covariance_at(&lm.t_target_source, source, target, &pairs, &cfg.lm)?;
+    let covariance_se2 = covariance * cfg.covariance_scale;
     let result = RegistrationResult {
         t_target_source: lm.t_target_source,
         covariance: covariance_ros_from_se2(&covariance_se2),
         converged: lm.converged,
-        iterations: lm.iterations,
+        iterations,
         inliers: pairs.len(),
         candidates: candidates.len(),
         cost: lm.cost,

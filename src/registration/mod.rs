@@ -3,10 +3,12 @@
 //! Entry points: [`PointSet2`] (points with 2x2 covariances, the input of every method),
 //! [`RegistrationResult`] (output of every method, DC-Loc and baselines alike), [`RegistrationError`],
 //! [`covariance_ros_from_se2`]; DC-Loc itself: [`RegistrationConfig`], [`PreparedSubmap`] (a submap
-//! with its descriptors and k-d trees, built once per keyframe), [`register`] / [`register_prepared`]
-//! (descriptors -> KNN -> RANSAC -> LM) and [`register_detailed`] (the same, with the
-//! correspondences and inliers). The steps are public for reuse (e.g. by the MC-RANSAC-style
-//! baseline): [`descriptor`] (RSD), [`matching`] (KNN), [`ransac`], [`lm`] (eq. 10), [`robust`].
+//! with its keypoint descriptors and their index, built once per keyframe), [`register`] /
+//! [`register_prepared`] (descriptors -> KNN -> RANSAC -> LM -> inlier re-selection -> LM ->
+//! covariance), [`register_detailed`] (the same, with the correspondences and inliers) and
+//! [`register_correspondences`] (everything after association, on given candidates). The steps are
+//! public for reuse (e.g. by the MC-RANSAC-style baseline): [`descriptor`] (RSD), [`matching`]
+//! (KNN), [`ransac`], [`lm`] (eq. 10 and the covariance), [`robust`].
 //! Naming: the *source* is the current (query) submap X, the *target* the previous (match) submap Y;
 //! `t_target_source` maps source coordinates into the target frame (paper: `T_b^p`), `d_i = y_i - T x_i`.
 //! Pose covariances are over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (right

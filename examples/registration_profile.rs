@@ -1,8 +1,8 @@
 //! Per-step CPU time of the registration pipeline on synthetic pairs (single thread).
 //!
-//! `cargo run --release --example registration_profile [points]`. Each step is repeated on the same
-//! pairs and timed by the thread's CPU time from /proc (Linux), which a loaded machine does not
-//! inflate the way it inflates the wall clock.
+//! `cargo run --release --example registration_profile [points] [repetitions]` (default 1000, 100).
+//! Each step is repeated on the same pairs and timed by the thread's CPU time from /proc (Linux),
+//! which a loaded machine does not inflate the way it inflates the wall clock.
 #[path = "../tests/support/radar_scene.rs"]
 mod radar_scene;
 use dc_loc::registration::*;

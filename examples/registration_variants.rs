@@ -159,7 +159,31 @@ fn main() {
             "r10+spec6 R35 hell",
             desc(35.0, 10, A::Spectrum, 6, N::Hellinger),
         ),
-        ("keypoints 500", edit(|c| c.descriptor.max_keypoints = 500)),
+        (
+            "keypoints 1000",
+            edit(|c| c.descriptor.max_keypoints = 1000),
+        ),
+        (
+            "kp 400, queries 300",
+            edit(|c| {
+                c.descriptor.max_keypoints = 400;
+                c.matching.max_queries = 300;
+            }),
+        ),
+        (
+            "kp 400, queries 400",
+            edit(|c| {
+                c.descriptor.max_keypoints = 400;
+                c.matching.max_queries = 400;
+            }),
+        ),
+        (
+            "kp 300, queries 300",
+            edit(|c| {
+                c.descriptor.max_keypoints = 300;
+                c.matching.max_queries = 300;
+            }),
+        ),
         (
             "keypoints 2000",
             edit(|c| c.descriptor.max_keypoints = 2000),
@@ -170,7 +194,13 @@ fn main() {
         ("k 5", edit(|c| c.matching.k = 5)),
         ("k 3 ratio 0.9", edit(|c| c.matching.ratio = 0.9)),
         ("queries 200", edit(|c| c.matching.max_queries = 200)),
-        ("queries 800", edit(|c| c.matching.max_queries = 800)),
+        (
+            "kp 800, queries 800",
+            edit(|c| {
+                c.descriptor.max_keypoints = 800;
+                c.matching.max_queries = 800;
+            }),
+        ),
         (
             "ransac maha gate 3",
             edit(|c| c.ransac.mahalanobis_gate = 3.0),

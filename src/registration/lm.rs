@@ -25,6 +25,21 @@ use crate::registration::{PointSet2, RegistrationError};
 use serde::{Deserialize, Serialize};
 
 /// How the covariance of the estimate is computed at the optimum.
+///
+/// Measured mean NEES of the 3-dof error over 1000 seeded trials with known correspondences
+/// (ideal 3; `cargo test --release --test registration report_covariance_estimators -- --ignored
+/// --nocapture`):
+///
+/// | loss, weights               | Information | Expected | Sandwich |
+/// |-----------------------------|------------:|---------:|---------:|
+/// | least squares, eq. 10       |        2.90 |     2.90 |     3.00 |
+/// | least squares, isotropic    |        4.74 |     4.74 |     3.11 |
+/// | Cauchy c = 3, eq. 10        |        2.56 |     2.94 |     3.03 |
+/// | Cauchy c = 3, isotropic     |        3.71 |     4.54 |     3.10 |
+/// | Cauchy c = 1, eq. 10        |        1.83 |     2.97 |     3.18 |
+/// | Huber c = 1.5, eq. 10       |        2.89 |     2.96 |     3.06 |
+///
+/// Only the sandwich stays consistent in every case, hence the default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CovarianceMode {
@@ -312,6 +327,36 @@ pub fn refine(
     initial: &Iso2,
     cfg: &LmConfig,
 ) -> Result<LmResult, RegistrationError> {
+    let p = refine_pose(source, target, pairs, initial, cfg)?;
+    let covariance = covariance_at(&p.t_target_source, source, target, pairs, cfg)?;
+    Ok(LmResult {
+        t_target_source: p.t_target_source,
+        covariance,
+        information: p.information,
+        cost: p.cost,
+        iterations: p.iterations,
+        converged: p.converged,
+    })
+}
+
+/// What [`refine_pose`] returns: [`LmResult`] without the covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct LmPose {
+    pub(crate) t_target_source: Iso2,
+    pub(crate) information: Mat3,
+    pub(crate) cost: f64,
+    pub(crate) iterations: usize,
+    pub(crate) converged: bool,
+}
+
+/// The LM iterations of [`refine`] without the covariance (for intermediate solves).
+pub(crate) fn refine_pose(
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    initial: &Iso2,
+    cfg: &LmConfig,
+) -> Result<LmPose, RegistrationError> {
     if pairs.len() < 2 {
         return Err(RegistrationError::TooFewInliers {
             have: pairs.len(),
@@ -363,10 +408,8 @@ pub fn refine(
             break;
         }
     }
-    let covariance = covariance_at(&t, source, target, pairs, cfg)?;
-    Ok(LmResult {
+    Ok(LmPose {
         t_target_source: t,
-        covariance,
         information: cur.hessian,
         cost: cur.cost,
         iterations,

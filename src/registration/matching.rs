@@ -20,10 +20,10 @@
 //! `ratio` times the distance of the (K+1)-th.
 //!
 //! Measured (examples/registration_variants.rs): k = 1, 3 and 5 and the ratio test all registered
-//! every synthetic pair; k = 1 or a 0.9 ratio raise the share of true candidates (e.g. 34 % -> 44 % /
-//! 53 % at 1000 points) but drop true matches that k = 3 keeps, so the default stays at the
-//! paper's plain KNN with k = 3. 200 queries instead of 400 raised the translation error by about
-//! a third; 800 lowered it by a tenth at twice the matching cost.
+//! every synthetic pair; k = 1 or a 0.9 ratio raise the share of true candidates (e.g. 31 % -> 42 % /
+//! 49 % at 1000 points) but drop true matches that k = 3 keeps, with no consistent gain in
+//! accuracy, so the default stays at the paper's plain KNN with k = 3. 200 queries instead of 400
+//! raised the translation error by 20-45 %.
 
 use crate::registration::RegistrationError;
 use crate::registration::descriptor::{DESCRIPTOR_DIM, Descriptor};
@@ -54,7 +54,8 @@ pub struct MatchingConfig {
     /// Ratio test: keep the m-th neighbour only if its distance is below `ratio` times that of the
     /// (k+1)-th neighbour; 1.0 = off (default 1.0).
     pub ratio: f64,
-    /// Most source points queried; above it a fixed pseudo-random subset (default 400).
+    /// Most source keypoints queried; above it a fixed pseudo-random subset (default 400, i.e. all
+    /// of the default 400 keypoints).
     pub max_queries: usize,
     /// Search backend (default `scan`).
     pub backend: MatchingBackend,

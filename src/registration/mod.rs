@@ -3,10 +3,12 @@
 //! Entry points: [`PointSet2`] (points with 2x2 covariances, the input of every method),
 //! [`RegistrationResult`] (output of every method, DC-Loc and baselines alike), [`RegistrationError`],
 //! [`covariance_ros_from_se2`]; DC-Loc itself: [`RegistrationConfig`], [`PreparedSubmap`] (a submap
-//! with its descriptors and k-d trees, built once per keyframe), [`register`] / [`register_prepared`]
-//! (descriptors -> KNN -> RANSAC -> LM) and [`register_detailed`] (the same, with the
-//! correspondences and inliers). The steps are public for reuse (e.g. by the MC-RANSAC-style
-//! baseline): [`descriptor`] (RSD), [`matching`] (KNN), [`ransac`], [`lm`] (eq. 10), [`robust`].
+//! with its keypoint descriptors and their index, built once per keyframe), [`register`] /
+//! [`register_prepared`] (descriptors -> KNN -> RANSAC -> LM -> inlier re-selection -> LM ->
+//! covariance), [`register_detailed`] (the same, with the correspondences and inliers) and
+//! [`register_correspondences`] (everything after association, on given candidates). The steps are
+//! public for reuse (e.g. by the MC-RANSAC-style baseline): [`descriptor`] (RSD), [`matching`]
+//! (KNN), [`ransac`], [`lm`] (eq. 10 and the covariance), [`robust`].
 //! Naming: the *source* is the current (query) submap X, the *target* the previous (match) submap Y;
 //! `t_target_source` maps source coordinates into the target frame (paper: `T_b^p`), `d_i = y_i - T x_i`.
 //! Pose covariances are over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (right
@@ -131,17 +133,18 @@ pub struct RegistrationConfig {
     /// After LM, candidates within this many sigma of the estimate (Mahalanobis with the LM weights)
     /// become the inliers, one per source and per target point, and LM runs again (default 3.5:
     /// 99.8 % of 2-D Gaussian residuals); see [`register_correspondences`]. Measured on the
-    /// synthetic scenes: without the re-selection the pipeline's mean NEES was 9-19 (ideal 3),
-    /// with it 3.0-5.7; keeping one pair per source point with the smallest residual gave 6.5-15.6.
+    /// synthetic scenes (mean NEES of the pipeline, ideal 3, before `covariance_scale`): 13-20
+    /// without the re-selection, 3.1-4.3 with it; keeping one pair per source point with the
+    /// smallest residual instead (measured with 500 keypoints) gave 6.5-15.6.
     pub reselect_gate: f64,
     /// Rounds of that re-selection; 0 = off (default 2).
     pub reselect_rounds: usize,
-    /// Factor on the reported covariance (default 1.5). LM's covariance is consistent when the
+    /// Factor on the reported covariance (default 1.3). LM's covariance is consistent when the
     /// correspondences are right (tests/registration.rs, `covariance_is_consistent`); descriptor
     /// association also accepts neighbouring reflectors within the gate, whose offsets bias the
-    /// estimate beyond what the residual scatter shows. On the synthetic street scenes of
-    /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.0-5.7 (ideal 3)
-    /// without this factor; 1.5 centres it. Set 1.0 for the bare estimator.
+    /// estimate beyond what the residual scatter shows. On the four synthetic scenarios of
+    /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.1-4.3 (ideal 3)
+    /// without this factor, 2.4-3.3 with 1.3. Set 1.0 for the bare estimator.
     pub covariance_scale: f64,
     /// Descriptors (RSD).
     pub descriptor: descriptor::DescriptorConfig,
@@ -161,7 +164,7 @@ impl Default for RegistrationConfig {
             min_inlier_spread: 1.0,
             reselect_gate: 3.5,
             reselect_rounds: 2,
-            covariance_scale: 1.5,
+            covariance_scale: 1.3,
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
             ransac: ransac::RansacConfig::default(),
@@ -427,7 +430,8 @@ fn ransac_and_refine(
     };
     let mut pairs = pairs_of(&inliers);
     check_inliers(source, &pairs, cfg)?;
-    let mut lm = lm::refine(source, target, &pairs, &rs.t_target_source, &cfg.lm)?;
+    let mut lm = lm::refine_pose(source, target, &pairs, &rs.t_target_source, &cfg.lm)?;
+    let mut iterations = lm.iterations;
     for _ in 0..cfg.reselect_rounds {
         let sel = reselect(source, target, &candidates, &lm.t_target_source, cfg);
         if sel == inliers {
@@ -435,16 +439,19 @@ fn ransac_and_refine(
         }
         let new_pairs = pairs_of(&sel);
         check_inliers(source, &new_pairs, cfg)?;
-        lm = lm::refine(source, target, &new_pairs, &lm.t_target_source, &cfg.lm)?;
+        lm = lm::refine_pose(source, target, &new_pairs, &lm.t_target_source, &cfg.lm)?;
+        iterations += lm.iterations;
         inliers = sel;
         pairs = new_pairs;
     }
-    let covariance_se2 = lm.covariance * cfg.covariance_scale;
+    // Covariance at the optimum; also refuses an unobservable pose (singular information).
+    let covariance = lm::covariance_at(&lm.t_target_source, source, target, &pairs, &cfg.lm)?;
+    let covariance_se2 = covariance * cfg.covariance_scale;
     let result = RegistrationResult {
         t_target_source: lm.t_target_source,
         covariance: covariance_ros_from_se2(&covariance_se2),
         converged: lm.converged,
-        iterations: lm.iterations,
+        iterations,
         inliers: pairs.len(),
         candidates: candidates.len(),
         cost: lm.cost,

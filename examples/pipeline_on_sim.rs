@@ -9,6 +9,9 @@ fn main() {
     if std::env::args().any(|a| a == "--perfect") {
         cfg.odometry = dc_loc::sim::config::OdometrySimConfig::perfect();
     }
+    if std::env::args().any(|a| a == "--nonoise") {
+        cfg.noise.model = dc_loc::sim::NoiseModel::None;
+    }
     let t0 = Instant::now();
     let drive = simulate(&cfg).unwrap();
     println!("sim {:.2} s", t0.elapsed().as_secs_f64());
@@ -23,7 +26,7 @@ fn main() {
         };
         for e in out {
             if let Event::Closure(c) = e {
-                closures.push(c);
+                closures.push(*c);
             }
         }
     }
@@ -32,6 +35,7 @@ fn main() {
         t0.elapsed().as_secs_f64(),
         p.stats()
     );
+    let mut errs: Vec<(f64, f64, u32, f64)> = Vec::new();
     let mut bad = 0;
     let (mut st, mut sr) = (0.0, 0.0);
     for c in &closures {
@@ -41,10 +45,21 @@ fn main() {
         let est = iso2_from_iso3(&c.t_match_query);
         let et = (truth.translation.vector - est.translation.vector).norm();
         let er = wrap_angle(truth.rotation.angle() - est.rotation.angle()).abs();
+        errs.push((et, er, c.inliers, c.covariance[(0, 0)].sqrt()));
         st += et;
         sr += er;
         if et > 1.0 {
             bad += 1;
+        }
+    }
+    errs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for q in [0.1, 0.25, 0.5, 0.75, 0.9, 0.95, 1.0] {
+        let i = ((errs.len() as f64 - 1.0) * q) as usize;
+        if let Some(e) = errs.get(i) {
+            println!(
+                "q{q}: t {:.3} r {:.4} inliers {} sx {:.3}",
+                e.0, e.1, e.2, e.3
+            );
         }
     }
     let n = closures.len().max(1) as f64;

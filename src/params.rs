@@ -284,7 +284,7 @@ other_node:
         beta: 0.05
       rear:
         topic: /radar/rear
-        extrinsic: [-1.0, 0.0, 0.5, 0.0, 0.0, 3.14159]
+        extrinsic: [-1.0, 0.0, 0.5, 0.0, 0.0, 3.1]
     loop:
       search_radius: 20
 "#;
@@ -296,7 +296,7 @@ other_node:
         assert_eq!(cfg.body_frame, "base_footprint");
         assert_eq!(cfg.radar_names, vec!["front", "rear"]);
         assert_eq!(cfg.radars["front"].beta, 0.05);
-        assert_eq!(cfg.radars["rear"].extrinsic[5], 3.14159);
+        assert_eq!(cfg.radars["rear"].extrinsic[5], 3.1);
         assert_eq!(
             cfg.radars["rear"].beta, 0.04,
             "unset fields keep the defaults"

@@ -253,7 +253,7 @@ pub enum Event {
         points: usize,
     },
     /// A loop closure passed every gate.
-    Closure(LoopClosure),
+    Closure(Box<LoopClosure>),
     /// A candidate revisit was rejected.
     Rejected {
         /// Query keyframe.
@@ -687,7 +687,7 @@ impl Pipeline {
                 c.inliers,
                 c.score
             );
-            out.push(Event::Closure(c));
+            out.push(Event::Closure(Box::new(c)));
         }
     }
 

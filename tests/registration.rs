@@ -29,18 +29,16 @@ fn forward_scene(rng: &mut StdRng, n: usize) -> Scene {
 }
 
 /// RANSAC + LM (+ re-selection) on the given correspondences, as the pipeline runs them.
+/// RANSAC + LM on given correspondences, without the dense stage: these tests check eq. 10 on known
+/// pairs, which nearest-neighbour re-association would replace.
 fn ransac_lm(
     source: &PointSet2,
     target: &PointSet2,
     corr: &[Correspondence],
 ) -> RegistrationDetail {
-    register_correspondences(
-        source,
-        target,
-        corr.to_vec(),
-        &RegistrationConfig::default(),
-    )
-    .unwrap()
+    let mut cfg = RegistrationConfig::default();
+    cfg.dense.enabled = false;
+    register_correspondences(source, target, corr.to_vec(), &cfg).unwrap()
 }
 
 fn one_to_one(n: usize) -> Vec<Correspondence> {

@@ -14,6 +14,7 @@
 //! Pose covariances are over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (right
 //! perturbation in the source body frame, GTSAM `Pose2` convention) before the ROS reordering.
 
+pub mod dense;
 pub mod descriptor;
 pub mod lm;
 pub mod matching;
@@ -146,6 +147,10 @@ pub struct RegistrationConfig {
     /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.1-4.3 (ideal 3)
     /// without this factor, 2.4-3.3 with 1.3. Set 1.0 for the bare estimator.
     pub covariance_scale: f64,
+    /// Dense refinement after the descriptor stage (default on): the descriptor pairs join different
+    /// samples of the same surfaces, which leaves a bias of decimetres; re-associating every source point
+    /// with its nearest target point under the current estimate and solving eq. 10 again removes it.
+    pub dense: dense::DenseConfig,
     /// Descriptors (RSD).
     pub descriptor: descriptor::DescriptorConfig,
     /// KNN matching in descriptor space (its query subset is drawn with `ransac.seed`).
@@ -165,6 +170,7 @@ impl Default for RegistrationConfig {
             reselect_gate: 3.5,
             reselect_rounds: 2,
             covariance_scale: 1.3,
+            dense: dense::DenseConfig::default(),
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
             ransac: ransac::RansacConfig::default(),
@@ -213,7 +219,8 @@ impl RegistrationConfig {
         self.descriptor.validate("registration.descriptor")?;
         self.matching.validate("registration.matching")?;
         self.ransac.validate("registration.ransac")?;
-        self.lm.validate("registration.lm")
+        self.lm.validate("registration.lm")?;
+        self.dense.validate("registration.dense")
     }
 }
 
@@ -227,6 +234,8 @@ pub struct PreparedSubmap {
     index: matching::DescriptorIndex,
     descriptor_config: descriptor::DescriptorConfig,
     backend: matching::MatchingBackend,
+    point_tree: dense::TargetTree,
+    dense_points: PointSet2,
 }
 
 impl PreparedSubmap {
@@ -243,6 +252,8 @@ impl PreparedSubmap {
             cfg.descriptor.used_dim(),
             cfg.matching.backend,
         )?;
+        let point_tree = dense::target_tree(&points)?;
+        let dense_points = dense::with_surface_covariances(&points, &point_tree, &cfg.dense);
         Ok(PreparedSubmap {
             points,
             keypoints,
@@ -250,6 +261,8 @@ impl PreparedSubmap {
             index,
             descriptor_config: cfg.descriptor.clone(),
             backend: cfg.matching.backend,
+            point_tree,
+            dense_points,
         })
     }
     /// The points and covariances.
@@ -385,7 +398,17 @@ pub fn register_detailed(
         c.target = target.keypoints[c.target as usize];
     }
     // 2.-5. RANSAC, geometry check, LM, inlier re-selection.
-    ransac_and_refine(&source.points, &target.points, candidates, cfg)
+    ransac_and_refine(
+        &source.points,
+        &target.points,
+        Some((
+            &source.dense_points,
+            &target.dense_points,
+            &target.point_tree,
+        )),
+        candidates,
+        cfg,
+    )
 }
 
 /// RANSAC + LM on given candidate correspondences (the part of the pipeline after association;
@@ -408,13 +431,14 @@ pub fn register_correspondences(
     check_sizes(source.len(), target.len(), cfg)?;
     check_point_set(source)?;
     check_point_set(target)?;
-    ransac_and_refine(source, target, candidates, cfg)
+    ransac_and_refine(source, target, None, candidates, cfg)
 }
 
 /// Steps 2-5 on checked input.
 fn ransac_and_refine(
     source: &PointSet2,
     target: &PointSet2,
+    prepared_dense: Option<(&PointSet2, &PointSet2, &dense::TargetTree)>,
     candidates: Vec<ransac::Correspondence>,
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
@@ -444,15 +468,60 @@ fn ransac_and_refine(
         inliers = sel;
         pairs = new_pairs;
     }
+    let ransac_inliers = pairs.len();
+    // The covariance comes from the descriptor pairs (evaluated at the final pose): they are distinct
+    // physical matches whose scatter the sandwich estimator measures. Nearest-neighbour pairs share
+    // target points and their residuals are not independent, so their information overstates the
+    // certainty (pipeline NEES about 20 instead of 3); the dense pose is the more accurate, so this
+    // covariance is conservative for it.
+    let descriptor_pairs = pairs.clone();
+    // 6. Dense refinement over nearest-neighbour pairs (see `dense`).
+    let built;
+    let mut dense_refined = false;
+    if cfg.dense.enabled {
+        let (src, tgt, tree) = match prepared_dense {
+            Some(p) => p,
+            None => {
+                let st = dense::target_tree(source)?;
+                let tt = dense::target_tree(target)?;
+                built = (
+                    dense::with_surface_covariances(source, &st, &cfg.dense),
+                    dense::with_surface_covariances(target, &tt, &cfg.dense),
+                    tt,
+                );
+                (&built.0, &built.1, &built.2)
+            }
+        };
+        if let Some(d) =
+            dense::refine_dense(src, tgt, tree, &lm.t_target_source, &cfg.dense, &cfg.lm)?
+        {
+            lm.t_target_source = d.t_target_source;
+            lm.converged = d.converged;
+            lm.cost = d.cost;
+            iterations += d.iterations;
+            dense_refined = true;
+        }
+    }
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
-    let covariance = lm::covariance_at(&lm.t_target_source, source, target, &pairs, &cfg.lm)?;
-    let covariance_se2 = covariance * cfg.covariance_scale;
+    let covariance = lm::covariance_at(
+        &lm.t_target_source,
+        source,
+        target,
+        &descriptor_pairs,
+        &cfg.lm,
+    )?;
+    let scale = if dense_refined {
+        cfg.covariance_scale * cfg.dense.covariance_scale
+    } else {
+        cfg.covariance_scale
+    };
+    let covariance_se2 = covariance * scale;
     let result = RegistrationResult {
         t_target_source: lm.t_target_source,
         covariance: covariance_ros_from_se2(&covariance_se2),
         converged: lm.converged,
         iterations,
-        inliers: pairs.len(),
+        inliers: ransac_inliers,
         candidates: candidates.len(),
         cost: lm.cost,
     };

@@ -8,6 +8,7 @@
 
 pub mod bag;
 pub mod baselines;
+pub mod cli;
 pub mod cloud;
 pub mod config;
 pub mod io;

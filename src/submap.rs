@@ -62,6 +62,8 @@ pub enum OdometryError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
+    /// nav_msgs/Odometry topic (default `/odom`).
+    pub topic: String,
     /// How much odometry history to keep, s (default 30).
     pub buffer_duration: f64,
     /// Largest gap between two odometry samples that is still interpolated across, s (default 0.5).
@@ -73,6 +75,7 @@ pub struct OdometryConfig {
 impl Default for OdometryConfig {
     fn default() -> Self {
         OdometryConfig {
+            topic: "/odom".into(),
             buffer_duration: 30.0,
             max_gap: 0.5,
             max_extrapolation: 0.05,
@@ -83,6 +86,9 @@ impl Default for OdometryConfig {
 impl OdometryConfig {
     /// Rejects unusable values, naming the parameter under `prefix`.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        if self.topic.is_empty() {
+            return Err(ConfigError::new(format!("{prefix}.topic"), "must not be empty"));
+        }
         for (f, v) in [
             ("buffer_duration", self.buffer_duration),
             ("max_gap", self.max_gap),

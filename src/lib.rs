@@ -11,6 +11,7 @@ pub mod baselines;
 pub mod cli;
 pub mod cloud;
 pub mod config;
+pub mod eval;
 pub mod io;
 pub mod math;
 pub mod msgs;

@@ -87,7 +87,10 @@ impl OdometryConfig {
     /// Rejects unusable values, naming the parameter under `prefix`.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         if self.topic.is_empty() {
-            return Err(ConfigError::new(format!("{prefix}.topic"), "must not be empty"));
+            return Err(ConfigError::new(
+                format!("{prefix}.topic"),
+                "must not be empty",
+            ));
         }
         for (f, v) in [
             ("buffer_duration", self.buffer_duration),

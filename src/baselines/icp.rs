@@ -196,6 +196,7 @@ pub fn register_icp(
         iterations,
         inliers: pairs.len(),
         candidates: source.len(),
+        overlap: pairs.len() as f64 / source.len() as f64,
         cost: mse,
     })
 }

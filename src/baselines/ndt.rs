@@ -511,6 +511,7 @@ pub fn register_ndt(
         iterations,
         inliers: obj.inliers,
         candidates: source.len(),
+        overlap: obj.inliers as f64 / source.len() as f64,
         cost: obj.value,
     })
 }

@@ -146,8 +146,8 @@ pub fn with_surface_covariances(
     out
 }
 
-/// Nearest-neighbour pairs under `t` that pass the gates.
-fn associate(
+/// Nearest-neighbour pairs (source index, target index) under `t` that pass the gates.
+pub fn associate(
     source: &PointSet2,
     target: &PointSet2,
     tree: &TargetTree,

@@ -72,6 +72,10 @@ pub struct RegistrationResult {
     pub candidates: usize,
     /// Final cost (method specific; lower is better).
     pub cost: f64,
+    /// Share of source points with a partner in the target at the final pose (0..1), a geometric check
+    /// of the alignment independent of the descriptors (DC-Loc: nearest neighbours inside the dense
+    /// stage's gates; ICP: pairs within the last distance; NDT: points scored by a cell).
+    pub overlap: f64,
 }
 
 /// Why a registration produced no result.
@@ -147,6 +151,10 @@ pub struct RegistrationConfig {
     /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.1-4.3 (ideal 3)
     /// without this factor, 2.4-3.3 with 1.3. Set 1.0 for the bare estimator.
     pub covariance_scale: f64,
+    /// RANSAC hypotheses refined per registration, the one with the largest overlap kept (default 3).
+    /// Streets alias (a facade slid by a pole spacing still fits); the alternatives RANSAC finds after
+    /// removing the first hypothesis' inliers are refined too, and the better-supported alignment wins.
+    pub hypotheses: usize,
     /// Dense refinement after the descriptor stage (default on): the descriptor pairs join different
     /// samples of the same surfaces, which leaves a bias of decimetres; re-associating every source point
     /// with its nearest target point under the current estimate and solving eq. 10 again removes it.
@@ -170,6 +178,7 @@ impl Default for RegistrationConfig {
             reselect_gate: 3.5,
             reselect_rounds: 2,
             covariance_scale: 1.3,
+            hypotheses: 3,
             dense: dense::DenseConfig::default(),
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
@@ -434,7 +443,9 @@ pub fn register_correspondences(
     ransac_and_refine(source, target, None, candidates, cfg)
 }
 
-/// Steps 2-5 on checked input.
+/// Steps 2-6 on checked input: up to `hypotheses` RANSAC hypotheses (each next one drawn from the
+/// candidates the earlier ones did not explain), each refined (LM, re-selection, dense stage); the one
+/// with the largest overlap wins.
 fn ransac_and_refine(
     source: &PointSet2,
     target: &PointSet2,
@@ -442,8 +453,97 @@ fn ransac_and_refine(
     candidates: Vec<ransac::Correspondence>,
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
-    let rs = ransac::ransac(source, target, &candidates, &cfg.ransac)?;
-    let mut inliers = rs.inliers.clone();
+    let built;
+    let dense_sets = match prepared_dense {
+        Some(p) => p,
+        None => {
+            let st = dense::target_tree(source)?;
+            let tt = dense::target_tree(target)?;
+            built = (
+                dense::with_surface_covariances(source, &st, &cfg.dense),
+                dense::with_surface_covariances(target, &tt, &cfg.dense),
+                tt,
+            );
+            (&built.0, &built.1, &built.2)
+        }
+    };
+    let mut remaining: Vec<usize> = (0..candidates.len()).collect();
+    let mut best: Option<RegistrationDetail> = None;
+    let mut first_error = None;
+    for h in 0..cfg.hypotheses.max(1) {
+        let subset: Vec<ransac::Correspondence> =
+            remaining.iter().map(|&k| candidates[k]).collect();
+        let mut rcfg = cfg.ransac.clone();
+        rcfg.seed = rcfg.seed.wrapping_add(h as u64);
+        let rs = match ransac::ransac(source, target, &subset, &rcfg) {
+            Ok(r) => r,
+            Err(e) => {
+                first_error.get_or_insert(e);
+                break;
+            }
+        };
+        // Back to indices into `candidates`.
+        let inliers: Vec<usize> = rs.inliers.iter().map(|&k| remaining[k]).collect();
+        let explained: std::collections::HashSet<usize> = inliers.iter().copied().collect();
+        remaining.retain(|k| !explained.contains(k));
+        if inliers.len() < cfg.min_inliers {
+            first_error.get_or_insert(RegistrationError::TooFewInliers {
+                have: inliers.len(),
+                need: cfg.min_inliers,
+            });
+            break;
+        }
+        match refine_hypothesis(
+            source,
+            target,
+            dense_sets,
+            &candidates,
+            inliers,
+            rs.t_target_source,
+            cfg,
+        ) {
+            Ok(mut d) => {
+                d.ransac_iterations = rs.iterations;
+                let better = best
+                    .as_ref()
+                    .is_none_or(|b| d.result.overlap > b.result.overlap);
+                if better {
+                    best = Some(d);
+                }
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+        if remaining.len() < cfg.min_inliers {
+            break;
+        }
+    }
+    match best {
+        Some(mut d) => {
+            d.candidates = candidates;
+            d.result.candidates = d.candidates.len();
+            Ok(d)
+        }
+        None => Err(first_error.unwrap_or(RegistrationError::TooFewInliers {
+            have: 0,
+            need: cfg.min_inliers,
+        })),
+    }
+}
+
+/// One RANSAC hypothesis refined: LM on its inliers (eq. 10), re-selection of the inliers with the noise
+/// model, the dense stage, the covariance, the overlap.
+#[allow(clippy::too_many_arguments)]
+fn refine_hypothesis(
+    source: &PointSet2,
+    target: &PointSet2,
+    (src, tgt, tree): (&PointSet2, &PointSet2, &dense::TargetTree),
+    candidates: &[ransac::Correspondence],
+    mut inliers: Vec<usize>,
+    t_ransac: Iso2,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationDetail, RegistrationError> {
     let pairs_of = |sel: &[usize]| -> Vec<(usize, usize)> {
         sel.iter()
             .map(|&k| {
@@ -454,10 +554,10 @@ fn ransac_and_refine(
     };
     let mut pairs = pairs_of(&inliers);
     check_inliers(source, &pairs, cfg)?;
-    let mut lm = lm::refine_pose(source, target, &pairs, &rs.t_target_source, &cfg.lm)?;
+    let mut lm = lm::refine_pose(source, target, &pairs, &t_ransac, &cfg.lm)?;
     let mut iterations = lm.iterations;
     for _ in 0..cfg.reselect_rounds {
-        let sel = reselect(source, target, &candidates, &lm.t_target_source, cfg);
+        let sel = reselect(source, target, candidates, &lm.t_target_source, cfg);
         if sel == inliers {
             break;
         }
@@ -468,30 +568,13 @@ fn ransac_and_refine(
         inliers = sel;
         pairs = new_pairs;
     }
-    let ransac_inliers = pairs.len();
     // The covariance comes from the descriptor pairs (evaluated at the final pose): they are distinct
     // physical matches whose scatter the sandwich estimator measures. Nearest-neighbour pairs share
     // target points and their residuals are not independent, so their information overstates the
-    // certainty (pipeline NEES about 20 instead of 3); the dense pose is the more accurate, so this
-    // covariance is conservative for it.
-    let descriptor_pairs = pairs.clone();
-    // 6. Dense refinement over nearest-neighbour pairs (see `dense`).
-    let built;
+    // certainty (pipeline NEES about 20 instead of 3); `dense.covariance_scale` accounts for the dense
+    // pose being more accurate than that.
     let mut dense_refined = false;
     if cfg.dense.enabled {
-        let (src, tgt, tree) = match prepared_dense {
-            Some(p) => p,
-            None => {
-                let st = dense::target_tree(source)?;
-                let tt = dense::target_tree(target)?;
-                built = (
-                    dense::with_surface_covariances(source, &st, &cfg.dense),
-                    dense::with_surface_covariances(target, &tt, &cfg.dense),
-                    tt,
-                );
-                (&built.0, &built.1, &built.2)
-            }
-        };
         if let Some(d) =
             dense::refine_dense(src, tgt, tree, &lm.t_target_source, &cfg.dense, &cfg.lm)?
         {
@@ -502,14 +585,10 @@ fn ransac_and_refine(
             dense_refined = true;
         }
     }
+    let overlap = dense::associate(src, tgt, tree, &lm.t_target_source, &cfg.dense).len() as f64
+        / source.len().max(1) as f64;
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
-    let covariance = lm::covariance_at(
-        &lm.t_target_source,
-        source,
-        target,
-        &descriptor_pairs,
-        &cfg.lm,
-    )?;
+    let covariance = lm::covariance_at(&lm.t_target_source, source, target, &pairs, &cfg.lm)?;
     let scale = if dense_refined {
         cfg.covariance_scale * cfg.dense.covariance_scale
     } else {
@@ -521,17 +600,18 @@ fn ransac_and_refine(
         covariance: covariance_ros_from_se2(&covariance_se2),
         converged: lm.converged,
         iterations,
-        inliers: ransac_inliers,
+        inliers: pairs.len(),
         candidates: candidates.len(),
         cost: lm.cost,
+        overlap,
     };
     Ok(RegistrationDetail {
         result,
         covariance_se2,
-        candidates,
+        candidates: Vec::new(),
         inliers,
-        t_ransac: rs.t_target_source,
-        ransac_iterations: rs.iterations,
+        t_ransac,
+        ransac_iterations: 0,
     })
 }
 

@@ -355,7 +355,7 @@ pub fn odometry_pose(msg: &Odometry) -> Option<(Stamp, Iso3)> {
 }
 
 /// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message; `None`
-/// when the pose is not finite. A non-finite speed is given as NaN (the pose is still usable).
+/// when the pose is not finite (the speed is not checked: the pose is what matters).
 pub fn ground_truth_sample(msg: &Odometry) -> Option<(Stamp, Iso3, f64)> {
     let (stamp, pose) = odometry_pose(msg)?;
     let l = &msg.twist.twist.linear;

@@ -549,3 +549,44 @@ fn shipped_params_files_equal_their_configs() {
         assert!(yaml.contains("dc_loc:\n  ros__parameters:\n"));
     }
 }
+
+#[test]
+fn a_damaged_bag_gives_the_closures_before_the_damage_and_exit_1() {
+    let bag = sim_bag();
+    let root = scratch("damaged");
+    let params = bag.dir.join("dc_loc.yaml");
+    let full = std::fs::read(bag.dir.join("short_0.mcap")).unwrap();
+    // Cut at 80 %: no summary, the last chunks lost; read from the start as a lone .mcap file.
+    let cut = root.join("cut.mcap");
+    std::fs::write(&cut, &full[..full.len() * 4 / 5]).unwrap();
+    let run = |bag: &Path, out: &Path| {
+        dc_loc(&[
+            "run",
+            "--bag",
+            bag.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (whole, part) = (root.join("whole.jsonl"), root.join("part.jsonl"));
+    assert!(run(&bag.dir, &whole).status.success());
+    let out = run(&cut, &part);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("damaged"), "{err}");
+    let (whole, part) = (
+        std::fs::read_to_string(&whole).unwrap(),
+        std::fs::read_to_string(&part).unwrap(),
+    );
+    let n = part.lines().count();
+    assert!(
+        n >= 10 && n < whole.lines().count(),
+        "{n} closures before the damage"
+    );
+    assert!(
+        whole.starts_with(&part),
+        "the closures before the damage are those of the whole bag"
+    );
+}

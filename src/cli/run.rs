@@ -108,7 +108,7 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         RunItem::Issue(issue) => {
             bar.inc(1);
             if matches!(issue.reason, crate::runner::IssueReason::Damaged(_)) {
-                damaged.push(issue.to_string());
+                damaged.push(issue.reason.to_string());
             }
         }
         RunItem::Event(Event::Closure(c)) => {

@@ -19,5 +19,6 @@ pub mod params;
 pub mod pipeline;
 pub mod radar;
 pub mod registration;
+pub mod runner;
 pub mod sim;
 pub mod submap;

@@ -20,5 +20,6 @@ pub mod pipeline;
 pub mod place;
 pub mod radar;
 pub mod registration;
+pub mod runner;
 pub mod sim;
 pub mod submap;

@@ -6,7 +6,8 @@
 //! time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
 //! [`SimConfig::to_config`] for the pipeline's radar section), [`RevisitIndex`] (revisit ground truth).
 //! Parts: [`config`], [`route`] (centre line, trajectory), [`world`] (city generation), [`sensor`] (one
-//! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`].
+//! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive
+//! as a rosbag2 bag with its params YAML.
 //!
 //! Physics (METHOD.md section 1): a detection at true range `r`, azimuth `phi` and radial velocity
 //! `v_r = d . (v_target - v_radar)` (with `v_radar = v_body + omega x t_body_radar`) is reported at range
@@ -22,6 +23,7 @@
 //! ground truth, odometry, scans by radar index.
 
 pub mod config;
+pub mod export;
 pub mod noise;
 pub mod odometry;
 pub mod revisit;

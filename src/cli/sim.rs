@@ -1,0 +1,178 @@
+//! `dc_loc sim`: simulate a drive and write it as a rosbag2 bag directory with its params file
+//! (see [`crate::sim::export`] for the bag's contents).
+//!
+//! The drive is `SimConfig::default()` (the paper's CARLA experiment), then the `--config` YAML (any
+//! [`SimConfig`] fields; unknown keys are refused), then the flags.
+
+use std::path::PathBuf;
+
+use clap::ValueEnum;
+
+use super::CliError;
+use crate::bag::BagError;
+use crate::sim::export::{ExportError, drive_description, export_drive};
+use crate::sim::{NoiseModel, RadarPreset, SimConfig, simulate};
+
+/// Radar sets of `--preset`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PresetArg {
+    /// One forward radar (100 m, 150 deg, 13 Hz), as the paper's CARLA data.
+    Carla,
+    /// The five ARS408-21 radars of the nuScenes car.
+    Nuscenes,
+}
+
+/// Noise models of `--noise`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NoiseArg {
+    /// Gaussian (the paper's N(0, 0.25^2) m, N(0, (0.5 deg)^2), N(0, 0.1^2) m/s).
+    Gaussian,
+    /// Zero-mean Gamma.
+    Gamma,
+    /// Scaled Student-t with 100 degrees of freedom.
+    StudentT,
+    /// No measurement noise.
+    None,
+}
+
+/// Arguments of `dc_loc sim`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SimArgs {
+    /// Bag directory to write (created; must not exist or be empty). The params file goes inside.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Simulator configuration YAML (fields of SimConfig; unknown keys are refused).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Seed of the world, traffic, noise and odometry.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Radar set.
+    #[arg(long, value_enum)]
+    pub preset: Option<PresetArg>,
+    /// Radar measurement noise model.
+    #[arg(long, value_enum)]
+    pub noise: Option<NoiseArg>,
+    /// Cruise speed of each lap in km/h, comma-separated (one lap per value).
+    #[arg(long, value_name = "KMH,...", value_delimiter = ',')]
+    pub speeds: Vec<f64>,
+    /// Drive the laps after the first the other way round (a U-turn after lap 1).
+    #[arg(long)]
+    pub reverse_lap: bool,
+    /// Odometry speed scale error, as a fraction (0.01: distances 1 % too long).
+    #[arg(long, value_name = "FRACTION", allow_negative_numbers = true)]
+    pub odom_scale_error: Option<f64>,
+    /// Odometry yaw-rate bias, deg/s.
+    #[arg(long, value_name = "DEG_PER_S", allow_negative_numbers = true)]
+    pub odom_yaw_rate_bias_deg: Option<f64>,
+}
+
+/// The simulator configuration the arguments describe (file, then flags), validated.
+pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
+    let mut cfg = match &args.config {
+        None => SimConfig::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| CliError::Usage(format!("--config {}: {e}", path.display())))?;
+            let cfg: Option<SimConfig> = yaml_serde::from_str(&text)
+                .map_err(|e| CliError::Usage(format!("--config {}: {e}", path.display())))?;
+            // An empty file is the default drive.
+            cfg.unwrap_or_default()
+        }
+    };
+    if let Some(seed) = args.seed {
+        cfg.seed = seed;
+    }
+    if let Some(p) = args.preset {
+        cfg.radar_preset = match p {
+            PresetArg::Carla => RadarPreset::Carla,
+            PresetArg::Nuscenes => RadarPreset::Nuscenes,
+        };
+        // A preset replaces the custom radars of a config file.
+        cfg.radars.clear();
+    }
+    if let Some(n) = args.noise {
+        cfg.noise.model = match n {
+            NoiseArg::Gaussian => NoiseModel::Gaussian,
+            NoiseArg::Gamma => NoiseModel::Gamma,
+            NoiseArg::StudentT => NoiseModel::StudentT,
+            NoiseArg::None => NoiseModel::None,
+        };
+    }
+    if !args.speeds.is_empty() {
+        let template = cfg.laps.first().copied().unwrap_or_default();
+        cfg.laps = args
+            .speeds
+            .iter()
+            .map(|kmh| crate::sim::config::LapConfig {
+                speed: kmh / 3.6,
+                ..template
+            })
+            .collect();
+    }
+    if args.reverse_lap {
+        if cfg.laps.len() < 2 {
+            return Err(CliError::Usage(
+                "--reverse-lap needs at least two laps (see --speeds)".into(),
+            ));
+        }
+        // The other way round from the first lap.
+        let first_reverse = cfg.laps.first().is_some_and(|l| l.reverse);
+        for lap in cfg.laps.iter_mut().skip(1) {
+            lap.reverse = !first_reverse;
+        }
+    }
+    if let Some(e) = args.odom_scale_error {
+        cfg.odometry.scale_error = e;
+    }
+    if let Some(b) = args.odom_yaw_rate_bias_deg {
+        cfg.odometry.yaw_rate_bias = b.to_radians();
+    }
+    cfg.validate()
+        .map_err(|e| CliError::Usage(format!("simulator configuration: {e}")))?;
+    Ok(cfg)
+}
+
+/// Runs `dc_loc sim`.
+pub fn main(args: &SimArgs) -> Result<(), CliError> {
+    let cfg = sim_config(args)?;
+    log::info!("simulating: {}", drive_description(&cfg));
+    let drive =
+        simulate(&cfg).map_err(|e| CliError::Usage(format!("simulator configuration: {e}")))?;
+    let summary = export_drive(&drive, &args.out).map_err(|e| match e {
+        ExportError::Bag(BagError::AlreadyExists { .. } | BagError::InvalidBagPath { .. }) => {
+            CliError::Usage(format!("--out: {e}"))
+        }
+        e => CliError::Runtime(e.to_string()),
+    })?;
+    let detections: usize = drive.scans.iter().map(|s| s.scan.detections.len()).sum();
+    let traj = &drive.setup.trajectory;
+    println!("drive: {}", drive_description(&cfg));
+    println!(
+        "duration {:.1} s, distance {:.0} m, {} lap{}",
+        traj.duration(),
+        traj.distance(),
+        cfg.laps.len(),
+        if cfg.laps.len() == 1 { "" } else { "s" }
+    );
+    println!(
+        "scans {} from {} radar{}, detections {detections}",
+        drive.scans.len(),
+        drive.setup.radars.len(),
+        if drive.setup.radars.len() == 1 {
+            ""
+        } else {
+            "s"
+        }
+    );
+    println!(
+        "bag: {} ({} messages)",
+        summary.bag_dir.display(),
+        summary.messages
+    );
+    for t in &summary.topics {
+        println!("  {} {} x{}", t.topic, t.type_name, t.count);
+    }
+    println!("params: {}", summary.params_file.display());
+    Ok(())
+}

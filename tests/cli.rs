@@ -1,0 +1,592 @@
+//! The `dc_loc` binary's offline subcommands and the bag runner, end to end:
+//! - a bag written by `dc_loc sim` (a short custom drive) is read by the Python `rosbags` library
+//!   (tests/python/check_sim_bag.py in the test venv) with the topics, types, counts, stamps, frames,
+//!   cloud layout, odometry and static transforms the in-process `SimDrive` of the same configuration
+//!   says; a second `sim` gives byte-identical files;
+//! - `dc_loc run` on it twice gives byte-identical JSON lines; every line parses, its odometry poses
+//!   are the simulated odometry at its stamps, and the closures agree with the ground truth;
+//! - usage errors exit 2 naming the parameter or key; a missing bag exits 1 naming the path;
+//! - the runner reports, and goes on after, an undecodable cloud, a cloud of another frame and a
+//!   non-finite odometry pose, and replaces a zero header stamp by the log time;
+//! - the shipped params files equal the configurations they stand for.
+
+#[path = "python/venv.rs"]
+mod venv;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use dc_loc::bag::{BagReader, BagWriter, schema};
+use dc_loc::cloud::{CloudLayout, encode_detections};
+use dc_loc::config::Config;
+use dc_loc::math::{
+    Iso2, Stamp, Vec3, interpolate_iso3, iso2_from_iso3, iso3_from_iso2, wrap_angle,
+};
+use dc_loc::msgs::builtin_interfaces::Time;
+use dc_loc::msgs::nav_msgs::Odometry;
+use dc_loc::msgs::std_msgs::Header;
+use dc_loc::params::{ParamSet, apply};
+use dc_loc::pipeline::Pipeline;
+use dc_loc::radar::Detection;
+use dc_loc::runner::{BagInputs, ClosureRecord, Input, IssueReason, run_bag};
+use dc_loc::sim::export::{GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC, params_yaml};
+use dc_loc::sim::{RadarPreset, SimConfig, SimDrive, simulate};
+use serde_json::json;
+
+const REPO: &str = env!("CARGO_MANIFEST_DIR");
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("cli_tests")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn dc_loc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dc_loc"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A short drive: two laps (54 and 36 km/h) of a 170 x 110 m block, about 106 s, fewer pose samples.
+const SHORT_DRIVE: &str = "\
+seed: 3
+laps:
+  - speed: 15.0
+  - speed: 10.0
+ground_truth_rate: 20.0
+odometry:
+  rate: 25.0
+route:
+  corners:
+    - {x: 0.0, y: 0.0, radius: 15.0, junction: true}
+    - {x: 170.0, y: 0.0, radius: 20.0, junction: false}
+    - {x: 170.0, y: 110.0, radius: 15.0, junction: true}
+    - {x: 0.0, y: 110.0, radius: 20.0, junction: false}
+";
+
+struct SimBag {
+    dir: PathBuf,
+    drive: SimDrive,
+    stdout: String,
+}
+
+/// `dc_loc sim` of the short drive (once per test binary), and the same drive simulated here.
+fn sim_bag() -> &'static SimBag {
+    static BAG: OnceLock<SimBag> = OnceLock::new();
+    BAG.get_or_init(|| {
+        let root = scratch("sim");
+        let config = root.join("short.yaml");
+        std::fs::write(&config, SHORT_DRIVE).unwrap();
+        let dir = root.join("short");
+        let out = dc_loc(&[
+            "sim",
+            "--config",
+            config.to_str().unwrap(),
+            "--out",
+            dir.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let cfg: SimConfig = yaml_serde::from_str(SHORT_DRIVE).unwrap();
+        SimBag {
+            dir,
+            drive: simulate(&cfg).unwrap(),
+            stdout: text(&out.stdout),
+        }
+    })
+}
+
+/// Planar rotation angle of a (qz, qw) yaw-only quaternion.
+fn yaw(qz: f64, qw: f64) -> f64 {
+    2.0 * qz.atan2(qw)
+}
+
+#[test]
+fn sim_bag_reads_back_with_rosbags() {
+    let bag = sim_bag();
+    let d = &bag.drive;
+    let cfg = d.to_config();
+    let radar = &cfg.radars["front"];
+    let (gt0, gt1) = (d.ground_truth[0], *d.ground_truth.last().unwrap());
+    let (od0, od1) = (d.odometry[0], *d.odometry.last().unwrap());
+    let (sc0, sc1) = (&d.scans[0].scan, &d.scans.last().unwrap().scan);
+    let detections: usize = d.scans.iter().map(|s| s.scan.detections.len()).sum();
+    let [ex, ey, ez, _, _, eyaw] = radar.extrinsic;
+    let start = d.setup.start.0;
+    let end = gt1.stamp.0.max(od1.stamp.0).max(sc1.stamp.0);
+    assert!(d.scans.len() > 1000 && detections > 50_000, "a real drive");
+    assert!(
+        bag.stdout
+            .contains(&format!("scans {} from 1 radar", d.scans.len()))
+    );
+
+    let expect = json!({
+        "start_ns": start,
+        "end_ns": end,
+        "topics": [
+            {"name": TF_STATIC_TOPIC, "type": schema::TF_MESSAGE, "count": 1, "durability": "transient_local"},
+            {"name": "/odom", "type": schema::ODOMETRY, "count": d.odometry.len(), "durability": "volatile"},
+            {"name": GROUND_TRUTH_TOPIC, "type": schema::ODOMETRY, "count": d.ground_truth.len(), "durability": "volatile"},
+            {"name": radar.topic, "type": schema::POINT_CLOUD2, "count": d.scans.len(), "durability": "volatile"},
+        ],
+        "stamps": {
+            TF_STATIC_TOPIC: {"first_ns": start, "last_ns": start},
+            "/odom": {"first_ns": od0.stamp.0, "last_ns": od1.stamp.0},
+            GROUND_TRUTH_TOPIC: {"first_ns": gt0.stamp.0, "last_ns": gt1.stamp.0},
+            radar.topic.as_str(): {"first_ns": sc0.stamp.0, "last_ns": sc1.stamp.0},
+        },
+        "odometry": {
+            "/odom": {"frame_id": "odom", "child_frame_id": "base_link",
+                      "last_xy": [od1.t_odom_body.translation.x, od1.t_odom_body.translation.y],
+                      "last_speed": od1.speed},
+            GROUND_TRUTH_TOPIC: {"frame_id": "map", "child_frame_id": "base_link",
+                      "last_xy": [gt1.t_map_body.translation.x, gt1.t_map_body.translation.y],
+                      "last_speed": gt1.speed},
+        },
+        "clouds": {radar.topic.as_str(): {"frame_id": "radar_front", "detections": detections}},
+        "tf_static": [{"parent": "base_link", "child": "radar_front",
+                       "translation": [ex, ey, ez],
+                       "rotation": [0.0, 0.0, (eyaw / 2.0).sin(), (eyaw / 2.0).cos()]}],
+    });
+    let expect_path = bag.dir.parent().unwrap().join("expect.json");
+    std::fs::write(&expect_path, expect.to_string()).unwrap();
+    let out = Command::new(venv::venv_python())
+        .arg(Path::new(REPO).join("tests/python/check_sim_bag.py"))
+        .arg(&bag.dir)
+        .arg(format!("@{}", expect_path.display()))
+        .output()
+        .unwrap();
+    println!("{}{}", text(&out.stdout), text(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}{}",
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+
+    // The same drive again: byte-identical bag and params file.
+    let again = scratch("sim_again").join("short");
+    let config = bag.dir.parent().unwrap().join("short.yaml");
+    let out = dc_loc(&[
+        "sim",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    for f in ["short_0.mcap", "metadata.yaml"] {
+        assert!(
+            std::fs::read(bag.dir.join(f)).unwrap() == std::fs::read(again.join(f)).unwrap(),
+            "{f} differs between two runs"
+        );
+    }
+}
+
+/// The odometry of the drive interpolated at `stamp` (as the pipeline's buffer does).
+fn odometry_at(d: &SimDrive, stamp: Stamp) -> Iso2 {
+    let i = d.odometry.partition_point(|o| o.stamp <= stamp);
+    let (a, b) = (&d.odometry[i - 1], &d.odometry[i.min(d.odometry.len() - 1)]);
+    let s = if b.stamp > a.stamp {
+        stamp.secs_since(a.stamp) / b.stamp.secs_since(a.stamp)
+    } else {
+        0.0
+    };
+    iso2_from_iso3(&interpolate_iso3(
+        &iso3_from_iso2(&a.t_odom_body),
+        &iso3_from_iso2(&b.t_odom_body),
+        s,
+    ))
+}
+
+#[test]
+fn run_is_deterministic_and_its_closures_match_the_drive() {
+    let bag = sim_bag();
+    let d = &bag.drive;
+    let root = scratch("run");
+    let params = bag.dir.join("dc_loc.yaml");
+    let mut outputs = Vec::new();
+    for name in ["a.jsonl", "b.jsonl"] {
+        let path = root.join(name);
+        let out = dc_loc(&[
+            "run",
+            "--bag",
+            bag.dir.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out",
+            path.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        outputs.push((std::fs::read(&path).unwrap(), text(&out.stdout)));
+    }
+    assert!(outputs[0].0 == outputs[1].0, "two runs differ");
+    let lines = String::from_utf8(outputs[0].0.clone()).unwrap();
+    let records: Vec<ClosureRecord> = lines
+        .lines()
+        .map(|l| ClosureRecord::from_json_line(l).unwrap())
+        .collect();
+    assert!(records.len() >= 20, "{} closures", records.len());
+    let stdout = &outputs[0].1;
+    assert!(
+        stdout.contains(&format!("closures {} ->", records.len())),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(&format!(
+            "inputs: {} radar clouds, {} odometry",
+            d.scans.len(),
+            d.odometry.len()
+        )),
+        "{stdout}"
+    );
+
+    let mut errors = Vec::new();
+    for r in &records {
+        assert_eq!(r.frame_id, "base_link");
+        assert_eq!(r.stamp, r.query_stamp);
+        assert!(r.match_id < r.query_id && r.match_stamp < r.query_stamp);
+        assert!(r.inliers >= 15, "loop.minimum_inliers");
+        let cov = r.covariance_matrix().unwrap();
+        assert!((cov - cov.transpose()).abs().max() < 1e-12 && cov[(0, 0)] > 0.0);
+        // The keyframe poses are the simulated odometry at the keyframe stamps (up to the pipeline's
+        // extrapolation over at most `odometry.max_extrapolation` = 50 ms past the newest sample: a
+        // stamp off by 10 ms would be 0.1 m off here).
+        for (pose, t) in [
+            (&r.query_odom_pose, r.query_stamp),
+            (&r.match_odom_pose, r.match_stamp),
+        ] {
+            let want = odometry_at(d, Stamp::from_secs_f64(t));
+            let got = Vec3::new(pose.x, pose.y, pose.z);
+            assert!(
+                (got.xy() - want.translation.vector).norm() < 0.02 && got.z == 0.0,
+                "{got} vs {want}"
+            );
+            assert!(wrap_angle(yaw(pose.qz, pose.qw) - want.rotation.angle()).abs() < 2e-3);
+        }
+        // Against the ground truth: the query body frame in the match body frame.
+        let q = d.state_at(Stamp::from_secs_f64(r.query_stamp)).t_map_body;
+        let m = d.state_at(Stamp::from_secs_f64(r.match_stamp)).t_map_body;
+        let truth = m.inverse() * q;
+        let rel = &r.relative_pose;
+        let dt = (truth.translation.vector - nalgebra::Vector2::new(rel.x, rel.y)).norm();
+        let dr = wrap_angle(truth.rotation.angle() - yaw(rel.qz, rel.qw)).abs();
+        errors.push((dt, dr));
+    }
+    errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let median = errors[errors.len() / 2];
+    println!(
+        "{} closures, median error {:.3} m / {:.4} rad",
+        errors.len(),
+        median.0,
+        median.1
+    );
+    assert!(median.0 < 0.5 && median.1 < 0.02, "median error {median:?}");
+}
+
+#[test]
+fn usage_errors_exit_2_and_a_missing_bag_exits_1() {
+    let bag = sim_bag();
+    let root = scratch("usage");
+    let out_file = root.join("c.jsonl");
+    let params = bag.dir.join("dc_loc.yaml");
+    let run = |extra: &[&str], bag_path: &str, params: &str| {
+        let mut args = vec![
+            "run",
+            "--bag",
+            bag_path,
+            "--params",
+            params,
+            "--out",
+            out_file.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        dc_loc(&args)
+    };
+    let (b, p) = (bag.dir.to_str().unwrap(), params.to_str().unwrap());
+    for (extra, name) in [
+        (&["-p", "loop.search_radius:=far"][..], "loop.search_radius"),
+        (&["-p", "keyframe.distance:=-1.0"][..], "keyframe.distance"),
+        (&["-p", "keyframe.distanse:=1.0"][..], "keyframe.distanse"),
+        (
+            &["-p", "radars.front.topic:=/radar/points"][..],
+            "radars.front.topic",
+        ),
+    ] {
+        let out = run(extra, b, p);
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains(name), "{extra:?}: {err}");
+    }
+    let missing = root.join("no_such_bag");
+    let out = run(&[], missing.to_str().unwrap(), p);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains(missing.to_str().unwrap()));
+
+    // Simulator configuration: unknown keys and bad values are named.
+    let cfg = root.join("bad.yaml");
+    for (yaml, name) in [
+        ("lapz: []\n", "lapz"),
+        ("laps:\n  - speed: 0.0\n", "laps[0].speed"),
+        ("odometry:\n  scale_eror: 0.1\n", "scale_eror"),
+    ] {
+        std::fs::write(&cfg, yaml).unwrap();
+        let out = dc_loc(&[
+            "sim",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            root.join("never").to_str().unwrap(),
+        ]);
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{yaml}: {err}");
+        assert!(err.contains(name), "{yaml}: {err}");
+        assert!(!root.join("never").exists());
+    }
+    let out = dc_loc(&[
+        "sim",
+        "--out",
+        root.join("never").to_str().unwrap(),
+        "--noise",
+        "cauchy",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    for sub in ["eval", "demo"] {
+        let out = dc_loc(&[sub, "--anything"]);
+        assert_eq!(out.status.code(), Some(2));
+        assert!(text(&out.stderr).contains("not yet"));
+    }
+    assert_eq!(dc_loc(&["help"]).status.code(), Some(0));
+}
+
+/// A cloud of a few detections on the default radar.
+fn cloud(stamp: Stamp, frame_id: &str) -> dc_loc::msgs::sensor_msgs::PointCloud2 {
+    let dets: Vec<Detection> = (0..20)
+        .map(|i| Detection {
+            p_radar: Vec3::new(10.0 + i as f64, -5.0 + 0.5 * i as f64, 0.0),
+            v_r: -1.0,
+            rcs: Some(5.0),
+        })
+        .collect();
+    let header = Header {
+        stamp: stamp.into(),
+        frame_id: frame_id.into(),
+    };
+    encode_detections(&dets, &CloudLayout::radar_f32(), header).unwrap()
+}
+
+fn odometry(stamp: Stamp, x: f64) -> Odometry {
+    let mut m = Odometry::default();
+    m.header.stamp = stamp.into();
+    m.header.frame_id = "odom".into();
+    m.child_frame_id = "base_link".into();
+    m.pose.pose.position.x = x;
+    m
+}
+
+#[test]
+fn runner_reports_bad_messages_and_goes_on() {
+    let t0 = 1_700_000_000_000_000_000i64;
+    let ms = |k: i64| Stamp(t0 + k * 1_000_000);
+    let dir = scratch("issues").join("bad");
+    let mut w = BagWriter::create(&dir).unwrap();
+    let odom = w.add_topic("/odom", schema::ODOMETRY).unwrap();
+    let radar = w.add_topic("/radar/points", schema::POINT_CLOUD2).unwrap();
+    let other = w.add_topic("/unrelated", schema::ODOMETRY).unwrap();
+    for i in 0..20 {
+        let mut m = odometry(ms(50 * i), 0.5 * i as f64);
+        if i == 10 {
+            m.pose.pose.position.y = f64::NAN;
+        }
+        w.write(odom, ms(50 * i), &m).unwrap();
+        w.write(other, ms(50 * i), &m).unwrap();
+    }
+    w.write(radar, ms(25), &cloud(ms(25), "radar")).unwrap();
+    // A CDR header, then too few bytes for a PointCloud2.
+    w.write_cdr(radar, ms(125), &[0, 1, 0, 0, 7, 0, 0]).unwrap();
+    w.write(radar, ms(225), &cloud(ms(225), "radar_rear"))
+        .unwrap();
+    let mut zero = cloud(ms(325), "radar");
+    zero.header.stamp = Time::default();
+    w.write(radar, ms(325), &zero).unwrap();
+    w.write(radar, ms(425), &cloud(ms(425), "radar")).unwrap();
+    w.finish().unwrap();
+
+    let reader = BagReader::open(&dir).unwrap();
+    let cfg = Config::default();
+    let items: Vec<_> = BagInputs::new(&reader, &cfg, None).unwrap().collect();
+    assert_eq!(items.len(), 20 + 5, "the unrelated topic is not read");
+    let stamps: Vec<Stamp> = items
+        .iter()
+        .map(|i| match i {
+            Ok(input) => input.stamp(),
+            Err(issue) => issue.stamp,
+        })
+        .collect();
+    assert!(stamps.is_sorted());
+    let issues: Vec<(&str, Stamp, &str)> = items
+        .iter()
+        .filter_map(|i| i.as_ref().err())
+        .map(|e| (e.topic.as_str(), e.stamp, e.reason.name()))
+        .collect();
+    assert_eq!(
+        issues,
+        [
+            ("/radar/points", ms(125), "undecodable"),
+            ("/radar/points", ms(225), "frame_mismatch"),
+            ("/odom", ms(500), "non_finite_pose"),
+        ]
+    );
+    let mismatch = items
+        .iter()
+        .filter_map(|i| i.as_ref().err())
+        .nth(1)
+        .unwrap();
+    assert!(
+        matches!(&mismatch.reason, IssueReason::FrameMismatch { expected, got } if expected == "radar" && got == "radar_rear")
+    );
+    let clouds: Vec<Stamp> = items
+        .iter()
+        .filter_map(|i| match i {
+            Ok(Input::Radar { radar: 0, cloud }) => Some(cloud.header.stamp.into()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        clouds,
+        [ms(25), ms(325), ms(425)],
+        "zero stamp replaced by the log time"
+    );
+
+    // Through the pipeline: every good input is used.
+    let mut pipeline = Pipeline::new(cfg.clone()).unwrap();
+    let report = run_bag(
+        &mut pipeline,
+        BagInputs::new(&reader, &cfg, None).unwrap(),
+        |_| {},
+    );
+    assert_eq!((report.radar_inputs, report.odometry_inputs), (3, 19));
+    assert_eq!(report.issue_count(), 3);
+    assert_eq!(report.stats.scans, 3);
+    assert!(
+        report.stats.dropped.is_empty(),
+        "{:?}",
+        report.stats.dropped
+    );
+
+    // And through the binary, with the shipped default parameters.
+    let out_file = dir.parent().unwrap().join("c.jsonl");
+    let out = dc_loc(&[
+        "run",
+        "--bag",
+        dir.to_str().unwrap(),
+        "--params",
+        &format!("{REPO}/params/dc_loc.yaml"),
+        "--out",
+        out_file.to_str().unwrap(),
+    ]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        stdout.contains("skipped messages: frame_mismatch 1, non_finite_pose 1, undecodable 1"),
+        "{stdout}"
+    );
+    assert_eq!(std::fs::read(&out_file).unwrap(), b"");
+}
+
+#[test]
+fn shipped_params_files_equal_their_configs() {
+    let bless = "Regenerate with DC_LOC_BLESS=1 cargo test --test cli shipped_params.";
+    // The configuration of a simulated drive (a short one: the drive does not change it).
+    let sim = |p: RadarPreset, what: &str| {
+        let mut short: SimConfig = yaml_serde::from_str(SHORT_DRIVE).unwrap();
+        short.radar_preset = p;
+        short.laps.truncate(1);
+        (
+            simulate(&short).unwrap().to_config(),
+            format!(
+                "dc_loc parameters for drives of `dc_loc sim --preset {what}` (Gaussian noise; other noise\n\
+                 models change the radars' sigma_* values: use the dc_loc.yaml that `dc_loc sim` writes\n\
+                 into each bag directory). Equal to SimConfig::with_preset(..).to_config().\n{bless}"
+            ),
+        )
+    };
+    let files = [
+        (
+            "params/dc_loc.yaml",
+            (
+                Config::default(),
+                format!(
+                    "dc_loc node parameters: the defaults, one forward radar `front` (PointCloud2 on\n\
+                     /radar/points, frame `radar`, fields x y z v_r rcs) and odometry on /odom.\n\
+                     Equal to Config::default(). {bless}"
+                ),
+            ),
+        ),
+        ("params/sim_carla.yaml", sim(RadarPreset::Carla, "carla")),
+        (
+            "params/sim_nuscenes.yaml",
+            sim(RadarPreset::Nuscenes, "nuscenes"),
+        ),
+    ];
+    for (file, (cfg, header)) in files {
+        let path = Path::new(REPO).join(file);
+        if std::env::var_os("DC_LOC_BLESS").is_some() {
+            std::fs::write(&path, params_yaml(&cfg, &header)).unwrap();
+        }
+        let yaml = std::fs::read_to_string(&path).unwrap();
+        let got = apply(&ParamSet::from_yaml(&yaml, "/", "dc_loc").unwrap()).unwrap();
+        assert!(got == cfg, "{file} differs from its configuration. {bless}");
+        assert!(yaml.contains("dc_loc:\n  ros__parameters:\n"));
+    }
+}
+
+#[test]
+fn a_damaged_bag_gives_the_closures_before_the_damage_and_exit_1() {
+    let bag = sim_bag();
+    let root = scratch("damaged");
+    let params = bag.dir.join("dc_loc.yaml");
+    let full = std::fs::read(bag.dir.join("short_0.mcap")).unwrap();
+    // Cut at 80 %: no summary, the last chunks lost; read from the start as a lone .mcap file.
+    let cut = root.join("cut.mcap");
+    std::fs::write(&cut, &full[..full.len() * 4 / 5]).unwrap();
+    let run = |bag: &Path, out: &Path| {
+        dc_loc(&[
+            "run",
+            "--bag",
+            bag.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (whole, part) = (root.join("whole.jsonl"), root.join("part.jsonl"));
+    assert!(run(&bag.dir, &whole).status.success());
+    let out = run(&cut, &part);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("damaged"), "{err}");
+    let (whole, part) = (
+        std::fs::read_to_string(&whole).unwrap(),
+        std::fs::read_to_string(&part).unwrap(),
+    );
+    let n = part.lines().count();
+    assert!(
+        n >= 10 && n < whole.lines().count(),
+        "{n} closures before the damage"
+    );
+    assert!(
+        whole.starts_with(&part),
+        "the closures before the damage are those of the whole bag"
+    );
+}

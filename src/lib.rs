@@ -17,6 +17,7 @@ pub mod math;
 pub mod msgs;
 pub mod params;
 pub mod pipeline;
+pub mod place;
 pub mod radar;
 pub mod registration;
 pub mod runner;

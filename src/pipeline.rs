@@ -607,7 +607,7 @@ impl Pipeline {
         };
         self.last_keyframe = Some((pose, self.path_distance));
         self.stats.keyframes += 1;
-        log::info!(
+        log::debug!(
             "keyframe {id} at {:.3} s: {} points",
             kf.stamp.as_secs_f64(),
             kf.submap.len()

@@ -363,7 +363,11 @@ fn usage_errors_exit_2_and_a_missing_bag_exits_1() {
     for sub in ["eval", "demo"] {
         let out = dc_loc(&[sub, "--anything"]);
         assert_eq!(out.status.code(), Some(2));
-        assert!(text(&out.stderr).contains("not yet"));
+        assert!(
+            text(&out.stderr).contains("--anything"),
+            "{}",
+            text(&out.stderr)
+        );
     }
     assert_eq!(dc_loc(&["help"]).status.code(), Some(0));
 }
@@ -588,5 +592,87 @@ fn a_damaged_bag_gives_the_closures_before_the_damage_and_exit_1() {
     assert!(
         whole.starts_with(&part),
         "the closures before the damage are those of the whole bag"
+    );
+}
+
+/// `dc_loc eval` on the short drive: it pairs the two laps, registers every pair with every method,
+/// writes the plot and the per-pair results, and DC-Loc is more accurate than ICP from the identity.
+#[test]
+fn eval_on_the_short_drive_puts_dcloc_ahead_of_icp() {
+    let bag = sim_bag();
+    let out_dir = scratch("eval");
+    let params = bag.dir.join("dc_loc.yaml");
+    let out = dc_loc(&[
+        "eval",
+        "--bag",
+        bag.dir.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--out-dir",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(
+        stdout.contains("Table 1 layout") && stdout.contains("Table 2 layout"),
+        "{stdout}"
+    );
+    let svg = std::fs::read_to_string(out_dir.join("eval.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("DC-Loc"));
+    // Per method: inlier translation errors from the per-pair file.
+    let mut errors: std::collections::BTreeMap<String, (usize, Vec<f64>)> = Default::default();
+    for line in std::fs::read_to_string(out_dir.join("pairs.jsonl"))
+        .unwrap()
+        .lines()
+    {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        let e = errors
+            .entry(v["method"].as_str().unwrap().to_string())
+            .or_default();
+        e.0 += 1;
+        if let Some(t) = v["translation_error"].as_f64().filter(|t| *t <= 2.0) {
+            e.1.push(t);
+        }
+    }
+    let mean = |m: &str| {
+        let (_, v) = &errors[m];
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    let (pairs, dcloc) = &errors["DC-Loc"];
+    assert!(*pairs >= 20, "only {pairs} pairs");
+    assert!(
+        dcloc.len() * 10 >= pairs * 6,
+        "DC-Loc registered {} of {pairs}",
+        dcloc.len()
+    );
+    assert!(
+        mean("DC-Loc") < mean("ICP"),
+        "DC-Loc {} m vs ICP {} m",
+        mean("DC-Loc"),
+        mean("ICP")
+    );
+    assert_eq!(errors.len(), dc_loc::eval::Method::all().len());
+}
+
+/// `dc_loc eval` without ground truth in the bag says so and exits 2.
+#[test]
+fn eval_without_ground_truth_is_a_usage_error() {
+    let bag = sim_bag();
+    let out = dc_loc(&[
+        "eval",
+        "--bag",
+        bag.dir.to_str().unwrap(),
+        "--params",
+        bag.dir.join("dc_loc.yaml").to_str().unwrap(),
+        "--ground-truth-topic",
+        "/nowhere",
+        "--out-dir",
+        scratch("eval_no_gt").to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("/nowhere"),
+        "{}",
+        text(&out.stderr)
     );
 }

@@ -1,16 +1,240 @@
-//! `dc_loc eval`: loop closures against ground truth (placeholder: the subcommand is being written).
+//! `dc_loc eval`: the paper's evaluation protocol on a bag with ground truth.
+//!
+//! Drives the pipeline over the bag (revisit search off), pairs keyframes of different passes over the
+//! same place by ground truth, registers every pair with every method and ablation row, prints the
+//! paper's Table 1 and Table 2 layouts and the errors by ego-velocity difference, and writes
+//! `eval.svg` (error against velocity difference) and `pairs.jsonl` (every pair and method) into
+//! `--out-dir`.
 
-use super::CliError;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 
-/// Arguments of `dc_loc eval` (accepted as they come until the subcommand exists).
-#[derive(Debug, clap::Args)]
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::run::load_params;
+use super::{CliError, set_progress};
+use crate::bag::BagReader;
+use crate::config::Config;
+use crate::eval::report::{self, MethodSummary};
+use crate::eval::{Collector, EvalConfig, EvalKeyframe, Method, PairResult, evaluate, make_pairs};
+use crate::runner::{BagInputs, Input, RunnerError};
+
+/// Arguments of `dc_loc eval`.
+#[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
-    /// Arguments (not read yet).
-    #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
-    pub args: Vec<String>,
+    /// rosbag2 bag with radar clouds, odometry and ground truth (directory or .mcap).
+    #[arg(long, value_name = "BAG")]
+    pub bag: PathBuf,
+    /// ROS 2 params YAML (e.g. the `dc_loc.yaml` that `dc_loc sim` writes into its bag directory).
+    #[arg(long, value_name = "FILE")]
+    pub params: PathBuf,
+    /// Ground-truth nav_msgs/Odometry topic (map frame).
+    #[arg(long, default_value = "/ground_truth/odom")]
+    pub ground_truth_topic: String,
+    /// Where the plot and the per-pair results go.
+    #[arg(long, value_name = "DIR", default_value = "out/eval")]
+    pub out_dir: PathBuf,
+    /// Pairs: ground-truth distance at most this, m.
+    #[arg(long, default_value_t = 5.0)]
+    pub pair_radius: f64,
+    /// Pairs: ground-truth path between the two keyframes at least this, m (another pass).
+    #[arg(long, default_value_t = 200.0)]
+    pub min_pass_gap: f64,
+    /// Include pairs driven in opposite directions (the paper's pairs share the heading).
+    #[arg(long)]
+    pub any_heading: bool,
+    /// Only DC-Loc (skip the baselines and the ablation).
+    #[arg(long)]
+    pub dcloc_only: bool,
+    /// Node name whose section of the params file applies.
+    #[arg(long, default_value = "dc_loc")]
+    pub node_name: String,
+    /// Parameter override, applied after the file (repeatable).
+    #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+    pub overrides: Vec<String>,
 }
 
-/// Runs `dc_loc eval`: not yet available (exit code 2).
-pub fn main(_args: &EvalArgs) -> Result<(), CliError> {
-    Err(CliError::Usage("not yet: `eval` is being written".into()))
+/// What an evaluation produced.
+pub struct EvalOutcome {
+    /// Keyframes with ground truth.
+    pub keyframes: usize,
+    /// Pairs evaluated.
+    pub pairs: usize,
+    /// Per method.
+    pub summaries: Vec<MethodSummary>,
+    /// The plot.
+    pub plot: PathBuf,
+}
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template(&format!(
+        "{{elapsed_precise}} [{{wide_bar}}] {{pos}}/{{len}} {what} ({{eta}} left)"
+    )) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    set_progress(Some(bar.clone()));
+    bar
+}
+
+/// Collects the keyframes of a bag with ground truth.
+pub fn collect(
+    bag: &Path,
+    cfg: &Config,
+    gt_topic: &str,
+    eval: &EvalConfig,
+) -> Result<Vec<EvalKeyframe>, CliError> {
+    let reader = BagReader::open(bag).map_err(|e| CliError::Runtime(e.to_string()))?;
+    let inputs = BagInputs::new(&reader, cfg, Some(gt_topic)).map_err(|e| match e {
+        RunnerError::Bag(e) => CliError::Runtime(e.to_string()),
+        e => CliError::Usage(e.to_string()),
+    })?;
+    let mut collector = Collector::new(cfg, eval).map_err(|e| CliError::Usage(e.to_string()))?;
+    let progress = bar(inputs.total_messages(), "messages");
+    let (mut ground_truth, mut radar, mut odometry, mut skipped) = (0u64, 0u64, 0u64, 0u64);
+    for item in inputs {
+        progress.inc(1);
+        match item {
+            Ok(input) => {
+                match &input {
+                    Input::GroundTruth { .. } => ground_truth += 1,
+                    Input::Radar { .. } => radar += 1,
+                    Input::Odometry { .. } => odometry += 1,
+                }
+                collector.push(&input);
+            }
+            Err(issue) => {
+                skipped += 1;
+                log::warn!("skipped: {issue}");
+            }
+        }
+    }
+    progress.finish_and_clear();
+    set_progress(None);
+    if ground_truth == 0 {
+        return Err(CliError::Usage(format!(
+            "no ground truth on {gt_topic} in {}",
+            bag.display()
+        )));
+    }
+    let (kfs, _) = collector.finish();
+    log::info!(
+        "{radar} radar clouds, {odometry} odometry, {ground_truth} ground truth, {skipped} skipped; \
+         {} keyframes with ground truth",
+        kfs.len()
+    );
+    Ok(kfs)
+}
+
+/// Pairs, registers, summarises, prints and writes the outputs.
+pub fn evaluate_and_report(
+    kfs: &[EvalKeyframe],
+    cfg: &Config,
+    eval: &EvalConfig,
+    methods: &[Method],
+    out_dir: &Path,
+) -> Result<EvalOutcome, CliError> {
+    let pairs = make_pairs(kfs, eval);
+    if pairs.is_empty() {
+        return Err(CliError::Usage(format!(
+            "no keyframe pairs: nothing of another pass within {} m (min pass gap {} m)",
+            eval.pair_radius, eval.min_pass_gap
+        )));
+    }
+    let progress = bar(pairs.len() as u64, "pairs");
+    // Chunks keep the progress bar moving while rayon works inside each.
+    let mut results: Vec<PairResult> = Vec::new();
+    for chunk in pairs.chunks(16) {
+        results.extend(evaluate(kfs, chunk, methods, &cfg.registration, eval));
+        progress.inc(chunk.len() as u64);
+    }
+    progress.finish_and_clear();
+    set_progress(None);
+    let summaries = report::summarize(&results, methods, eval);
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| CliError::Runtime(format!("{}: {e}", out_dir.display())))?;
+    let plot = out_dir.join("eval.svg");
+    report::plot_svg(&summaries, eval, &plot).map_err(CliError::Runtime)?;
+    let jsonl = out_dir.join("pairs.jsonl");
+    write_pairs(&jsonl, kfs, &results)
+        .map_err(|e| CliError::Runtime(format!("{}: {e}", jsonl.display())))?;
+    println!(
+        "{} keyframes, {} pairs (ground truth within {} m, another pass), outlier threshold {} m\n",
+        kfs.len(),
+        pairs.len(),
+        eval.pair_radius,
+        eval.outlier_threshold
+    );
+    println!(
+        "Methods (the paper's Table 1 layout):\n{}",
+        report::table_methods(&summaries)
+    );
+    if methods.len() > 1 {
+        println!(
+            "Ablation (the paper's Table 2 layout):\n{}",
+            report::table_ablation(&summaries)
+        );
+    }
+    println!(
+        "Mean error by ego-velocity difference:\n{}",
+        report::table_velocity(&summaries, eval)
+    );
+    println!("plot: {}\nper pair: {}", plot.display(), jsonl.display());
+    Ok(EvalOutcome {
+        keyframes: kfs.len(),
+        pairs: pairs.len(),
+        summaries,
+        plot,
+    })
+}
+
+fn write_pairs(path: &Path, kfs: &[EvalKeyframe], results: &[PairResult]) -> std::io::Result<()> {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    for r in results {
+        let v = serde_json::json!({
+            "method": r.method.name(),
+            "query_stamp": kfs[r.pair.query].stamp.as_secs_f64(),
+            "target_stamp": kfs[r.pair.target].stamp.as_secs_f64(),
+            "distance": r.pair.distance,
+            "velocity_difference": r.velocity_difference,
+            "translation_error": if r.translation_error.is_finite() { Some(r.translation_error) } else { None },
+            "rotation_error": if r.rotation_error.is_finite() { Some(r.rotation_error) } else { None },
+            "nees": r.nees,
+            "overlap": r.overlap,
+            "inliers": r.inliers,
+            "failure": r.failure,
+        });
+        writeln!(out, "{v}")?;
+    }
+    out.flush()
+}
+
+/// The evaluation settings from the arguments.
+pub fn eval_config(args: &EvalArgs) -> EvalConfig {
+    EvalConfig {
+        pair_radius: args.pair_radius,
+        min_pass_gap: args.min_pass_gap,
+        max_heading_difference: if args.any_heading {
+            std::f64::consts::PI
+        } else {
+            std::f64::consts::FRAC_PI_2
+        },
+        ..EvalConfig::default()
+    }
+}
+
+/// Runs `dc_loc eval`.
+pub fn main(args: &EvalArgs) -> Result<(), CliError> {
+    let cfg = load_params(&args.params, "/", &args.node_name, &args.overrides)?;
+    let eval = eval_config(args);
+    eval.validate()
+        .map_err(|e| CliError::Usage(e.to_string()))?;
+    let kfs = collect(&args.bag, &cfg, &args.ground_truth_topic, &eval)?;
+    let methods = if args.dcloc_only {
+        vec![Method::DCLOC]
+    } else {
+        Method::all()
+    };
+    evaluate_and_report(&kfs, &cfg, &eval, &methods, &args.out_dir)?;
+    Ok(())
 }

@@ -38,9 +38,9 @@ enum Command {
     Sim(sim::SimArgs),
     /// Run the pipeline over a bag and write the loop closures as JSON lines.
     Run(run::RunArgs),
-    /// Evaluate loop closures against ground truth (not yet).
+    /// The paper's evaluation on a bag with ground truth: every method and ablation row, tables, plot.
     Eval(eval::EvalArgs),
-    /// Simulate, run and evaluate in one go (not yet).
+    /// Simulate the default drive, run it and evaluate it: the whole method in one command.
     Demo(demo::DemoArgs),
 }
 

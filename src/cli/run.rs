@@ -43,19 +43,33 @@ pub struct RunArgs {
 
 /// The configuration from the params file and the overrides.
 pub fn load_config(args: &RunArgs) -> Result<Config, CliError> {
-    let file = args.params.display();
-    let text = std::fs::read_to_string(&args.params)
+    load_params(
+        &args.params,
+        &args.namespace,
+        &args.node_name,
+        &args.overrides,
+    )
+}
+
+/// The configuration from a params file (the section of node `/namespace/node_name`) and `-p`
+/// overrides, validated.
+pub fn load_params(
+    params: &std::path::Path,
+    namespace: &str,
+    node_name: &str,
+    overrides: &[String],
+) -> Result<Config, CliError> {
+    let file = params.display();
+    let text = std::fs::read_to_string(params)
         .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))?;
-    let mut set = ParamSet::from_yaml(&text, &args.namespace, &args.node_name)
+    let mut set = ParamSet::from_yaml(&text, namespace, node_name)
         .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))?;
     if set.entries().is_empty() {
         log::warn!(
-            "{file} has no parameters for node {} (namespace {}): running with the defaults",
-            args.node_name,
-            args.namespace
+            "{file} has no parameters for node {node_name} (namespace {namespace}): running with the defaults"
         );
     }
-    for o in &args.overrides {
+    for o in overrides {
         set.set_override(o)
             .map_err(|e| CliError::Usage(format!("-p: {e}")))?;
     }

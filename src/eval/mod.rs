@@ -239,6 +239,23 @@ impl Collector {
         })
     }
 
+    /// Feeds one input of the runner's stream (radar, odometry or ground truth).
+    pub fn push(&mut self, input: &crate::runner::Input) -> Vec<Event> {
+        use crate::runner::Input;
+        match input {
+            Input::Radar { radar, cloud } => self.push_cloud(*radar, cloud),
+            Input::Odometry { stamp, t_odom_body } => self.push_odometry(*stamp, *t_odom_body),
+            Input::GroundTruth {
+                stamp,
+                t_map_body,
+                speed,
+            } => {
+                self.push_ground_truth(*stamp, *t_map_body, *speed);
+                Vec::new()
+            }
+        }
+    }
+
     /// Feeds odometry to the pipeline.
     pub fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
         self.pipeline.push_odometry(stamp, t_odom_body)

@@ -26,6 +26,19 @@ fn main() {
         };
         for e in out {
             if let Event::Closure(c) = e {
+                let q = drive.state_at(c.query_stamp).t_map_body;
+                let m = drive.state_at(c.match_stamp).t_map_body;
+                let truth = m.inverse() * q;
+                let est = iso2_from_iso3(&c.t_match_query);
+                println!(
+                    "closure {} -> {}: err {:.2} m, truth dist {:.1} m, inliers {} overlap {:.2}",
+                    c.query_id,
+                    c.match_id,
+                    (truth.translation.vector - est.translation.vector).norm(),
+                    truth.translation.vector.norm(),
+                    c.inliers,
+                    c.score
+                );
                 closures.push(*c);
             }
         }

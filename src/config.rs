@@ -5,7 +5,8 @@
 //! Every `Default` is written by hand and documented; units are SI unless a name says otherwise.
 
 use crate::math::{Iso3, iso3_from_xyz_rpy};
-use crate::pipeline::{KeyframeConfig, LoopConfig};
+use crate::pipeline::{KeyframeConfig, LoopConfig, MapConfig};
+use crate::place::PlaceConfig;
 use crate::radar::RadarNoise;
 use crate::radar::ego_motion::EgoMotionConfig;
 use crate::registration::RegistrationConfig;
@@ -206,6 +207,10 @@ pub struct Config {
     pub keyframe: KeyframeConfig,
     /// Revisit search and closure acceptance.
     pub r#loop: LoopConfig,
+    /// Place descriptors (revisits whatever the odometry says).
+    pub place: PlaceConfig,
+    /// The keyframe map file.
+    pub map: MapConfig,
     /// Registration (descriptors, matching, RANSAC, LM).
     pub registration: RegistrationConfig,
 }
@@ -224,6 +229,8 @@ impl Default for Config {
             submap: SubmapConfig::default(),
             keyframe: KeyframeConfig::default(),
             r#loop: LoopConfig::default(),
+            place: PlaceConfig::default(),
+            map: MapConfig::default(),
             registration: RegistrationConfig::default(),
         }
     }
@@ -275,6 +282,8 @@ impl Config {
         self.submap.validate("submap")?;
         self.keyframe.validate("keyframe")?;
         self.r#loop.validate("loop")?;
+        self.place.validate("place")?;
+        self.map.validate("map")?;
         self.registration.validate()
     }
 }

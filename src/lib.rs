@@ -13,6 +13,7 @@ pub mod cloud;
 pub mod config;
 pub mod eval;
 pub mod io;
+pub mod keyframe_db;
 pub mod math;
 pub mod msgs;
 pub mod params;

@@ -6,22 +6,24 @@
 //! Nothing calls back: every `push_*` returns the [`Event`]s it produced, and counters live in
 //! [`PipelineStats`].
 //!
-//! Entry points: [`Pipeline`], [`Event`], [`LoopClosure`], [`Keyframe`], [`KeyframeConfig`],
-//! [`LoopConfig`], [`PipelineStats`].
+//! Entry points: [`Pipeline`], [`Event`], [`LoopClosure`], [`KeyframeConfig`], [`LoopConfig`],
+//! [`MapConfig`], [`PipelineStats`]; the keyframe map is [`crate::keyframe_db`].
 
 use crate::cloud::decode_detections;
 use crate::config::{Config, ConfigError};
-use crate::math::{Iso3, Mat6, Stamp, iso2_from_iso3, iso3_from_iso2};
+use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord, SearchSettings};
+use crate::math::{Iso2, Iso3, Mat3, Mat6, Stamp, iso2_from_iso3, iso3_from_iso2};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
+use crate::registration::lm::se2_log;
 use crate::registration::{
     PreparedSubmap, RegistrationError, RegistrationResult, register_prepared,
 };
 use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
-use kiddo::SquaredEuclidean;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
 
 /// When a new keyframe is taken.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -70,25 +72,51 @@ impl KeyframeConfig {
     }
 }
 
-/// Revisit search and acceptance of loop closures.
+/// Revisit search and acceptance of loop closures. Every gate is a parameter; every rejection is counted
+/// by reason ([`RejectReason`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoopConfig {
     /// Search for revisits at all (default true; off for pure submap collection).
     pub enabled: bool,
-    /// Keyframes within this odometry distance of the current one are candidates, m (default 15).
+    /// Base search radius around the odometry position, m (default 15).
     pub search_radius: f64,
-    /// Fewest metres of odometry path between a candidate and the current keyframe (default 100).
+    /// Odometry drift model, translation: the search radius grows by this many metres per metre of path
+    /// driven since the candidate keyframe, and the consistency check allows as much (default 0.05:
+    /// 5 % of distance).
+    pub drift_rate: f64,
+    /// Odometry drift model, heading: rad per metre of path (default 5e-4, about 2.9 deg per 100 m).
+    pub drift_yaw_rate: f64,
+    /// Largest search radius, m (default 300).
+    pub search_radius_max: f64,
+    /// Fewest metres of odometry path between a same-session candidate and the current keyframe
+    /// (default 100).
     pub minimum_path_gap: f64,
-    /// Candidates registered per keyframe, nearest first (default 3).
+    /// Place-descriptor candidates retrieved per keyframe, whatever the odometry says (default 25;
+    /// 0 disables retrieval by place).
+    pub place_retrieve: usize,
+    /// Largest place-descriptor distance (0..1) of a candidate found by place only (default 0.45).
+    pub place_maximum_distance: f64,
+    /// Candidates registered per keyframe, best place match first (default 4).
     pub maximum_candidates: usize,
     /// Fewest registration inliers to accept (default 15).
     pub minimum_inliers: usize,
+    /// Smallest overlap (share of points with a partner at the result) to accept (default 0.3).
+    pub minimum_overlap: f64,
     /// Largest translation standard deviation (largest eigenvalue of the x-y covariance), m
     /// (default 0.5).
     pub maximum_translation_std: f64,
     /// Largest yaw standard deviation, rad (default 0.02).
     pub maximum_rotation_std: f64,
+    /// Consistency gate: largest squared Mahalanobis distance (3 dof) between a closure and what odometry
+    /// and the earlier accepted closures predict, under the closure's covariance plus the drift model's
+    /// (default 16.27, the 99.9 % chi-square quantile; 0 disables the check).
+    pub consistency_chi2: f64,
+    /// Mutually consistent closures (from different query keyframes) needed before the first closure to
+    /// a session is published: until then nothing but odometry (or, for a loaded map, nothing at all)
+    /// vouches for them, and a single aliased match would misalign everything after it (default 2; 1
+    /// publishes at once).
+    pub confirmations: usize,
 }
 
 impl Default for LoopConfig {
@@ -96,11 +124,19 @@ impl Default for LoopConfig {
         LoopConfig {
             enabled: true,
             search_radius: 15.0,
+            drift_rate: 0.05,
+            drift_yaw_rate: 5e-4,
+            search_radius_max: 300.0,
             minimum_path_gap: 100.0,
-            maximum_candidates: 3,
+            place_retrieve: 25,
+            place_maximum_distance: 0.45,
+            maximum_candidates: 4,
             minimum_inliers: 15,
+            minimum_overlap: 0.3,
             maximum_translation_std: 0.5,
             maximum_rotation_std: 0.02,
+            consistency_chi2: 16.27,
+            confirmations: 2,
         }
     }
 }
@@ -108,56 +144,128 @@ impl Default for LoopConfig {
 impl LoopConfig {
     /// Rejects unusable values, naming the parameter under `prefix`.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        let pos = |f: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(ConfigError::new(
-                    format!("{prefix}.{f}"),
-                    format!("{v} must be > 0"),
-                ))
+        let name = |f: &str| format!("{prefix}.{f}");
+        for (f, v) in [
+            ("search_radius", self.search_radius),
+            ("maximum_translation_std", self.maximum_translation_std),
+            ("maximum_rotation_std", self.maximum_rotation_std),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::new(name(f), format!("{v} must be > 0")));
             }
-        };
-        pos("search_radius", self.search_radius)?;
-        pos("maximum_translation_std", self.maximum_translation_std)?;
-        pos("maximum_rotation_std", self.maximum_rotation_std)?;
-        if !(self.minimum_path_gap.is_finite() && self.minimum_path_gap >= 0.0) {
+        }
+        for (f, v) in [
+            ("drift_rate", self.drift_rate),
+            ("drift_yaw_rate", self.drift_yaw_rate),
+            ("minimum_path_gap", self.minimum_path_gap),
+            ("consistency_chi2", self.consistency_chi2),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ConfigError::new(name(f), format!("{v} must be >= 0")));
+            }
+        }
+        if self.confirmations == 0 {
+            return Err(ConfigError::new(name("confirmations"), "must be >= 1"));
+        }
+        if !(self.search_radius_max.is_finite() && self.search_radius_max >= self.search_radius) {
             return Err(ConfigError::new(
-                format!("{prefix}.minimum_path_gap"),
-                "must be >= 0 m",
+                name("search_radius_max"),
+                "must be >= search_radius",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.place_maximum_distance) {
+            return Err(ConfigError::new(
+                name("place_maximum_distance"),
+                "must be in [0, 1]",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.minimum_overlap) {
+            return Err(ConfigError::new(
+                name("minimum_overlap"),
+                "must be in [0, 1]",
             ));
         }
         if self.maximum_candidates == 0 {
             return Err(ConfigError::new(
-                format!("{prefix}.maximum_candidates"),
+                name("maximum_candidates"),
                 "must be at least 1",
             ));
         }
         if self.minimum_inliers < 3 {
             return Err(ConfigError::new(
-                format!("{prefix}.minimum_inliers"),
+                name("minimum_inliers"),
                 "must be at least 3",
             ));
         }
         Ok(())
     }
+
+    fn search(&self) -> SearchSettings {
+        SearchSettings {
+            radius: self.search_radius,
+            drift_rate: self.drift_rate,
+            max_radius: self.search_radius_max,
+            min_path_gap: self.minimum_path_gap,
+            place_retrieve: self.place_retrieve,
+            place_max_distance: self.place_maximum_distance,
+            max_candidates: self.maximum_candidates,
+        }
+    }
 }
 
-/// A keyframe: a submap at a place, with what is needed to match it later.
-#[derive(Debug)]
-pub struct Keyframe {
-    /// Sequential id, from 0.
-    pub id: u64,
-    /// Anchor stamp of its submap.
-    pub stamp: Stamp,
-    /// Odometry pose of the body at `stamp`.
-    pub t_odom_body: Iso3,
-    /// Odometry path length driven up to this keyframe, m.
-    pub path_distance: f64,
-    /// The submap (compensated and raw points, covariances).
-    pub submap: Submap,
-    /// Descriptors and trees of the points registration uses.
-    pub prepared: PreparedSubmap,
+/// The keyframe map: where it is kept and how it is loaded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MapConfig {
+    /// Map file to load at start and save to (default empty: no persistence).
+    pub file: String,
+    /// Start with an empty map when the file exists but cannot be used (corrupt, other version); the
+    /// file is then left untouched until the first save would replace it... which is refused: the new
+    /// map goes to `<file>.new` instead (default false: refuse to start).
+    pub start_empty_on_error: bool,
+    /// Seconds between saves while keyframes are added (default 30; the node also saves at shutdown).
+    pub save_interval: f64,
+    /// Most points kept per keyframe (default 1400: about 30 KB per keyframe with its descriptor).
+    pub max_points_per_keyframe: usize,
+    /// Registration-ready keyframes kept in memory (default 64).
+    pub prepared_cache: usize,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            file: String::new(),
+            start_empty_on_error: false,
+            save_interval: 30.0,
+            max_points_per_keyframe: 1400,
+            prepared_cache: 64,
+        }
+    }
+}
+
+impl MapConfig {
+    /// Rejects unusable values, naming the parameter under `prefix`.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        if !(self.save_interval.is_finite() && self.save_interval > 0.0) {
+            return Err(ConfigError::new(
+                format!("{prefix}.save_interval"),
+                "must be > 0 s",
+            ));
+        }
+        if self.max_points_per_keyframe < 10 {
+            return Err(ConfigError::new(
+                format!("{prefix}.max_points_per_keyframe"),
+                "must be at least 10",
+            ));
+        }
+        if self.prepared_cache == 0 {
+            return Err(ConfigError::new(
+                format!("{prefix}.prepared_cache"),
+                "must be at least 1",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// A verified loop closure: the query keyframe's body frame in the match keyframe's body frame.
@@ -181,8 +289,10 @@ pub struct LoopClosure {
     pub covariance: Mat6,
     /// Registration inliers.
     pub inliers: u32,
-    /// Quality score: inlier share of the candidate matches (0..1).
+    /// Quality score: the registration's overlap (share of points with a partner, 0..1).
     pub score: f64,
+    /// Session of the match keyframe (an earlier drive when it came from a loaded map).
+    pub match_session: u32,
 }
 
 /// Why a candidate revisit was not published.
@@ -196,6 +306,10 @@ pub enum RejectReason {
     NotConverged,
     /// The covariance exceeds `loop.maximum_*_std`.
     Uncertain,
+    /// The overlap is below `loop.minimum_overlap`.
+    LowOverlap,
+    /// The closure contradicts odometry and earlier closures (`loop.consistency_chi2`).
+    Inconsistent,
 }
 
 impl RejectReason {
@@ -206,6 +320,8 @@ impl RejectReason {
             RejectReason::FewInliers => "few_inliers",
             RejectReason::NotConverged => "not_converged",
             RejectReason::Uncertain => "covariance_too_large",
+            RejectReason::LowOverlap => "low_overlap",
+            RejectReason::Inconsistent => "inconsistent",
         }
     }
 }
@@ -251,6 +367,8 @@ pub enum Event {
         t_odom_body: Iso3,
         /// Points in its submap.
         points: usize,
+        /// The submap itself (shared; the database keeps a compact copy).
+        submap: Arc<Submap>,
     },
     /// A loop closure passed every gate.
     Closure(Box<LoopClosure>),
@@ -312,6 +430,8 @@ pub struct PipelineStats {
     pub pending_scans: usize,
 }
 
+/// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
+const CONFIRM_CHI2: f64 = 16.27;
 /// Most scans held while waiting for odometry to cover their stamps.
 const MAX_PENDING: usize = 256;
 /// A stamp this much older than the newest input counts as time going backwards, s.
@@ -323,8 +443,14 @@ pub struct Pipeline {
     odom: OdometryBuffer,
     builder: SubmapBuilder,
     pending: VecDeque<RadarScan>,
-    keyframes: Vec<Keyframe>,
-    tree: kiddo::MutableKdTree<f64, 2>,
+    db: KeyframeDb,
+    session: u32,
+    /// Per session of earlier keyframes: the latest accepted alignment of this session's odometry frame
+    /// into that session's frame, and the path length at which it was found.
+    alignments: BTreeMap<u32, (Iso2, f64)>,
+    /// Per session without an alignment yet: closures waiting for confirmation, with the alignment each
+    /// implies and the path length at which it was found.
+    tentative: BTreeMap<u32, Vec<(LoopClosure, Iso2, f64)>>,
     last_keyframe: Option<(Iso3, f64)>,
     path_distance: f64,
     last_odom: Option<Iso3>,
@@ -333,9 +459,18 @@ pub struct Pipeline {
 }
 
 impl Pipeline {
-    /// A pipeline for a validated configuration.
+    /// A pipeline for a validated configuration, with an empty keyframe map.
     pub fn new(cfg: Config) -> Result<Self, ConfigError> {
+        let db = KeyframeDb::new(cfg.place.clone(), cfg.map.prepared_cache);
+        Self::with_map(cfg, db)
+    }
+
+    /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
+    /// are revisit candidates, found by place descriptor (their odometry frame is another session's), and
+    /// new keyframes get the next ids and a new session.
+    pub fn with_map(cfg: Config, db: KeyframeDb) -> Result<Self, ConfigError> {
         cfg.validate()?;
+        let session = db.last_session().map_or(0, |s| s + 1);
         let radars: Vec<RadarModel> = cfg
             .radar_list()
             .into_iter()
@@ -345,8 +480,10 @@ impl Pipeline {
             odom: OdometryBuffer::new(cfg.odometry.clone()),
             builder: SubmapBuilder::new(cfg.submap.clone(), cfg.ego_motion.clone(), radars),
             pending: VecDeque::new(),
-            keyframes: Vec::new(),
-            tree: kiddo::MutableKdTree::default(),
+            db,
+            session,
+            alignments: BTreeMap::new(),
+            tentative: BTreeMap::new(),
             last_keyframe: None,
             path_distance: 0.0,
             last_odom: None,
@@ -366,9 +503,14 @@ impl Pipeline {
         &self.stats
     }
 
-    /// Keyframes so far, oldest first (index = id).
-    pub fn keyframes(&self) -> &[Keyframe] {
-        &self.keyframes
+    /// The keyframe database (loaded map and this session's keyframes).
+    pub fn db(&self) -> &KeyframeDb {
+        &self.db
+    }
+
+    /// This session's number.
+    pub fn session(&self) -> u32 {
+        self.session
     }
 
     /// The current rolling submap (compensated, in the body frame at its newest scan).
@@ -388,7 +530,7 @@ impl Pipeline {
                     "time went backwards ({:.3} s -> {:.3} s): resetting odometry and the rolling submap, keeping {} keyframes",
                     prev.as_secs_f64(),
                     stamp.as_secs_f64(),
-                    self.keyframes.len()
+                    self.db.len()
                 );
                 self.odom.clear();
                 self.builder.clear();
@@ -582,108 +724,152 @@ impl Pipeline {
                 return;
             }
         }
-        // Only with a full window: every radar has its N scans (or the window spans max_span).
         let Some(submap) = self.builder.build() else {
             return;
         };
         if submap.len() < self.cfg.keyframe.min_points {
             return;
         }
-        let prepared = match PreparedSubmap::new(submap.point_set(true), &self.cfg.registration) {
-            Ok(p) => p,
+        let id = self.db.next_id();
+        let rec = KeyframeRecord::from_submap(
+            id,
+            self.session,
+            &submap,
+            self.path_distance,
+            self.cfg.map.max_points_per_keyframe,
+            &self.cfg.place,
+        );
+        let prepared = match PreparedSubmap::new(rec.point_set(), &self.cfg.registration) {
+            Ok(p) => Arc::new(p),
             Err(e) => {
                 log::warn!("keyframe skipped: {e}");
                 return;
             }
         };
-        let id = self.keyframes.len() as u64;
-        let kf = Keyframe {
-            id,
-            stamp: submap.anchor_stamp,
-            t_odom_body: submap.t_odom_anchor,
-            path_distance: self.path_distance,
-            submap,
-            prepared,
-        };
         self.last_keyframe = Some((pose, self.path_distance));
         self.stats.keyframes += 1;
         log::debug!(
             "keyframe {id} at {:.3} s: {} points",
-            kf.stamp.as_secs_f64(),
-            kf.submap.len()
+            rec.stamp.as_secs_f64(),
+            submap.len()
         );
+        let stamp = submap.anchor_stamp;
+        let t_odom_body = submap.t_odom_anchor;
         out.push(Event::Keyframe {
             id,
-            stamp: kf.stamp,
-            t_odom_body: kf.t_odom_body,
-            points: kf.submap.len(),
+            stamp,
+            t_odom_body,
+            points: submap.len(),
+            submap: Arc::new(submap),
         });
         if self.cfg.r#loop.enabled {
-            self.search_revisits(&kf, out);
+            self.search_revisits(&rec, &prepared, out);
         }
-        let p = kf.t_odom_body.translation.vector;
-        // Ids fit u32 (kiddo's item type) for four billion keyframes; beyond, the search ignores them.
-        if let Ok(item) = u32::try_from(id) {
-            if let Err(e) = self.tree.add(&[p.x, p.y], item) {
-                log::warn!("keyframe {id} not indexed for revisit search: {e:?}");
-            }
+        if self.db.insert(rec) {
+            self.db.put_prepared(id as usize, prepared);
+        } else {
+            log::warn!("keyframe {id} could not be added to the database");
         }
-        self.keyframes.push(kf);
     }
 
-    fn search_revisits(&mut self, query: &Keyframe, out: &mut Vec<Event>) {
-        let lc = &self.cfg.r#loop;
-        let p = query.t_odom_body.translation.vector;
-        let r2 = lc.search_radius * lc.search_radius;
-        let mut candidates: Vec<(f64, u64)> = Vec::new();
-        self.tree
-            .query(&[p.x, p.y])
-            .within::<SquaredEuclidean<f64>>(r2)
-            .unsorted()
-            .visit(|n| candidates.push((n.distance, u64::from(n.item))));
-        candidates.retain(|&(_, id)| {
-            self.keyframes
-                .get(id as usize)
-                .is_some_and(|k| query.path_distance - k.path_distance >= lc.minimum_path_gap)
-        });
-        candidates.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        candidates.truncate(lc.maximum_candidates);
+    fn search_revisits(
+        &mut self,
+        query: &KeyframeRecord,
+        prepared: &PreparedSubmap,
+        out: &mut Vec<Event>,
+    ) {
+        let alignment = self.alignments.get(&self.session).copied();
+        let candidates = self.db.candidates(
+            &CandidateQuery { query, alignment },
+            self.session,
+            &self.cfg.r#loop.search(),
+        );
         let mut best: Option<LoopClosure> = None;
-        for (_, id) in candidates {
-            let Some(cand) = self.keyframes.get(id as usize) else {
-                continue;
+        for cand in candidates {
+            let id = cand.index as u64;
+            let target = match self.db.prepared(cand.index, &self.cfg.registration) {
+                Ok(t) => t,
+                Err(e) => {
+                    self.reject(query.id, id, RejectReason::Registration, e.to_string(), out);
+                    continue;
+                }
             };
             self.stats.registrations += 1;
-            let res = register_prepared(&query.prepared, &cand.prepared, &self.cfg.registration);
-            match self.gate(query, cand, res) {
+            let res = register_prepared(prepared, &target, &self.cfg.registration);
+            let Some(rec) = self.db.get(id) else { continue };
+            match self.gate(query, rec, res) {
                 Ok(c) => {
                     if best.as_ref().is_none_or(|b| c.score > b.score) {
                         best = Some(c);
                     }
                 }
-                Err((reason, detail)) => {
-                    *self.stats.rejected.entry(reason).or_default() += 1;
-                    log::debug!(
-                        "revisit {} -> {} rejected ({}): {detail}",
-                        query.id,
-                        id,
-                        reason.name()
-                    );
-                    out.push(Event::Rejected {
-                        query_id: query.id,
-                        match_id: id,
-                        reason,
-                        detail,
-                    });
-                }
+                Err((reason, detail)) => self.reject(query.id, id, reason, detail, out),
             }
         }
         if let Some(c) = best {
+            self.accept(query, c, out);
+        }
+    }
+
+    /// Publishes a closure that passed the gates, or holds it until confirmed (`loop.confirmations`).
+    fn accept(&mut self, query: &KeyframeRecord, c: LoopClosure, out: &mut Vec<Event>) {
+        let Some(m) = self.db.get(c.match_id) else {
+            return;
+        };
+        let session = m.session;
+        // The closure's alignment of this session's odometry into the match's session frame.
+        let a = m.t_odom_body * iso2_from_iso3(&c.t_match_query) * query.t_odom_body.inverse();
+        let mut publish = Vec::new();
+        if self.alignments.contains_key(&session) || self.cfg.r#loop.confirmations <= 1 {
+            publish.push(c);
+        } else {
+            let pending = self.tentative.entry(session).or_default();
+            let lc = &self.cfg.r#loop;
+            let agree: Vec<usize> = (0..pending.len())
+                .filter(|&k| {
+                    let (old, a_old, path_old) = &pending[k];
+                    old.query_id != c.query_id
+                        && alignment_distance(
+                            a_old,
+                            &a,
+                            &query.t_odom_body,
+                            query.path_distance - path_old,
+                            lc,
+                        ) <= CONFIRM_CHI2
+                })
+                .collect();
+            if agree.len() + 1 >= lc.confirmations {
+                let mut kept = std::mem::take(pending);
+                for k in agree.into_iter().rev() {
+                    publish.push(kept.swap_remove(k).0);
+                }
+                publish.sort_by_key(|p| p.query_id);
+                publish.push(c);
+                log::info!(
+                    "closures to session {session} confirmed by {} agreeing matches",
+                    publish.len()
+                );
+            } else {
+                log::debug!(
+                    "closure {} -> {} held until another closure to session {session} confirms it",
+                    c.query_id,
+                    c.match_id
+                );
+                pending.push((c, a, query.path_distance));
+                // Old unconfirmed hypotheses expire: a true one is confirmed within a few keyframes.
+                let horizon = 4.0 * lc.search_radius;
+                pending.retain(|p| query.path_distance - p.2 <= horizon);
+                return;
+            }
+        }
+        self.alignments.insert(session, (a, query.path_distance));
+        for c in publish {
             self.stats.closures += 1;
             log::info!(
-                "loop closure {} -> {}: {} inliers, score {:.2}",
+                "loop closure {} -> {} (session {}): {} inliers, overlap {:.2}",
                 c.query_id,
                 c.match_id,
+                c.match_session,
                 c.inliers,
                 c.score
             );
@@ -691,10 +877,32 @@ impl Pipeline {
         }
     }
 
+    fn reject(
+        &mut self,
+        query_id: u64,
+        match_id: u64,
+        reason: RejectReason,
+        detail: String,
+        out: &mut Vec<Event>,
+    ) {
+        *self.stats.rejected.entry(reason).or_default() += 1;
+        log::debug!(
+            "revisit {query_id} -> {match_id} rejected ({}): {detail}",
+            reason.name()
+        );
+        out.push(Event::Rejected {
+            query_id,
+            match_id,
+            reason,
+            detail,
+        });
+    }
+
+    /// The gates, in order: registration, inliers, convergence, overlap, covariance, consistency.
     fn gate(
         &self,
-        query: &Keyframe,
-        cand: &Keyframe,
+        query: &KeyframeRecord,
+        cand: &KeyframeRecord,
         res: Result<RegistrationResult, RegistrationError>,
     ) -> Result<LoopClosure, (RejectReason, String)> {
         let lc = &self.cfg.r#loop;
@@ -708,6 +916,12 @@ impl Pipeline {
                 format!("{} iterations", r.iterations),
             ));
         }
+        if r.overlap < lc.minimum_overlap {
+            return Err((
+                RejectReason::LowOverlap,
+                format!("overlap {:.2}", r.overlap),
+            ));
+        }
         let xy = r.covariance.fixed_view::<2, 2>(0, 0).into_owned();
         let t_std = xy.symmetric_eigenvalues().max().max(0.0).sqrt();
         let r_std = r.covariance[(5, 5)].max(0.0).sqrt();
@@ -717,21 +931,96 @@ impl Pipeline {
                 format!("std {t_std:.3} m, {r_std:.4} rad"),
             ));
         }
+        if lc.consistency_chi2 > 0.0 {
+            if let Some(d2) = self.inconsistency(query, cand, &r) {
+                if d2 > lc.consistency_chi2 {
+                    return Err((
+                        RejectReason::Inconsistent,
+                        format!(
+                            "squared Mahalanobis distance {d2:.1} to the odometry/closure prediction"
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(LoopClosure {
             query_id: query.id,
             match_id: cand.id,
             query_stamp: query.stamp,
             match_stamp: cand.stamp,
-            query_odom_pose: query.t_odom_body,
-            match_odom_pose: cand.t_odom_body,
+            query_odom_pose: query.odom_pose_iso3(),
+            match_odom_pose: cand.odom_pose_iso3(),
             t_match_query: iso3_from_iso2(&r.t_target_source),
             covariance: r.covariance,
             inliers: r.inliers as u32,
-            score: if r.candidates > 0 {
-                r.inliers as f64 / r.candidates as f64
-            } else {
-                0.0
-            },
+            score: r.overlap,
+            match_session: cand.session,
         })
     }
+
+    /// Squared Mahalanobis distance between the registered `T_match_query` and its prediction from
+    /// odometry (same session: no correction, drift since the candidate) or from the last accepted
+    /// closure to the candidate's session (drift since that closure); `None` when there is nothing to
+    /// predict with (the first closure to a loaded map's session).
+    fn inconsistency(
+        &self,
+        query: &KeyframeRecord,
+        cand: &KeyframeRecord,
+        r: &RegistrationResult,
+    ) -> Option<f64> {
+        let lc = &self.cfg.r#loop;
+        let (alignment, path_gap) = match self.alignments.get(&cand.session) {
+            Some(&(a, path_a)) => (a, (query.path_distance - path_a).abs()),
+            None if cand.session == self.session => (
+                Iso2::identity(),
+                (query.path_distance - cand.path_distance).abs(),
+            ),
+            None => return None,
+        };
+        let predicted = cand.t_odom_body.inverse() * alignment * query.t_odom_body;
+        let e = se2_log(&(r.t_target_source.inverse() * predicted));
+        let (sigma_t, sigma_r) = drift_sigmas(path_gap, lc);
+        let mut cov = Mat3::zeros();
+        for (i, j) in [
+            (0usize, 0usize),
+            (0, 1),
+            (1, 0),
+            (1, 1),
+            (0, 5),
+            (5, 0),
+            (1, 5),
+            (5, 1),
+            (5, 5),
+        ] {
+            let (a, b) = (if i == 5 { 2 } else { i }, if j == 5 { 2 } else { j });
+            cov[(a, b)] = r.covariance[(i, j)];
+        }
+        cov[(0, 0)] += sigma_t * sigma_t;
+        cov[(1, 1)] += sigma_t * sigma_t;
+        cov[(2, 2)] += sigma_r * sigma_r;
+        let inv = cov.try_inverse()?;
+        Some(e.dot(&(inv * e)))
+    }
+}
+
+/// Standard deviations (m, rad) of the odometry drift over `path_gap` metres: the drift model's bounds
+/// (search radius plus `drift_rate` per metre, 0.05 rad plus `drift_yaw_rate` per metre) read as four
+/// standard deviations, so that the default chi-square gate accepts out to about the bound.
+fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
+    let gap = path_gap.abs();
+    (
+        (lc.search_radius + lc.drift_rate * gap).min(lc.search_radius_max) / 4.0,
+        (0.05 + lc.drift_yaw_rate * gap).min(std::f64::consts::PI) / 4.0,
+    )
+}
+
+/// Squared Mahalanobis distance between two alignments of the same odometry frame found `path_gap`
+/// metres of path apart, compared where they are used (the body pose `at`): two true closures agree to
+/// registration accuracy (1 m, 0.02 rad standard deviation, generous) plus the drift between them.
+fn alignment_distance(a: &Iso2, b: &Iso2, at: &Iso2, path_gap: f64, lc: &LoopConfig) -> f64 {
+    let e = se2_log(&((a * at).inverse() * (b * at)));
+    let gap = path_gap.abs();
+    let st = 1.0 + lc.drift_rate * gap;
+    let sr = 0.02 + lc.drift_yaw_rate * gap;
+    (e.x * e.x + e.y * e.y) / (st * st) + e.z * e.z / (sr * sr)
 }

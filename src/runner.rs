@@ -640,6 +640,7 @@ mod tests {
             covariance: cov,
             inliers: 31,
             score: 0.625,
+            match_session: 0,
         }
     }
 

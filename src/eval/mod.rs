@@ -182,7 +182,7 @@ pub struct EvalKeyframe {
     /// Ground-truth path length driven up to the anchor, m.
     pub path: f64,
     /// The submap.
-    pub submap: Submap,
+    pub submap: std::sync::Arc<Submap>,
     /// Forward speed the MC-RANSAC-style estimator found for each of the submap's scans (`None` when it
     /// had none: the first scans of a drive).
     pub estimated_speeds: Vec<Option<f64>>,
@@ -198,6 +198,7 @@ pub struct Collector {
     gt_path: Vec<(Stamp, f64)>,
     estimators: Vec<ForwardSpeedEstimator>,
     speeds: BTreeMap<(usize, Stamp), f64>,
+    keyframes: Vec<(u64, std::sync::Arc<Submap>)>,
     /// Ground-truth samples refused (not finite, time going backwards).
     pub bad_ground_truth: u64,
 }
@@ -235,6 +236,7 @@ impl Collector {
             gt_path: Vec::new(),
             estimators,
             speeds: BTreeMap::new(),
+            keyframes: Vec::new(),
             bad_ground_truth: 0,
         })
     }
@@ -258,7 +260,17 @@ impl Collector {
 
     /// Feeds odometry to the pipeline.
     pub fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
-        self.pipeline.push_odometry(stamp, t_odom_body)
+        let events = self.pipeline.push_odometry(stamp, t_odom_body);
+        self.keep_keyframes(&events);
+        events
+    }
+
+    fn keep_keyframes(&mut self, events: &[Event]) {
+        for e in events {
+            if let Event::Keyframe { id, submap, .. } = e {
+                self.keyframes.push((*id, submap.clone()));
+            }
+        }
     }
 
     /// Feeds a radar cloud to the pipeline, and its uncorrected points to the MC-RANSAC-style speed
@@ -285,7 +297,9 @@ impl Collector {
                 }
             }
         }
-        self.pipeline.push_cloud(radar, cloud)
+        let events = self.pipeline.push_cloud(radar, cloud);
+        self.keep_keyframes(&events);
+        events
     }
 
     /// Feeds a ground-truth pose (map frame) and speed.
@@ -311,25 +325,23 @@ impl Collector {
     pub fn finish(mut self) -> (Vec<EvalKeyframe>, crate::pipeline::PipelineStats) {
         self.pipeline.finish();
         let mut out = Vec::new();
-        for kf in self.pipeline.keyframes() {
-            let Ok(t) = self.gt.pose_at(kf.stamp) else {
+        for (id, submap) in &self.keyframes {
+            let stamp = submap.anchor_stamp;
+            let Ok(t) = self.gt.pose_at(stamp) else {
                 continue;
             };
-            let speed = interpolate(&self.gt_speed, kf.stamp);
-            let path = interpolate(&self.gt_path, kf.stamp);
-            let estimated_speeds = kf
-                .submap
+            let estimated_speeds = submap
                 .scans
                 .iter()
                 .map(|s| self.speeds.get(&(s.radar, s.stamp)).copied())
                 .collect();
             out.push(EvalKeyframe {
-                id: kf.id,
-                stamp: kf.stamp,
+                id: *id,
+                stamp,
                 t_map_body: iso2_from_iso3(&t),
-                speed,
-                path,
-                submap: kf.submap.clone(),
+                speed: interpolate(&self.gt_speed, stamp),
+                path: interpolate(&self.gt_path, stamp),
+                submap: submap.clone(),
                 estimated_speeds,
             });
         }

@@ -16,28 +16,81 @@
 //! synced: a kill at any moment leaves the previous or the new map, never a partial one. A file that is
 //! truncated, damaged, of another version or not a map at all is refused with a message saying which.
 
+use crate::growing_index::GrowingIndex;
 use crate::math::{Iso2, Mat2, Stamp, Vec2};
 use crate::place::{PlaceConfig, PlaceDescriptor, PlaceIndex};
 use crate::registration::{PointSet2, PreparedSubmap, RegistrationConfig, RegistrationError};
 use crate::submap::Submap;
-use kiddo::SquaredEuclidean;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 
-/// Keyframes searched linearly before the position tree is first built.
-const TAIL_MIN: usize = 64;
-
-fn empty_tree() -> kiddo::ImmutableKdTree<f64, 2> {
-    kiddo::ImmutableKdTree::new_from_slice(&[]).unwrap_or_default()
-}
-
 /// Map file magic.
 const MAGIC: &[u8; 8] = b"DCLOCMAP";
 /// Map file format version.
-pub const MAP_FORMAT_VERSION: u32 = 1;
+pub const MAP_FORMAT_VERSION: u32 = 2;
+
+/// Stored point resolution, m (points are kept as `i16` multiples of it: +-327 m).
+pub const POINT_QUANTUM: f64 = 0.01;
+/// Smallest stored standard deviation, m (covariance axes are kept as 8-bit log2 codes from here).
+const SIGMA_MIN: f64 = 0.001;
+/// Codes per octave of a stored standard deviation (16: 4.4% steps, up to 62 m).
+const SIGMA_STEPS_PER_OCTAVE: f64 = 16.0;
+
+/// A point as stored (1 cm steps); `None` beyond +-327 m or when not finite.
+pub fn quantise_point(p: Vec2) -> Option<[i16; 2]> {
+    let q = |v: f64| {
+        let k = (v / POINT_QUANTUM).round();
+        (k.is_finite() && k.abs() <= f64::from(i16::MAX)).then_some(k as i16)
+    };
+    Some([q(p.x)?, q(p.y)?])
+}
+
+/// The point a stored code stands for.
+pub fn dequantise_point(q: [i16; 2]) -> Vec2 {
+    Vec2::new(
+        f64::from(q[0]) * POINT_QUANTUM,
+        f64::from(q[1]) * POINT_QUANTUM,
+    )
+}
+
+/// A 2x2 covariance as stored: major and minor standard deviations as log2 codes (1 mm .. 62 m, 4.4%
+/// steps, to the nearest step; smaller axes are stored as 1 mm) and the major axis
+/// angle in steps of pi/256.
+pub fn quantise_cov(c: &Mat2) -> [u8; 3] {
+    let (a, b, d) = (c[(0, 0)], 0.5 * (c[(0, 1)] + c[(1, 0)]), c[(1, 1)]);
+    let mean = 0.5 * (a + d);
+    let half_diff = (0.25 * (a - d) * (a - d) + b * b).sqrt();
+    let (l1, l2) = (mean + half_diff, (mean - half_diff).max(0.0));
+    let theta = if half_diff > 0.0 {
+        0.5 * (2.0 * b).atan2(a - d)
+    } else {
+        0.0
+    };
+    let code = |var: f64| {
+        let sigma = var.max(0.0).sqrt().max(SIGMA_MIN);
+        let k = (SIGMA_STEPS_PER_OCTAVE * (sigma / SIGMA_MIN).log2()).round();
+        if k.is_finite() {
+            k.clamp(0.0, 255.0) as u8
+        } else {
+            255
+        }
+    };
+    let t = (theta.rem_euclid(std::f64::consts::PI) / (std::f64::consts::PI / 256.0)).round();
+    [code(l1), code(l2), (t as u32 % 256) as u8]
+}
+
+/// The covariance a stored code stands for.
+pub fn dequantise_cov(q: [u8; 3]) -> Mat2 {
+    let sigma = |k: u8| SIGMA_MIN * (f64::from(k) / SIGMA_STEPS_PER_OCTAVE).exp2();
+    let (s1, s2) = (sigma(q[0]), sigma(q[1]));
+    let theta = f64::from(q[2]) * std::f64::consts::PI / 256.0;
+    let (sn, cs) = theta.sin_cos();
+    let r = Mat2::new(cs, -sn, sn, cs);
+    r * Mat2::new(s1 * s1, 0.0, 0.0, s2 * s2) * r.transpose()
+}
 
 /// A keyframe as the database keeps it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -54,10 +107,10 @@ pub struct KeyframeRecord {
     pub odom_pose: [f64; 7],
     /// Odometry path length of its session up to this keyframe, m.
     pub path_distance: f64,
-    /// Compensated submap points (body frame at `stamp`), m.
-    pub points: Vec<[f32; 2]>,
-    /// Their covariances (xx, xy, yy), m^2.
-    pub covs: Vec<[f32; 3]>,
+    /// Compensated submap points (body frame at `stamp`), quantised ([`quantise_point`]).
+    pub points: Vec<[i16; 2]>,
+    /// Their covariances, quantised ([`quantise_cov`]).
+    pub covs: Vec<[u8; 3]>,
     /// Place descriptor of the points.
     pub place: PlaceDescriptor,
 }
@@ -81,18 +134,15 @@ impl KeyframeRecord {
         } else {
             (0..max_points).map(|k| k * n / max_points).collect()
         };
-        let points: Vec<[f32; 2]> = keep
-            .iter()
-            .map(|&i| [set.points[i].x as f32, set.points[i].y as f32])
-            .collect();
-        let covs = keep
-            .iter()
-            .map(|&i| {
-                let c = set.covs[i];
-                [c[(0, 0)] as f32, c[(0, 1)] as f32, c[(1, 1)] as f32]
-            })
-            .collect();
-        let planar: Vec<Vec2> = keep.iter().map(|&i| set.points[i]).collect();
+        let mut points: Vec<[i16; 2]> = Vec::with_capacity(keep.len());
+        let mut covs: Vec<[u8; 3]> = Vec::with_capacity(keep.len());
+        for &i in &keep {
+            if let Some(q) = quantise_point(set.points[i]) {
+                points.push(q);
+                covs.push(quantise_cov(&set.covs[i]));
+            }
+        }
+        let planar: Vec<Vec2> = points.iter().map(|&q| dequantise_point(q)).collect();
         let t = submap.t_odom_anchor;
         let q = t.rotation.quaternion();
         KeyframeRecord {
@@ -119,24 +169,14 @@ impl KeyframeRecord {
     /// The points as registration input.
     pub fn point_set(&self) -> PointSet2 {
         PointSet2 {
-            points: self
-                .points
-                .iter()
-                .map(|p| Vec2::new(f64::from(p[0]), f64::from(p[1])))
-                .collect(),
-            covs: self
-                .covs
-                .iter()
-                .map(|c| {
-                    Mat2::new(
-                        f64::from(c[0]),
-                        f64::from(c[1]),
-                        f64::from(c[1]),
-                        f64::from(c[2]),
-                    )
-                })
-                .collect(),
+            points: self.planar_points(),
+            covs: self.covs.iter().map(|&c| dequantise_cov(c)).collect(),
         }
+    }
+
+    /// The points, m (body frame at `stamp`).
+    pub fn planar_points(&self) -> Vec<Vec2> {
+        self.points.iter().map(|&q| dequantise_point(q)).collect()
     }
 
     /// The 3D odometry pose.
@@ -150,8 +190,8 @@ impl KeyframeRecord {
 
     /// Approximate bytes held (for the memory benchmark).
     pub fn heap_bytes(&self) -> usize {
-        self.points.len() * 8
-            + self.covs.len() * 12
+        self.points.capacity() * 4
+            + self.covs.capacity() * 3
             + self.place.grid.len()
             + std::mem::size_of::<Self>()
     }
@@ -257,11 +297,7 @@ pub struct SearchSettings {
 pub struct KeyframeDb {
     records: Vec<Arc<KeyframeRecord>>,
     /// Planar odometry positions by id.
-    positions: Vec<[f64; 2]>,
-    /// Tree over `positions[..tree_len]`, rebuilt as the tail grows (kiddo's mutable tree refuses
-    /// buckets whose points share a coordinate, as keyframes along a straight axis-aligned road do).
-    tree: kiddo::ImmutableKdTree<f64, 2>,
-    tree_len: usize,
+    positions: GrowingIndex<2>,
     place: PlaceIndex,
     place_cfg: PlaceConfig,
     cache: VecDeque<(usize, Arc<PreparedSubmap>)>,
@@ -273,9 +309,7 @@ impl KeyframeDb {
     pub fn new(place_cfg: PlaceConfig, cache_size: usize) -> Self {
         KeyframeDb {
             records: Vec::new(),
-            positions: Vec::new(),
-            tree: empty_tree(),
-            tree_len: 0,
+            positions: GrowingIndex::default(),
             place: PlaceIndex::default(),
             place_cfg,
             cache: VecDeque::new(),
@@ -327,18 +361,8 @@ impl KeyframeDb {
         if !(p.x.is_finite() && p.y.is_finite()) {
             return false;
         }
-        self.positions.push([p.x, p.y]);
-        // Rebuild when the linearly scanned tail reaches an eighth of the tree (amortised O(log n)).
-        if self.positions.len() - self.tree_len > (self.tree_len / 8).max(TAIL_MIN) {
-            match kiddo::ImmutableKdTree::new_from_slice(&self.positions) {
-                Ok(t) => {
-                    self.tree = t;
-                    self.tree_len = self.positions.len();
-                }
-                Err(e) => log::warn!(
-                    "keyframe position index not rebuilt ({e}); searching its tail linearly"
-                ),
-            }
+        if self.positions.push([p.x, p.y]) != Some(self.records.len()) {
+            return false;
         }
         self.place.insert(item, &rec.place);
         self.records.push(Arc::new(rec));
@@ -390,19 +414,7 @@ impl KeyframeDb {
                 }
                 found.push((i, CandidateSource::Odometry));
             };
-            if self.tree_len > 0 {
-                self.tree
-                    .query(&[centre.x, centre.y])
-                    .within::<SquaredEuclidean<f64>>(r * r)
-                    .unsorted()
-                    .visit(|n| visit(n.item as usize, n.distance));
-            }
-            for (i, q) in self.positions.iter().enumerate().skip(self.tree_len) {
-                let d2 = (q[0] - centre.x).powi(2) + (q[1] - centre.y).powi(2);
-                if d2 <= r * r {
-                    visit(i, d2);
-                }
-            }
+            self.positions.within(&[centre.x, centre.y], r, &mut visit);
         };
         around(p, outer, &mut found, true);
         if let Some((c, r)) = corrected {
@@ -561,12 +573,7 @@ impl KeyframeDb {
                 return Err(corrupt(format!("keyframe {k} is inconsistent")));
             }
             if recompute {
-                let pts: Vec<Vec2> = rec
-                    .points
-                    .iter()
-                    .map(|p| Vec2::new(f64::from(p[0]), f64::from(p[1])))
-                    .collect();
-                rec.place = PlaceDescriptor::from_points(&pts, &place_cfg);
+                rec.place = PlaceDescriptor::from_points(&rec.planar_points(), &place_cfg);
             }
             if !db.insert(rec) {
                 return Err(corrupt(format!("keyframe {k} could not be indexed")));
@@ -668,8 +675,11 @@ mod tests {
                 (0.05 * id as f64).cos(),
             ],
             path_distance: 2.0 * id as f64,
-            points: pts.iter().map(|p| [p.x as f32, p.y as f32]).collect(),
-            covs: pts.iter().map(|_| [0.04, 0.001, 0.09]).collect(),
+            points: pts.iter().filter_map(|&p| quantise_point(p)).collect(),
+            covs: pts
+                .iter()
+                .map(|_| quantise_cov(&Mat2::new(0.04, 0.001, 0.001, 0.09)))
+                .collect(),
             place: PlaceDescriptor::from_points(&pts, &PlaceConfig::default()),
         }
     }
@@ -688,6 +698,40 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d.join("map.dcloc")
+    }
+
+    #[test]
+    fn quantised_points_and_covariances_keep_the_mahalanobis_geometry() {
+        let mut rng = StdRng::seed_from_u64(3);
+        for _ in 0..2000 {
+            let p = Vec2::new(
+                rng.random_range(-300.0..300.0),
+                rng.random_range(-300.0..300.0),
+            );
+            let back = dequantise_point(quantise_point(p).unwrap());
+            assert!((back - p).abs().max() <= 0.5 * POINT_QUANTUM + 1e-12);
+            // A random covariance with sigmas from 1 mm to 20 m and any orientation.
+            let s1 = 0.02 * 1000f64.powf(rng.random_range(0.0..1.0));
+            let s2 = s1 * rng.random_range(0.05..1.0);
+            let th: f64 = rng.random_range(-3.2..3.2);
+            let r = Mat2::new(th.cos(), -th.sin(), th.sin(), th.cos());
+            let c = r * Mat2::new(s1 * s1, 0.0, 0.0, s2 * s2) * r.transpose();
+            let cq = dequantise_cov(quantise_cov(&c));
+            // Squared Mahalanobis lengths of random residuals agree within the step sizes (4.4% per
+            // sigma, pi/256 in angle: the angle matters little for round ellipses, more for flat ones).
+            let (ci, cqi) = (c.try_inverse().unwrap(), cq.try_inverse().unwrap());
+            for _ in 0..4 {
+                let e = Vec2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let (m, mq) = ((e.transpose() * ci * e)[0], (e.transpose() * cqi * e)[0]);
+                let tol = 0.1 + 0.02 * s1 / s2;
+                assert!((mq / m - 1.0).abs() < tol, "{m} vs {mq} for {c} / {cq}");
+            }
+        }
+        assert_eq!(quantise_point(Vec2::new(400.0, 0.0)), None);
+        assert_eq!(quantise_point(Vec2::new(f64::NAN, 0.0)), None);
+        // Degenerate input stays usable: a zero covariance becomes the smallest stored circle.
+        let z = dequantise_cov(quantise_cov(&Mat2::zeros()));
+        assert!(z.try_inverse().is_some());
     }
 
     #[test]
@@ -762,7 +806,11 @@ mod tests {
         newer[8..12].copy_from_slice(&(MAP_FORMAT_VERSION + 1).to_le_bytes());
         std::fs::write(&path, &newer).unwrap();
         let e = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap_err();
-        assert!(e.to_string().contains("format version 2"), "{e}");
+        assert!(
+            e.to_string()
+                .contains(&format!("format version {}", MAP_FORMAT_VERSION + 1)),
+            "{e}"
+        );
         let missing = KeyframeDb::load(&path.with_extension("none"), PlaceConfig::default(), 4);
         assert!(matches!(missing, Err(MapError::Io { .. })));
     }
@@ -793,12 +841,10 @@ mod tests {
         };
         let back = KeyframeDb::load(&path, other.clone(), 4).unwrap();
         let r = back.get(2).unwrap();
-        let pts: Vec<Vec2> = r
-            .points
-            .iter()
-            .map(|p| Vec2::new(p[0] as f64, p[1] as f64))
-            .collect();
-        assert_eq!(r.place, PlaceDescriptor::from_points(&pts, &other));
+        assert_eq!(
+            r.place,
+            PlaceDescriptor::from_points(&r.planar_points(), &other)
+        );
         assert_ne!(r.place, db.get(2).unwrap().place);
     }
 

@@ -12,6 +12,7 @@ pub mod cli;
 pub mod cloud;
 pub mod config;
 pub mod eval;
+pub mod growing_index;
 pub mod io;
 pub mod keyframe_db;
 pub mod math;

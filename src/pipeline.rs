@@ -108,6 +108,10 @@ pub struct LoopConfig {
     pub maximum_translation_std: f64,
     /// Largest yaw standard deviation, rad (default 0.02).
     pub maximum_rotation_std: f64,
+    /// Largest ratio of the best *other* alignment's overlap to the result's (`runner_up_overlap /
+    /// overlap`, 0..1): a street whose facades still fit when slid along itself gives two alignments of
+    /// nearly equal support, and picking one of them is a guess (default 0.8; 1 disables the gate).
+    pub maximum_ambiguity: f64,
     /// Consistency gate: largest squared Mahalanobis distance (3 dof) between a closure and what odometry
     /// and the earlier accepted closures predict, under the closure's covariance plus the drift model's
     /// (default 16.27, the 99.9 % chi-square quantile; 0 disables the check).
@@ -135,6 +139,7 @@ impl Default for LoopConfig {
             minimum_overlap: 0.3,
             maximum_translation_std: 0.5,
             maximum_rotation_std: 0.02,
+            maximum_ambiguity: 0.8,
             consistency_chi2: 16.27,
             confirmations: 2,
         }
@@ -179,6 +184,12 @@ impl LoopConfig {
                 "must be in [0, 1]",
             ));
         }
+        if !(0.0..=1.0).contains(&self.maximum_ambiguity) {
+            return Err(ConfigError::new(
+                name("maximum_ambiguity"),
+                "must be in [0, 1]",
+            ));
+        }
         if !(0.0..=1.0).contains(&self.minimum_overlap) {
             return Err(ConfigError::new(
                 name("minimum_overlap"),
@@ -200,7 +211,8 @@ impl LoopConfig {
         Ok(())
     }
 
-    fn search(&self) -> SearchSettings {
+    /// The candidate-search view of these settings.
+    pub fn search(&self) -> SearchSettings {
         SearchSettings {
             radius: self.search_radius,
             drift_rate: self.drift_rate,
@@ -225,7 +237,8 @@ pub struct MapConfig {
     pub start_empty_on_error: bool,
     /// Seconds between saves while keyframes are added (default 30; the node also saves at shutdown).
     pub save_interval: f64,
-    /// Most points kept per keyframe (default 1400: about 30 KB per keyframe with its descriptor).
+    /// Most points kept per keyframe (default 4000: stored quantised at 7 bytes a point, under 32 KB per
+    /// keyframe with its descriptor).
     pub max_points_per_keyframe: usize,
     /// Registration-ready keyframes kept in memory (default 64).
     pub prepared_cache: usize,
@@ -237,7 +250,7 @@ impl Default for MapConfig {
             file: String::new(),
             start_empty_on_error: false,
             save_interval: 30.0,
-            max_points_per_keyframe: 1400,
+            max_points_per_keyframe: 4000,
             prepared_cache: 64,
         }
     }
@@ -310,6 +323,8 @@ pub enum RejectReason {
     LowOverlap,
     /// The closure contradicts odometry and earlier closures (`loop.consistency_chi2`).
     Inconsistent,
+    /// Another alignment fits nearly as well (`loop.maximum_ambiguity`).
+    Ambiguous,
 }
 
 impl RejectReason {
@@ -322,6 +337,7 @@ impl RejectReason {
             RejectReason::Uncertain => "covariance_too_large",
             RejectReason::LowOverlap => "low_overlap",
             RejectReason::Inconsistent => "inconsistent",
+            RejectReason::Ambiguous => "ambiguous",
         }
     }
 }
@@ -898,7 +914,8 @@ impl Pipeline {
         });
     }
 
-    /// The gates, in order: registration, inliers, convergence, overlap, covariance, consistency.
+    /// The gates, in order: registration, inliers, convergence, overlap, ambiguity, covariance,
+    /// consistency.
     fn gate(
         &self,
         query: &KeyframeRecord,
@@ -920,6 +937,15 @@ impl Pipeline {
             return Err((
                 RejectReason::LowOverlap,
                 format!("overlap {:.2}", r.overlap),
+            ));
+        }
+        if lc.maximum_ambiguity < 1.0 && r.runner_up_overlap > lc.maximum_ambiguity * r.overlap {
+            return Err((
+                RejectReason::Ambiguous,
+                format!(
+                    "another alignment has overlap {:.2} against {:.2}",
+                    r.runner_up_overlap, r.overlap
+                ),
             ));
         }
         let xy = r.covariance.fixed_view::<2, 2>(0, 0).into_owned();

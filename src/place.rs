@@ -11,8 +11,8 @@
 //! [`PlaceIndex`] (insert, query).
 
 use crate::config::ConfigError;
+use crate::growing_index::GrowingIndex;
 use crate::math::Vec2;
-use kiddo::SquaredEuclidean;
 use serde::{Deserialize, Serialize};
 
 /// Ring-key dimension (fixed: kiddo's dimension is a compile-time constant).
@@ -157,42 +157,34 @@ impl PlaceDescriptor {
 /// Ring keys of many keyframes, for retrieval by kiddo.
 #[derive(Debug, Default)]
 pub struct PlaceIndex {
-    tree: kiddo::MutableKdTree<f32, RING_KEY_DIM>,
-    len: usize,
+    keys: GrowingIndex<RING_KEY_DIM>,
+    items: Vec<u32>,
 }
 
 impl PlaceIndex {
     /// Adds keyframe `item` with its descriptor.
     pub fn insert(&mut self, item: u32, d: &PlaceDescriptor) {
-        if self.tree.add(&d.ring_key, item).is_ok() {
-            self.len += 1;
+        if self.keys.push(d.ring_key.map(f64::from)).is_some() {
+            self.items.push(item);
         }
     }
 
     /// Number of keyframes indexed.
     pub fn len(&self) -> usize {
-        self.len
+        self.items.len()
     }
 
     /// True when empty.
     pub fn is_empty(&self) -> bool {
-        self.len == 0
+        self.items.is_empty()
     }
 
     /// The `k` keyframes with the closest ring keys (item, squared distance), nearest first.
     pub fn nearest(&self, d: &PlaceDescriptor, k: usize) -> Vec<(u32, f32)> {
-        let Some(k) = std::num::NonZeroUsize::new(k) else {
-            return Vec::new();
-        };
-        if self.len == 0 {
-            return Vec::new();
-        }
-        self.tree
-            .query(&d.ring_key)
-            .nearest_n::<SquaredEuclidean<f32>>(k)
-            .execute()
-            .iter()
-            .map(|n| (n.item, n.distance))
+        self.keys
+            .nearest(&d.ring_key.map(f64::from), k)
+            .into_iter()
+            .filter_map(|(i, d2)| Some((*self.items.get(i)?, d2 as f32)))
             .collect()
     }
 }

@@ -198,6 +198,7 @@ pub fn register_icp(
         candidates: source.len(),
         overlap: pairs.len() as f64 / source.len() as f64,
         cost: mse,
+        runner_up_overlap: 0.0,
     })
 }
 

@@ -513,6 +513,7 @@ pub fn register_ndt(
         candidates: source.len(),
         overlap: obj.inliers as f64 / source.len() as f64,
         cost: obj.value,
+        runner_up_overlap: 0.0,
     })
 }
 

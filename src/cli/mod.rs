@@ -1,6 +1,7 @@
 //! Command-line front ends: the offline subcommands and the node's entry point.
 //!
-//! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`], [`demo`]),
+//! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`], [`demo`],
+//! [`revisits`]),
 //! [`node_main`] (the ROS 2 node).
 //!
 //! Conventions of every subcommand: results and summaries on stdout; logs on stderr through
@@ -10,6 +11,7 @@
 
 pub mod demo;
 pub mod eval;
+pub mod revisits;
 pub mod run;
 pub mod sim;
 
@@ -42,6 +44,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Simulate the default drive, run it and evaluate it: the whole method in one command.
     Demo(demo::DemoArgs),
+    /// Precision and recall of the loop closures on simulated drives under odometry drift.
+    Revisits(revisits::RevisitArgs),
 }
 
 /// A subcommand's failure, with the exit code it maps to.
@@ -82,6 +86,7 @@ pub fn main(args: &[String]) -> i32 {
         Command::Run(a) => ("run", run::main(&a)),
         Command::Eval(a) => ("eval", eval::main(&a)),
         Command::Demo(a) => ("demo", demo::main(&a)),
+        Command::Revisits(a) => ("revisits", revisits::main(&a)),
     };
     match result {
         Ok(()) => 0,

@@ -16,6 +16,7 @@
 //! (learned) is not reproduced.
 
 pub mod report;
+pub mod revisits;
 
 use crate::baselines::{BaselinesConfig, ForwardSpeedEstimator, register_icp, register_ndt};
 use crate::cloud::decode_detections;

@@ -76,6 +76,11 @@ pub struct RegistrationResult {
     /// of the alignment independent of the descriptors (DC-Loc: nearest neighbours inside the dense
     /// stage's gates; ICP: pairs within the last distance; NDT: points scored by a cell).
     pub overlap: f64,
+    /// Overlap of the best other alignment (a refined RANSAC hypothesis farther than
+    /// `ambiguity_translation` / `ambiguity_rotation` from the result), 0 when there was none: close to
+    /// `overlap` means the scene aliases (a street sliding along itself) and the result may be the
+    /// wrong one of two. Only DC-Loc registration fills it; the baselines report 0.
+    pub runner_up_overlap: f64,
 }
 
 /// Why a registration produced no result.
@@ -155,6 +160,11 @@ pub struct RegistrationConfig {
     /// Streets alias (a facade slid by a pole spacing still fits); the alternatives RANSAC finds after
     /// removing the first hypothesis' inliers are refined too, and the better-supported alignment wins.
     pub hypotheses: usize,
+    /// Two refined hypotheses farther apart than this, m, are different alignments for
+    /// `runner_up_overlap` (default 1.0).
+    pub ambiguity_translation: f64,
+    /// The same in rotation, rad (default 0.05).
+    pub ambiguity_rotation: f64,
     /// Dense refinement after the descriptor stage (default on): the descriptor pairs join different
     /// samples of the same surfaces, which leaves a bias of decimetres; re-associating every source point
     /// with its nearest target point under the current estimate and solving eq. 10 again removes it.
@@ -179,6 +189,8 @@ impl Default for RegistrationConfig {
             reselect_rounds: 2,
             covariance_scale: 1.3,
             hypotheses: 3,
+            ambiguity_translation: 1.0,
+            ambiguity_rotation: 0.05,
             dense: dense::DenseConfig::default(),
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
@@ -224,6 +236,20 @@ impl RegistrationConfig {
                 "registration.covariance_scale",
                 format!("{} must be finite and > 0", self.covariance_scale),
             ));
+        }
+        for (name, v) in [
+            (
+                "registration.ambiguity_translation",
+                self.ambiguity_translation,
+            ),
+            ("registration.ambiguity_rotation", self.ambiguity_rotation),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::new(
+                    name,
+                    format!("{v} must be finite and > 0"),
+                ));
+            }
         }
         self.descriptor.validate("registration.descriptor")?;
         self.matching.validate("registration.matching")?;
@@ -469,6 +495,8 @@ fn ransac_and_refine(
     };
     let mut remaining: Vec<usize> = (0..candidates.len()).collect();
     let mut best: Option<RegistrationDetail> = None;
+    // Every refined alignment (pose, overlap), for the runner-up.
+    let mut refined: Vec<(Iso2, f64)> = Vec::new();
     let mut first_error = None;
     for h in 0..cfg.hypotheses.max(1) {
         let subset: Vec<ransac::Correspondence> =
@@ -504,6 +532,7 @@ fn ransac_and_refine(
         ) {
             Ok(mut d) => {
                 d.ransac_iterations = rs.iterations;
+                refined.push((d.result.t_target_source, d.result.overlap));
                 let better = best
                     .as_ref()
                     .is_none_or(|b| d.result.overlap > b.result.overlap);
@@ -521,6 +550,16 @@ fn ransac_and_refine(
     }
     match best {
         Some(mut d) => {
+            let win = d.result.t_target_source;
+            d.result.runner_up_overlap = refined
+                .iter()
+                .filter(|(t, _)| {
+                    let rel = win.inverse() * t;
+                    rel.translation.vector.norm() > cfg.ambiguity_translation
+                        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
+                })
+                .map(|&(_, o)| o)
+                .fold(0.0, f64::max);
             d.candidates = candidates;
             d.result.candidates = d.candidates.len();
             Ok(d)
@@ -604,6 +643,7 @@ fn refine_hypothesis(
         candidates: candidates.len(),
         cost: lm.cost,
         overlap,
+        runner_up_overlap: 0.0,
     };
     Ok(RegistrationDetail {
         result,

@@ -1,0 +1,402 @@
+//! Revisit detection measured on simulated drives: precision and recall of the published loop closures
+//! under odometry drift, same-direction and reverse laps, the three noise models, one and five radars.
+//!
+//! Steps, in order: simulate the scenario ([`RevisitScenario::sim_config`]); drive the [`Pipeline`] with
+//! revisit search on, exactly as the node does ([`evaluate_revisits`]); compare every published closure
+//! with the ground truth of its two keyframes; count the revisit opportunities (keyframes of a later lap
+//! with an earlier lap's keyframe nearby) and which of them were closed ([`RevisitReport`]).
+//!
+//! Definitions.
+//! - *Opportunity*: a keyframe on lap >= 2 (not in a U-turn) whose ground-truth nearest keyframe on an
+//!   earlier lap lies within `same_radius` (5 m, the paper's pairing radius) when driven in the same
+//!   direction, or within `reverse_radius` when driven in the opposite direction (5 m plus twice the ego
+//!   lane's offset from the centre line: a reverse lap drives the other carriageway).
+//! - *Correct closure*: translation error of `T_match_query` against the ground truth at most 2.0 m (the
+//!   paper's outlier threshold). Precision = correct / published; recall = opportunities whose keyframe
+//!   published at least one correct closure / opportunities.
+//! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
+
+use crate::config::Config;
+use crate::math::{Iso2, Stamp, iso2_from_iso3, iso3_from_iso2, wrap_angle};
+use crate::pipeline::{Event, LoopClosure, Pipeline, PipelineStats};
+use crate::sim::{
+    NoiseModel, RadarPreset, SimConfig, SimDrive, SimEventRef, config::LapConfig, simulate,
+};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Translation error above which a closure is false, m (the paper's outlier threshold).
+pub const FALSE_CLOSURE_THRESHOLD: f64 = 2.0;
+/// Same-direction revisit radius, m (the paper's pairing radius).
+pub const SAME_RADIUS: f64 = 5.0;
+
+/// One simulated scenario.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RevisitScenario {
+    /// Radar set.
+    pub radars: RadarPreset,
+    /// Measurement noise model.
+    pub noise: NoiseModel,
+    /// Odometry drift as a share of distance (0.01 = 1 %): the speed scale error; the yaw-rate bias is
+    /// `drift * 10` deg/s (0.1 deg/s at 1 %, the simulator's default).
+    pub drift: f64,
+    /// Second lap driven in the opposite direction (after a U-turn).
+    pub reverse: bool,
+    /// Simulator seed.
+    pub seed: u64,
+}
+
+impl RevisitScenario {
+    /// The simulator configuration: the default city, a 72 km/h lap then a 40 km/h lap.
+    pub fn sim_config(&self) -> SimConfig {
+        let mut c = SimConfig::with_preset(self.radars);
+        c.seed = self.seed;
+        c.noise.model = self.noise;
+        c.odometry.scale_error = self.drift;
+        c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
+        c.laps = vec![
+            LapConfig {
+                speed: 72.0 / 3.6,
+                reverse: false,
+            },
+            LapConfig {
+                speed: 40.0 / 3.6,
+                reverse: self.reverse,
+            },
+        ];
+        c
+    }
+
+    /// A short label, e.g. `nuscenes gaussian 3% reverse`.
+    pub fn label(&self) -> String {
+        format!(
+            "{} {} {}% {}",
+            preset_name(self.radars),
+            noise_name(self.noise),
+            fmt_pct(self.drift),
+            if self.reverse { "reverse" } else { "same" }
+        )
+    }
+}
+
+fn fmt_pct(v: f64) -> String {
+    let p = v * 100.0;
+    if (p - p.round()).abs() < 1e-9 {
+        format!("{p:.0}")
+    } else {
+        format!("{p:.1}")
+    }
+}
+
+/// The preset's name as on the command line.
+pub fn preset_name(p: RadarPreset) -> &'static str {
+    match p {
+        RadarPreset::Carla => "carla",
+        RadarPreset::Nuscenes => "nuscenes",
+        RadarPreset::Custom => "custom",
+    }
+}
+
+/// The noise model's name as on the command line.
+pub fn noise_name(n: NoiseModel) -> &'static str {
+    match n {
+        NoiseModel::None => "none",
+        NoiseModel::Gaussian => "gaussian",
+        NoiseModel::Gamma => "gamma",
+        NoiseModel::StudentT => "student-t",
+    }
+}
+
+/// A published closure judged against the ground truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct JudgedClosure {
+    /// Query keyframe id.
+    pub query_id: u64,
+    /// Match keyframe id.
+    pub match_id: u64,
+    /// The two keyframes were driven in opposite directions.
+    pub reverse: bool,
+    /// Translation error, m.
+    pub translation_error: f64,
+    /// Rotation error, rad.
+    pub rotation_error: f64,
+    /// Ground-truth distance between the two keyframes, m.
+    pub distance: f64,
+    /// Registration inliers.
+    pub inliers: u32,
+    /// Overlap score.
+    pub score: f64,
+}
+
+/// Counts for one direction of travel.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct DirectionCounts {
+    /// Revisit opportunities.
+    pub opportunities: usize,
+    /// Opportunities closed by a correct closure.
+    pub closed: usize,
+    /// Published closures.
+    pub published: usize,
+    /// Published closures more than 2 m off.
+    pub false_closures: usize,
+    /// Correct closures also within 1.0 m and 0.02 rad (the node issue's accuracy bar).
+    pub within_accuracy_bar: usize,
+}
+
+impl DirectionCounts {
+    /// Share of published closures within 2 m (1 when nothing was published).
+    pub fn precision(&self) -> f64 {
+        if self.published == 0 {
+            1.0
+        } else {
+            (self.published - self.false_closures) as f64 / self.published as f64
+        }
+    }
+
+    /// Share of opportunities closed (`NaN` when there were none).
+    pub fn recall(&self) -> f64 {
+        self.closed as f64 / self.opportunities as f64
+    }
+}
+
+/// What one scenario gave.
+#[derive(Debug, Clone, Serialize)]
+pub struct RevisitReport {
+    /// Scenario label.
+    pub scenario: String,
+    /// Keyframes taken.
+    pub keyframes: u64,
+    /// Measured odometry drift at the end of lap 1, share of distance.
+    pub measured_drift: f64,
+    /// Same-direction revisits.
+    pub same: DirectionCounts,
+    /// Opposite-direction revisits.
+    pub reverse: DirectionCounts,
+    /// Largest translation / rotation error of a correct closure, m / rad.
+    pub max_error: (f64, f64),
+    /// Candidate rejections by reason.
+    pub rejected: BTreeMap<String, u64>,
+    /// Every published closure, judged.
+    pub closures: Vec<JudgedClosure>,
+}
+
+/// Simulates `scenario` and evaluates it with the pipeline configured by `tweak` applied to the
+/// drive's own configuration.
+pub fn evaluate_scenario(
+    scenario: &RevisitScenario,
+    tweak: impl FnOnce(&mut Config),
+) -> Result<RevisitReport, crate::config::ConfigError> {
+    let drive = simulate(&scenario.sim_config())?;
+    let mut cfg = drive.to_config();
+    tweak(&mut cfg);
+    let mut r = evaluate_revisits(&drive, cfg)?;
+    r.scenario = scenario.label();
+    Ok(r)
+}
+
+/// Drives the pipeline (revisit search on) over `drive` and judges its closures.
+pub fn evaluate_revisits(
+    drive: &SimDrive,
+    mut cfg: Config,
+) -> Result<RevisitReport, crate::config::ConfigError> {
+    cfg.r#loop.enabled = true;
+    let mut p = Pipeline::new(cfg)?;
+    let mut keyframes: Vec<(u64, Stamp)> = Vec::new();
+    let mut closures: Vec<LoopClosure> = Vec::new();
+    let mut collect = |events: Vec<Event>| {
+        for e in events {
+            match e {
+                Event::Keyframe { id, stamp, .. } => keyframes.push((id, stamp)),
+                Event::Closure(c) => closures.push(*c),
+                _ => {}
+            }
+        }
+    };
+    for ev in drive.events() {
+        match ev {
+            SimEventRef::Odometry(o) => {
+                collect(p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)))
+            }
+            SimEventRef::Scan(s) => collect(p.push_scan(s.scan.clone())),
+            SimEventRef::GroundTruth(_) => {}
+        }
+    }
+    collect(p.finish());
+    Ok(judge(drive, &keyframes, &closures, p.stats()))
+}
+
+struct KfTruth {
+    pose: Iso2,
+    heading: f64,
+    lap: usize,
+    turning: bool,
+}
+
+fn judge(
+    drive: &SimDrive,
+    keyframes: &[(u64, Stamp)],
+    closures: &[LoopClosure],
+    stats: &PipelineStats,
+) -> RevisitReport {
+    let truth: BTreeMap<u64, KfTruth> = keyframes
+        .iter()
+        .map(|&(id, stamp)| {
+            let s = drive.state_at(stamp);
+            (
+                id,
+                KfTruth {
+                    pose: s.t_map_body,
+                    heading: s.heading,
+                    lap: s.lap.lap,
+                    turning: s.lap.turning,
+                },
+            )
+        })
+        .collect();
+    let reverse_radius = SAME_RADIUS + 2.0 * drive.setup.config.world.street.ego_lane_offset();
+    let is_reverse = |a: &KfTruth, b: &KfTruth| {
+        wrap_angle(a.heading - b.heading).abs() > 0.5 * std::f64::consts::PI
+    };
+
+    // Opportunities: the nearest earlier-lap keyframe per direction.
+    let mut opportunity: BTreeMap<u64, bool> = BTreeMap::new();
+    for (&q, tq) in &truth {
+        if tq.lap == 0 || tq.turning {
+            continue;
+        }
+        let (mut same, mut rev) = (false, false);
+        for tm in truth.values() {
+            if tm.lap >= tq.lap || tm.turning {
+                continue;
+            }
+            let d = (tq.pose.translation.vector - tm.pose.translation.vector).norm();
+            if is_reverse(tq, tm) {
+                rev |= d <= reverse_radius;
+            } else {
+                same |= d <= SAME_RADIUS;
+            }
+        }
+        if same {
+            opportunity.insert(q, false);
+        } else if rev {
+            opportunity.insert(q, true);
+        }
+    }
+
+    let mut report = RevisitReport {
+        scenario: String::new(),
+        keyframes: stats.keyframes,
+        measured_drift: measured_drift(drive),
+        same: DirectionCounts::default(),
+        reverse: DirectionCounts::default(),
+        max_error: (0.0, 0.0),
+        rejected: stats
+            .rejected
+            .iter()
+            .map(|(r, n)| (r.name().to_string(), *n))
+            .collect(),
+        closures: Vec::new(),
+    };
+    let mut closed: BTreeMap<u64, bool> = BTreeMap::new();
+    for c in closures {
+        let (Some(tq), Some(tm)) = (truth.get(&c.query_id), truth.get(&c.match_id)) else {
+            continue;
+        };
+        let t = tm.pose.inverse() * tq.pose;
+        let est = iso2_from_iso3(&c.t_match_query);
+        let et = (t.translation.vector - est.translation.vector).norm();
+        let er = wrap_angle(t.rotation.angle() - est.rotation.angle()).abs();
+        let reverse = is_reverse(tq, tm);
+        let counts = if reverse {
+            &mut report.reverse
+        } else {
+            &mut report.same
+        };
+        counts.published += 1;
+        if et > FALSE_CLOSURE_THRESHOLD {
+            counts.false_closures += 1;
+        } else {
+            if et <= 1.0 && er <= 0.02 {
+                counts.within_accuracy_bar += 1;
+            }
+            report.max_error.0 = report.max_error.0.max(et);
+            report.max_error.1 = report.max_error.1.max(er);
+            closed.insert(c.query_id, true);
+        }
+        report.closures.push(JudgedClosure {
+            query_id: c.query_id,
+            match_id: c.match_id,
+            reverse,
+            translation_error: et,
+            rotation_error: er,
+            distance: t.translation.vector.norm(),
+            inliers: c.inliers,
+            score: c.score,
+        });
+    }
+    for (q, rev) in &opportunity {
+        let counts = if *rev {
+            &mut report.reverse
+        } else {
+            &mut report.same
+        };
+        counts.opportunities += 1;
+        if closed.contains_key(q) {
+            counts.closed += 1;
+        }
+    }
+    report
+}
+
+/// Odometry position error at the end of the first lap over the ground-truth path driven.
+fn measured_drift(drive: &SimDrive) -> f64 {
+    let Some(end) = drive.ground_truth.iter().rfind(|g| g.lap.lap == 0) else {
+        return f64::NAN;
+    };
+    let Some(o) = drive
+        .odometry
+        .iter()
+        .min_by_key(|o| (o.stamp.0 - end.stamp.0).abs())
+    else {
+        return f64::NAN;
+    };
+    let first = drive.ground_truth.first().map_or(0.0, |g| g.distance);
+    let err =
+        (drive.t_map_odom() * o.t_odom_body).translation.vector - end.t_map_body.translation.vector;
+    err.norm() / (end.distance - first).max(1.0)
+}
+
+/// The README table: one row per scenario.
+pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
+    let mut s = String::new();
+    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) |\n");
+    s.push_str("|---|---|---|---|---|---|\n");
+    let dir = |c: &DirectionCounts| {
+        if c.opportunities == 0 && c.published == 0 {
+            "-".to_string()
+        } else {
+            format!(
+                "{} / {} / {:.1} % / {:.1} % ({}/{})",
+                c.published,
+                c.false_closures,
+                100.0 * c.precision(),
+                100.0 * c.recall(),
+                c.closed,
+                c.opportunities
+            )
+        }
+    };
+    for r in reports {
+        s.push_str(&format!(
+            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} |\n",
+            r.scenario,
+            100.0 * r.measured_drift,
+            r.keyframes,
+            dir(&r.same),
+            dir(&r.reverse),
+            r.max_error.0,
+            r.max_error.1
+        ));
+    }
+    s
+}

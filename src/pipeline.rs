@@ -18,7 +18,7 @@ use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
 use crate::registration::lm::se2_log;
 use crate::registration::{
-    PreparedSubmap, RegistrationError, RegistrationResult, register_prepared,
+    PreparedSubmap, RegistrationError, RegistrationResult, overlap_near, register_prepared,
 };
 use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
 use serde::{Deserialize, Serialize};
@@ -121,6 +121,15 @@ pub struct LoopConfig {
     /// vouches for them, and a single aliased match would misalign everything after it (default 2; 1
     /// publishes at once).
     pub confirmations: usize,
+    /// The confirming closures' query keyframes must lie at least this many metres of path apart
+    /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two
+    /// places along the route rarely alias the same way.
+    pub confirmation_span: f64,
+    /// A closure that agrees with the session's accepted alignment is published alone while that
+    /// alignment's predicted translation standard deviation (0.5 m plus half the drift rate times the
+    /// path since the last closure) is at most this, m (default 2.0: about 60 m of path at 5 % drift);
+    /// after longer gaps closures wait for confirmation like the first ones.
+    pub trusted_prior_std: f64,
 }
 
 impl Default for LoopConfig {
@@ -142,6 +151,8 @@ impl Default for LoopConfig {
             maximum_ambiguity: 0.8,
             consistency_chi2: 16.27,
             confirmations: 2,
+            confirmation_span: 30.0,
+            trusted_prior_std: 2.0,
         }
     }
 }
@@ -152,6 +163,7 @@ impl LoopConfig {
         let name = |f: &str| format!("{prefix}.{f}");
         for (f, v) in [
             ("search_radius", self.search_radius),
+            ("trusted_prior_std", self.trusted_prior_std),
             ("maximum_translation_std", self.maximum_translation_std),
             ("maximum_rotation_std", self.maximum_rotation_std),
         ] {
@@ -164,6 +176,7 @@ impl LoopConfig {
             ("drift_yaw_rate", self.drift_yaw_rate),
             ("minimum_path_gap", self.minimum_path_gap),
             ("consistency_chi2", self.consistency_chi2),
+            ("confirmation_span", self.confirmation_span),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ConfigError::new(name(f), format!("{v} must be >= 0")));
@@ -800,7 +813,7 @@ impl Pipeline {
             self.session,
             &self.cfg.r#loop.search(),
         );
-        let mut best: Option<LoopClosure> = None;
+        let mut best: Option<(LoopClosure, bool)> = None;
         for cand in candidates {
             let id = cand.index as u64;
             let target = match self.db.prepared(cand.index, &self.cfg.registration) {
@@ -813,22 +826,35 @@ impl Pipeline {
             self.stats.registrations += 1;
             let res = register_prepared(prepared, &target, &self.cfg.registration);
             let Some(rec) = self.db.get(id) else { continue };
-            match self.gate(query, rec, res) {
+            match self.gate(query, rec, res, prepared, &target) {
                 Ok(c) => {
-                    if best.as_ref().is_none_or(|b| c.score > b.score) {
+                    // Closures that agree with the accepted alignment first, then by score.
+                    let better = best
+                        .as_ref()
+                        .is_none_or(|b| (c.1, c.0.score) > (b.1, b.0.score));
+                    if better {
                         best = Some(c);
                     }
                 }
                 Err((reason, detail)) => self.reject(query.id, id, reason, detail, out),
             }
         }
-        if let Some(c) = best {
-            self.accept(query, c, out);
+        if let Some((c, agrees)) = best {
+            self.accept(query, c, agrees, out);
         }
     }
 
-    /// Publishes a closure that passed the gates, or holds it until confirmed (`loop.confirmations`).
-    fn accept(&mut self, query: &KeyframeRecord, c: LoopClosure, out: &mut Vec<Event>) {
+    /// Publishes a closure that passed the gates, or holds it until confirmed (`loop.confirmations`):
+    /// the first closures to a session, and closures that contradict the session's accepted alignment
+    /// but not odometry (`agrees` false; confirmed, they replace the alignment, so one false closure
+    /// that slipped through cannot block every true one after it).
+    fn accept(
+        &mut self,
+        query: &KeyframeRecord,
+        c: LoopClosure,
+        agrees: bool,
+        out: &mut Vec<Event>,
+    ) {
         let Some(m) = self.db.get(c.match_id) else {
             return;
         };
@@ -836,7 +862,8 @@ impl Pipeline {
         // The closure's alignment of this session's odometry into the match's session frame.
         let a = m.t_odom_body * iso2_from_iso3(&c.t_match_query) * query.t_odom_body.inverse();
         let mut publish = Vec::new();
-        if self.alignments.contains_key(&session) || self.cfg.r#loop.confirmations <= 1 {
+        if (agrees && self.alignments.contains_key(&session)) || self.cfg.r#loop.confirmations <= 1
+        {
             publish.push(c);
         } else {
             let pending = self.tentative.entry(session).or_default();
@@ -854,7 +881,11 @@ impl Pipeline {
                         ) <= CONFIRM_CHI2
                 })
                 .collect();
-            if agree.len() + 1 >= lc.confirmations {
+            let span = agree
+                .iter()
+                .map(|&k| (query.path_distance - pending[k].2).abs())
+                .fold(0.0, f64::max);
+            if agree.len() + 1 >= lc.confirmations && span >= lc.confirmation_span {
                 let mut kept = std::mem::take(pending);
                 for k in agree.into_iter().rev() {
                     publish.push(kept.swap_remove(k).0);
@@ -921,7 +952,9 @@ impl Pipeline {
         query: &KeyframeRecord,
         cand: &KeyframeRecord,
         res: Result<RegistrationResult, RegistrationError>,
-    ) -> Result<LoopClosure, (RejectReason, String)> {
+        source: &PreparedSubmap,
+        target: &PreparedSubmap,
+    ) -> Result<(LoopClosure, bool), (RejectReason, String)> {
         let lc = &self.cfg.r#loop;
         let r = res.map_err(|e| (RejectReason::Registration, e.to_string()))?;
         if r.inliers < lc.minimum_inliers {
@@ -957,19 +990,52 @@ impl Pipeline {
                 format!("std {t_std:.3} m, {r_std:.4} rad"),
             ));
         }
+        // Consistency: with the session's accepted alignment when there is one; a closure that
+        // contradicts it but agrees with odometry alone (or, for another session, has nothing to
+        // contradict) may still be right, and waits for confirmation.
+        // Only a fresh alignment vouches for a single closure: long after the last closure its
+        // prediction is too loose to tell a slid or aliased match from the right one.
+        let mut agrees = self
+            .alignments
+            .get(&cand.session)
+            .is_some_and(|&(_, path_a)| {
+                alignment_sigmas(query.path_distance - path_a, lc).0 <= lc.trusted_prior_std
+            });
         if lc.consistency_chi2 > 0.0 {
-            if let Some(d2) = self.inconsistency(query, cand, &r) {
-                if d2 > lc.consistency_chi2 {
+            let aligned = self.inconsistency(query, cand, &r, true);
+            if aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
+                agrees = false;
+                // Does the accepted alignment's prediction fit the submaps nearly as well? Then the
+                // scene aliases (a street sliding along itself) and the prior decides: reject.
+                if let Some(&(a, _)) = self.alignments.get(&cand.session) {
+                    let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
+                    if let Ok(Some((_, o))) =
+                        overlap_near(source, target, &predicted, &self.cfg.registration)
+                    {
+                        if lc.maximum_ambiguity < 1.0 && o > lc.maximum_ambiguity * r.overlap {
+                            return Err((
+                                RejectReason::Ambiguous,
+                                format!(
+                                    "the accepted alignment's prediction fits too (overlap {o:.2} against {:.2})",
+                                    r.overlap
+                                ),
+                            ));
+                        }
+                    }
+                }
+                let odometry = self.inconsistency(query, cand, &r, false);
+                if let Some(d2) = odometry.filter(|&d2| d2 > lc.consistency_chi2) {
                     return Err((
                         RejectReason::Inconsistent,
                         format!(
-                            "squared Mahalanobis distance {d2:.1} to the odometry/closure prediction"
+                            "squared Mahalanobis distance {d2:.1} to the odometry prediction, {:.1} to the accepted alignment's",
+                            aligned.unwrap_or(f64::NAN)
                         ),
                     ));
                 }
             }
         }
-        Ok(LoopClosure {
+        let closure = LoopClosure {
             query_id: query.id,
             match_id: cand.id,
             query_stamp: query.stamp,
@@ -981,31 +1047,43 @@ impl Pipeline {
             inliers: r.inliers as u32,
             score: r.overlap,
             match_session: cand.session,
-        })
+        };
+        Ok((closure, agrees))
     }
 
     /// Squared Mahalanobis distance between the registered `T_match_query` and its prediction from
-    /// odometry (same session: no correction, drift since the candidate) or from the last accepted
-    /// closure to the candidate's session (drift since that closure); `None` when there is nothing to
-    /// predict with (the first closure to a loaded map's session).
+    /// the last accepted closure to the candidate's session (drift since that closure; only when
+    /// `use_alignment`) or from odometry (same session: no correction, drift since the candidate);
+    /// `None` when there is nothing to predict with (the first closure to a loaded map's session).
     fn inconsistency(
         &self,
         query: &KeyframeRecord,
         cand: &KeyframeRecord,
         r: &RegistrationResult,
+        use_alignment: bool,
     ) -> Option<f64> {
         let lc = &self.cfg.r#loop;
-        let (alignment, path_gap) = match self.alignments.get(&cand.session) {
-            Some(&(a, path_a)) => (a, (query.path_distance - path_a).abs()),
+        let accepted = if use_alignment {
+            self.alignments.get(&cand.session)
+        } else {
+            None
+        };
+        let (alignment, path_gap, from_alignment) = match accepted {
+            Some(&(a, path_a)) => (a, (query.path_distance - path_a).abs(), true),
             None if cand.session == self.session => (
                 Iso2::identity(),
                 (query.path_distance - cand.path_distance).abs(),
+                false,
             ),
             None => return None,
         };
         let predicted = cand.t_odom_body.inverse() * alignment * query.t_odom_body;
         let e = se2_log(&(r.t_target_source.inverse() * predicted));
-        let (sigma_t, sigma_r) = drift_sigmas(path_gap, lc);
+        let (sigma_t, sigma_r) = if from_alignment {
+            alignment_sigmas(path_gap, lc)
+        } else {
+            drift_sigmas(path_gap, lc)
+        };
         let mut cov = Mat3::zeros();
         for (i, j) in [
             (0usize, 0usize),
@@ -1037,6 +1115,18 @@ fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
     (
         (lc.search_radius + lc.drift_rate * gap).min(lc.search_radius_max) / 4.0,
         (0.05 + lc.drift_yaw_rate * gap).min(std::f64::consts::PI) / 4.0,
+    )
+}
+
+/// Standard deviations (m, rad) of an accepted alignment's prediction `path_gap` metres of path after the
+/// closure that gave it: the closure's own accuracy (0.5 m, 0.01 rad) plus the drift since, with the drift
+/// model's rates read as two standard deviations. Tighter than [`drift_sigmas`]: right after a closure the
+/// odometry is known to within decimetres, and a street that slides by a few metres is caught.
+fn alignment_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
+    let gap = path_gap.abs();
+    (
+        (0.5 + 0.5 * lc.drift_rate * gap).min(lc.search_radius_max),
+        (0.01 + 0.5 * lc.drift_yaw_rate * gap).min(std::f64::consts::PI),
     )
 }
 

@@ -138,14 +138,16 @@ pub fn main(args: &RevisitArgs) -> Result<(), CliError> {
             }
             if let Ok(rep) = &r {
                 eprintln!(
-                    "  {}: same {}/{} closed, {} false; reverse {}/{} closed, {} false",
+                    "  {}: same {}/{} closed, {} false; reverse {}/{} closed, {} false; rejected {:?}; missed opportunities had {:?}",
                     rep.scenario,
                     rep.same.closed,
                     rep.same.opportunities,
                     rep.same.false_closures,
                     rep.reverse.closed,
                     rep.reverse.opportunities,
-                    rep.reverse.false_closures
+                    rep.reverse.false_closures,
+                    rep.rejected,
+                    rep.missed
                 );
             }
             r

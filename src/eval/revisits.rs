@@ -178,6 +178,12 @@ pub struct RevisitReport {
     pub rejected: BTreeMap<String, u64>,
     /// Every published closure, judged.
     pub closures: Vec<JudgedClosure>,
+    /// Missed opportunities by what happened to their candidates: the reasons their candidates were
+    /// rejected for, `no_candidate` when none was registered, `held` when a closure passed every gate
+    /// but waited for confirmation, `false_only` when only false closures were published.
+    pub missed: BTreeMap<String, usize>,
+    /// Ids of the missed opportunities (query keyframes).
+    pub missed_ids: Vec<u64>,
 }
 
 /// Simulates `scenario` and evaluates it with the pipeline configured by `tweak` applied to the
@@ -203,11 +209,15 @@ pub fn evaluate_revisits(
     let mut p = Pipeline::new(cfg)?;
     let mut keyframes: Vec<(u64, Stamp)> = Vec::new();
     let mut closures: Vec<LoopClosure> = Vec::new();
+    let mut rejections: Vec<(u64, String)> = Vec::new();
     let mut collect = |events: Vec<Event>| {
         for e in events {
             match e {
                 Event::Keyframe { id, stamp, .. } => keyframes.push((id, stamp)),
                 Event::Closure(c) => closures.push(*c),
+                Event::Rejected {
+                    query_id, reason, ..
+                } => rejections.push((query_id, reason.name().to_string())),
                 _ => {}
             }
         }
@@ -222,7 +232,7 @@ pub fn evaluate_revisits(
         }
     }
     collect(p.finish());
-    Ok(judge(drive, &keyframes, &closures, p.stats()))
+    Ok(judge(drive, &keyframes, &closures, &rejections, p.stats()))
 }
 
 struct KfTruth {
@@ -236,6 +246,7 @@ fn judge(
     drive: &SimDrive,
     keyframes: &[(u64, Stamp)],
     closures: &[LoopClosure],
+    rejections: &[(u64, String)],
     stats: &PipelineStats,
 ) -> RevisitReport {
     let truth: BTreeMap<u64, KfTruth> = keyframes
@@ -296,6 +307,8 @@ fn judge(
             .map(|(r, n)| (r.name().to_string(), *n))
             .collect(),
         closures: Vec::new(),
+        missed: BTreeMap::new(),
+        missed_ids: Vec::new(),
     };
     let mut closed: BTreeMap<u64, bool> = BTreeMap::new();
     for c in closures {
@@ -343,6 +356,25 @@ fn judge(
         counts.opportunities += 1;
         if closed.contains_key(q) {
             counts.closed += 1;
+            continue;
+        }
+        report.missed_ids.push(*q);
+        let mut why: Vec<&str> = rejections
+            .iter()
+            .filter(|r| r.0 == *q)
+            .map(|r| r.1.as_str())
+            .collect();
+        if why.is_empty() {
+            why.push(if report.closures.iter().any(|c| c.query_id == *q) {
+                "false_only"
+            } else {
+                "no_candidate_or_held"
+            });
+        }
+        why.sort_unstable();
+        why.dedup();
+        for w in why {
+            *report.missed.entry(w.to_string()).or_default() += 1;
         }
     }
     report

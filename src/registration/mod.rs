@@ -446,6 +446,40 @@ pub fn register_detailed(
     )
 }
 
+/// The best support near a given pose: the dense stage started at `initial`, and the overlap (as in
+/// [`RegistrationResult::overlap`]) where it ends, with that pose. A check of an alternative alignment (a
+/// prior from odometry or earlier closures) against the one registration found: no descriptors, no
+/// covariance. `None` when too few points pair up near `initial`.
+pub fn overlap_near(
+    source: &PreparedSubmap,
+    target: &PreparedSubmap,
+    initial: &Iso2,
+    cfg: &RegistrationConfig,
+) -> Result<Option<(Iso2, f64)>, RegistrationError> {
+    let refined = dense::refine_dense(
+        &source.dense_points,
+        &target.dense_points,
+        &target.point_tree,
+        initial,
+        &cfg.dense,
+        &cfg.lm,
+    )?;
+    Ok(refined.map(|d| {
+        let n = dense::associate(
+            &source.dense_points,
+            &target.dense_points,
+            &target.point_tree,
+            &d.t_target_source,
+            &cfg.dense,
+        )
+        .len();
+        (
+            d.t_target_source,
+            n as f64 / source.points.len().max(1) as f64,
+        )
+    }))
+}
+
 /// RANSAC + LM on given candidate correspondences (the part of the pipeline after association;
 /// also what a baseline with its own association reuses):
 /// 2. RANSAC on a planar rigid motion removes the false matches;

@@ -10,6 +10,7 @@
 
 pub mod demo;
 pub mod eval;
+pub mod realdata;
 pub mod run;
 pub mod sim;
 

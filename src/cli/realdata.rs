@@ -316,7 +316,8 @@ fn vod_sequences(
 }
 
 /// Runs `dc_loc eval --vod DIR`: every run of consecutive frames is a drive (all in VoD's one map
-/// frame); keyframes of different runs are paired as nuScenes scenes are.
+/// frame); keyframes of different runs are paired as nuScenes scenes are, and keyframes of one run
+/// after `--min-pass-gap` metres of path as in `eval --bag`.
 pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
     use crate::io::vod_sequence::{VodInputs, vod_config};
     let Some(dir) = &args.vod else {
@@ -329,8 +330,8 @@ pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
         &args.overrides,
     )?;
     let cfg = vod_config(&cfg);
-    let mut eval = eval_config(args);
-    eval.min_pass_gap = f64::MAX;
+    // Pairs across runs, and within a run after --min-pass-gap metres of path (a loop).
+    let eval = eval_config(args);
     eval.validate()
         .map_err(|e| CliError::Usage(e.to_string()))?;
     let sequences = vod_sequences(dir, args.frame_rate)?;
@@ -367,10 +368,6 @@ pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
     );
     let mut keyframes = 0;
     for (d, seq) in sequences.iter().enumerate() {
-        if !cross.needs_loading(d) {
-            progress.inc(seq.frames.len() as u64);
-            continue;
-        }
         let kfs = collect_drive(&cfg, &eval, VodInputs::new(seq, args.frame_rate), || {
             progress.inc(1)
         })?;
@@ -381,20 +378,22 @@ pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
     set_progress(None);
     if cross.records.is_empty() {
         return Err(CliError::Usage(format!(
-            "no keyframe pairs: {} has {} runs of consecutive frames ({frames} frames) and no two pass \
-             within {} m of each other",
+            "no keyframe pairs: {} has {} runs of consecutive frames ({frames} frames) and no two \
+             keyframes of different runs (or {} m of path apart) within {} m of each other",
             dir.display(),
             sequences.len(),
+            eval.min_pass_gap,
             eval.pair_radius
         )));
     }
     let summaries = report::summarize(&cross.results, &methods, &eval);
     let intro = format!(
         "View-of-Delft {}: {} runs of consecutive frames, {frames} frames, {keyframes} keyframes, {} \
-         pairs across runs (ground truth within {} m), outlier threshold {} m\n",
+         pairs (another run, or the same run after {} m of path; ground truth within {} m), outlier threshold {} m\n",
         dir.display(),
         sequences.len(),
         cross.records.len(),
+        eval.min_pass_gap,
         eval.pair_radius,
         eval.outlier_threshold
     );

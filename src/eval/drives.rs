@@ -6,7 +6,8 @@
 //! [`CrossDriveEval::add_drive`] per drive in order, then `results` / `records`).
 //!
 //! Pairs (as the paper's nuScenes pairs): a keyframe of drive `d` is paired with the nearest keyframe of
-//! an earlier drive at the same location within `pair_radius`, headings within
+//! an earlier drive at the same location (or of the same drive at least `min_pass_gap` metres of path
+//! before; set it out of reach for across-drive pairs only) within `pair_radius`, headings within
 //! `max_heading_difference`. A keyframe is kept after its drive only when a later drive's ground-truth
 //! trajectory passes within `pair_radius` of it with a compatible heading, so memory holds only the
 //! keyframes some later pair can use, whatever the number of drives.
@@ -172,9 +173,16 @@ impl CrossDriveEval {
         let n_targets = combined.len();
         let mut pairs = Vec::new();
         for (qi, q) in kfs.iter().enumerate() {
-            let best = combined[..n_targets]
-                .iter()
-                .enumerate()
+            // Candidates: kept keyframes of earlier drives, and earlier keyframes of this drive at least
+            // `min_pass_gap` of path before (another pass within one drive).
+            let earlier = combined[..n_targets].iter().enumerate().chain(
+                kfs[..qi]
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, k)| q.path - k.path >= self.eval.min_pass_gap)
+                    .map(|(i, k)| (n_targets + i, k)),
+            );
+            let best = earlier
                 .filter(|(_, t)| {
                     wrap_angle(q.t_map_body.rotation.angle() - t.t_map_body.rotation.angle()).abs()
                         <= self.eval.max_heading_difference

@@ -122,9 +122,9 @@ impl CrossDriveEval {
         &self.drives
     }
 
-    /// Whether some trajectory point of a drive other than `drive` (and, with `later_only`, after it) at
-    /// its location passes within the pair radius of `p` with a compatible heading.
-    fn near_other(&self, drive: usize, p: Vec2, heading: f64, later_only: bool) -> bool {
+    /// Whether some trajectory point of a drive other than `drive` at its location passes within the
+    /// pair radius of `p` with a compatible heading.
+    fn near_other(&self, drive: usize, p: Vec2, heading: f64) -> bool {
         let cell = self.eval.pair_radius;
         let (cx, cy) = ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64);
         let loc = self.location_of[drive];
@@ -135,7 +135,6 @@ impl CrossDriveEval {
                 };
                 if v.iter().any(|&(d, q, h)| {
                     d != drive
-                        && (!later_only || d > drive)
                         && (q - p).norm() <= self.eval.pair_radius
                         && wrap_angle(h - heading).abs() <= self.eval.max_heading_difference
                 }) {
@@ -152,7 +151,7 @@ impl CrossDriveEval {
         self.drives.get(d).is_some_and(|info| {
             info.trajectory
                 .iter()
-                .any(|&(p, h)| self.near_other(d, p, h, false))
+                .any(|&(p, h)| self.near_other(d, p, h))
         })
     }
 
@@ -262,5 +261,91 @@ impl CrossDriveEval {
     /// Keyframes held now.
     pub fn retained(&self) -> usize {
         self.retained.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Iso2, Iso3, Stamp};
+    use crate::submap::Submap;
+    use std::sync::Arc;
+
+    fn kf(x: f64, y: f64, t: i64) -> EvalKeyframe {
+        EvalKeyframe {
+            id: t as u64,
+            stamp: Stamp(t),
+            t_map_body: Iso2::new(Vec2::new(x, y), 0.0),
+            speed: 10.0,
+            path: x,
+            submap: Arc::new(Submap {
+                anchor_stamp: Stamp(t),
+                t_odom_anchor: Iso3::identity(),
+                points: Vec::new(),
+                scans: Vec::new(),
+            }),
+            estimated_speeds: Vec::new(),
+        }
+    }
+
+    fn drive(name: &str, location: &str, y: f64) -> DriveInfo {
+        DriveInfo {
+            name: name.into(),
+            location: location.into(),
+            trajectory: (0..=200)
+                .map(|i| (Vec2::new(i as f64 * 0.5, y), 0.0))
+                .collect(),
+        }
+    }
+
+    /// Pairs only across drives at one location; kept keyframes are those a later drive passes, so
+    /// unrelated drives in between do not add to what is held.
+    #[test]
+    fn pairs_across_drives_and_holds_only_what_later_pairs_need() {
+        let mut drives = vec![drive("a", "one", 0.0), drive("b", "one", 1.0)];
+        // Unrelated drives: another location (the first at the same coordinates), and far away at this one.
+        for i in 0..20 {
+            drives.push(drive(&format!("x{i}"), "two", 50.0 * i as f64));
+            drives.push(drive(&format!("y{i}"), "one", 500.0 + 50.0 * i as f64));
+        }
+        drives.push(drive("e", "one", -1.0));
+        let n = drives.len();
+        let eval = EvalConfig {
+            min_pass_gap: f64::MAX,
+            ..EvalConfig::default()
+        };
+        let mut cross = CrossDriveEval::new(
+            drives,
+            eval,
+            vec![Method::Icp],
+            RegistrationConfig::default(),
+        );
+        let kfs = |y: f64, t0: i64| -> Vec<EvalKeyframe> {
+            (0..=10).map(|i| kf(10.0 * i as f64, y, t0 + i)).collect()
+        };
+        assert!(cross.needs_loading(0) && cross.needs_loading(1) && cross.needs_loading(n - 1));
+        assert!(!cross.needs_loading(2) && !cross.needs_loading(3));
+        assert_eq!(cross.add_drive(0, kfs(0.0, 0)), 0);
+        assert_eq!(cross.retained(), 11);
+        assert_eq!(cross.add_drive(1, kfs(1.0, 100)), 11);
+        assert_eq!(cross.retained(), 22);
+        for d in 2..n - 1 {
+            let y = cross.drives()[d].trajectory[0].0.y;
+            assert_eq!(cross.add_drive(d, kfs(y, 1000 * d as i64)), 0, "drive {d}");
+        }
+        assert_eq!(cross.max_retained, 22);
+        // The last drive pairs with the nearest of a (1 m) and b (2 m): a.
+        assert_eq!(cross.add_drive(n - 1, kfs(-1.0, 99_000)), 11);
+        assert_eq!(cross.retained(), 0);
+        assert_eq!(cross.records.len(), 22);
+        let last = &cross.records[11..];
+        assert!(
+            last.iter()
+                .all(|r| r.query_drive == n - 1 && r.target_drive == 0)
+        );
+        assert!(
+            last.iter()
+                .all(|r| (r.results[0].pair.distance - 1.0).abs() < 1e-9)
+        );
     }
 }

@@ -463,7 +463,6 @@ pub fn run_vod(args: &super::run::RunArgs) -> Result<(), CliError> {
     write(pipeline.finish(), &mut closures)?;
     progress.finish_and_clear();
     set_progress(None);
-    drop(write);
     out.flush()
         .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
     let s = pipeline.stats();

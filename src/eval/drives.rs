@@ -30,6 +30,9 @@ pub struct DriveInfo {
     pub trajectory: Vec<(Vec2, f64)>,
 }
 
+/// Trajectory points by (location, cell x, cell y): (drive, position, heading).
+type Grid = HashMap<(usize, i64, i64), Vec<(usize, Vec2, f64)>>;
+
 /// One evaluated pair with its drives (for the per-pair output).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PairRecord {
@@ -52,7 +55,7 @@ pub struct CrossDriveEval {
     methods: Vec<Method>,
     registration: RegistrationConfig,
     /// (location, cell x, cell y) -> (drive, position, heading) of trajectory points.
-    grid: HashMap<(usize, i64, i64), Vec<(usize, Vec2, f64)>>,
+    grid: Grid,
     location_of: Vec<usize>,
     retained: Vec<(usize, EvalKeyframe)>,
     pairs_seen: usize,
@@ -84,7 +87,7 @@ impl CrossDriveEval {
             };
             location_of.push(l);
         }
-        let mut grid: HashMap<(usize, i64, i64), Vec<(usize, Vec2, f64)>> = HashMap::new();
+        let mut grid: Grid = HashMap::new();
         let cell = eval.pair_radius;
         for (i, d) in drives.iter().enumerate() {
             let mut last: Option<Vec2> = None;

@@ -273,6 +273,16 @@ fn wrong_directory_version_table_or_sweep_are_named() {
         err.contains(victim.file_name().unwrap().to_str().unwrap()),
         "{err}"
     );
+    // Skipping the incomplete scene leaves one scene: no pairs, said so.
+    let mut skip = a.clone();
+    skip.push("--skip-incomplete-scenes".into());
+    let out = dc_loc(&skip.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("scene skipped") && err.contains("no keyframe pairs"),
+        "{err}"
+    );
     // A damaged table names the table.
     std::fs::write(root.join("v1.0-mini/sample.json"), "[{\"token\": 1").unwrap();
     let e = NuscenesDb::open(&root, "v1.0-mini", nothing).unwrap_err();

@@ -319,7 +319,15 @@ fn pcd_fields() -> Vec<PackedElementField> {
 /// the PCD records, `/tf` foxglove.FrameTransform with map -> base_link at every sweep and
 /// base_link -> radar_* every 0.5 s. The schema data is an empty FileDescriptorSet (a valid encoding of
 /// an empty message; dc_loc reads by schema name).
-fn write_foxglove_mcap(drive: &SimDrive, path: &Path) -> usize {
+fn write_foxglove_mcap(drive: &SimDrive, path: &Path, upper_case: bool) -> usize {
+    // The 2022 protobuf version names topics and frames by the upper-case channel.
+    let frame = |c: &str| {
+        if upper_case {
+            c.to_string()
+        } else {
+            c.to_ascii_lowercase()
+        }
+    };
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut w = mcap::Writer::new(file).unwrap();
     let pc = w
@@ -333,13 +341,8 @@ fn write_foxglove_mcap(drive: &SimDrive, path: &Path) -> usize {
     let radar_ch: Vec<u16> = RADAR_CHANNELS
         .iter()
         .map(|c| {
-            w.add_channel(
-                pc,
-                &format!("/{}", c.to_ascii_lowercase()),
-                "protobuf",
-                &meta,
-            )
-            .unwrap()
+            w.add_channel(pc, &format!("/{}", frame(c)), "protobuf", &meta)
+                .unwrap()
         })
         .collect();
     let mut seq = 0u32;
@@ -363,7 +366,7 @@ fn write_foxglove_mcap(drive: &SimDrive, path: &Path) -> usize {
             for (i, r) in drive.setup.radars.iter().enumerate() {
                 let e = r.extrinsic;
                 let t = iso3_from_xyz_rpy(e[0], e[1], e[2], e[3], e[4], e[5]);
-                let child = RADAR_CHANNELS[i].to_ascii_lowercase();
+                let child = frame(RADAR_CHANNELS[i]);
                 let m = frame_transform(stamp, "base_link", &child, &t);
                 put(&mut w, tf_ch, stamp, m.encode_to_vec());
             }
@@ -379,7 +382,7 @@ fn write_foxglove_mcap(drive: &SimDrive, path: &Path) -> usize {
         let r = s.scan.radar;
         let cloud = PointCloud {
             timestamp: ts(stamp),
-            frame_id: RADAR_CHANNELS[r].to_ascii_lowercase(),
+            frame_id: frame(RADAR_CHANNELS[r]),
             pose: None,
             point_stride: 43,
             fields: pcd_fields(),
@@ -396,31 +399,46 @@ fn write_foxglove_mcap(drive: &SimDrive, path: &Path) -> usize {
 #[test]
 fn foxglove_nuscenes2mcap_file_runs() {
     let d = drive("nuscenes");
-    let root = scratch("foxglove");
-    let mcap_path = root.join("scene.mcap");
-    let sweeps = write_foxglove_mcap(&d, &mcap_path);
-    let out = root.join("closures.jsonl");
-    let t0 = std::time::Instant::now();
-    let run = dc_loc(&[
-        "run",
-        "--bag",
-        mcap_path.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    let (stdout, stderr) = (text(&run.stdout), text(&run.stderr));
-    assert!(run.status.success(), "{stderr}");
-    eprintln!("run took {:.1} s\n{stdout}", t0.elapsed().as_secs_f64());
-    assert!(
-        stdout.contains(&format!("inputs: {sweeps} radar clouds")),
-        "{stdout}"
-    );
-    for c in RADAR_CHANNELS {
+    let mut outputs = Vec::new();
+    for upper_case in [false, true] {
+        let root = scratch(if upper_case {
+            "foxglove_2022"
+        } else {
+            "foxglove"
+        });
+        let mcap_path = root.join("scene.mcap");
+        let sweeps = write_foxglove_mcap(&d, &mcap_path, upper_case);
+        let out = root.join("closures.jsonl");
+        let t0 = std::time::Instant::now();
+        let run = dc_loc(&[
+            "run",
+            "--bag",
+            mcap_path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let (stdout, stderr) = (text(&run.stdout), text(&run.stderr));
+        assert!(run.status.success(), "{stderr}");
+        eprintln!("run took {:.1} s\n{stdout}", t0.elapsed().as_secs_f64());
         assert!(
-            stderr.contains(&format!("base_link -> {}", c.to_ascii_lowercase())),
-            "extrinsic of {c} from /tf: {stderr}"
+            stdout.contains(&format!("inputs: {sweeps} radar clouds")),
+            "{stdout}"
         );
+        for c in RADAR_CHANNELS {
+            let f = if upper_case {
+                c.to_string()
+            } else {
+                c.to_ascii_lowercase()
+            };
+            assert!(
+                stderr.contains(&format!("base_link -> {f}")),
+                "extrinsic of {c} from /tf: {stderr}"
+            );
+        }
+        let n = closures(&out);
+        assert!(n >= 3, "{n} closures\n{stdout}");
+        outputs.push(std::fs::read_to_string(&out).unwrap());
     }
-    let n = closures(&out);
-    assert!(n >= 3, "{n} closures\n{stdout}");
+    // Both layouts carry the same drive: the same closures, byte for byte.
+    assert_eq!(outputs[0], outputs[1]);
 }

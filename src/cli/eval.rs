@@ -40,6 +40,10 @@ pub struct EvalArgs {
     /// nuScenes: only these scenes (comma-separated names, e.g. scene-0061,scene-0103).
     #[arg(long, value_delimiter = ',')]
     pub scenes: Vec<String>,
+    /// nuScenes: skip scenes whose sweep files are missing (a partly extracted trainval) instead of
+    /// stopping.
+    #[arg(long)]
+    pub skip_incomplete_scenes: bool,
     /// nuScenes radar filter: kept `invalid_state` values (comma-separated, or `all`).
     #[arg(long, default_value = "0")]
     pub radar_invalid_states: String,

@@ -182,9 +182,43 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
         sweeps as u64,
         "{elapsed_precise} [{wide_bar}] {pos}/{len} sweeps, {msg} ({eta} left)",
     );
+    // Every sweep file of the scenes to be read must be there: say so now, not hours into the run.
+    let mut load: Vec<bool> = (0..scenes.len()).map(|d| cross.needs_loading(d)).collect();
+    let mut missing: Vec<(usize, &crate::io::nuscenes::RadarSweep)> = Vec::new();
+    for (d, scene) in scenes.iter().enumerate().filter(|(d, _)| load[*d]) {
+        missing.extend(
+            scene
+                .sweeps
+                .iter()
+                .filter(|w| !db.dataroot.join(&w.filename).is_file())
+                .map(|w| (d, w)),
+        );
+    }
+    if let Some(&(d, first)) = missing.first() {
+        let mut incomplete: Vec<usize> = missing.iter().map(|m| m.0).collect();
+        incomplete.dedup();
+        if !args.skip_incomplete_scenes {
+            return Err(CliError::Runtime(format!(
+                "{} sweep files of {} scenes are missing, e.g. {} (sample_data {}, {}): extract the \
+                 radar files of those scenes' blobs into {}, check that --version {} matches the files, \
+                 or pass --skip-incomplete-scenes",
+                missing.len(),
+                incomplete.len(),
+                db.dataroot.join(&first.filename).display(),
+                first.token,
+                scenes[d].name,
+                db.dataroot.display(),
+                args.version
+            )));
+        }
+        for &d in &incomplete {
+            log::warn!("{}: sweep files missing, scene skipped", scenes[d].name);
+            load[d] = false;
+        }
+    }
     let (mut keyframes, mut loaded) = (0usize, 0usize);
     for (d, scene) in scenes.iter().enumerate() {
-        if !cross.needs_loading(d) {
+        if !load[d] {
             progress.inc(scene.sweeps.len() as u64);
             continue;
         }
@@ -481,8 +515,8 @@ pub fn run_vod(args: &super::run::RunArgs) -> Result<(), CliError> {
 
 /// The five-radar nuScenes configuration for a bag written by nuscenes2mcap (or nuscenes2bag): each
 /// channel whose topic is in the bag (`/radar_front` with frame `radar_front`, or the 2022 layout's
-/// `/RADAR_FRONT` with frame `RADAR_FRONT`), as a point cloud (foxglove or ROS). `None` when the bag has
-/// none of them.
+/// `/RADAR_FRONT` with frame `RADAR_FRONT`) as `foxglove.PointCloud`. `None` when the bag has none of
+/// them (a ROS bag needs its params file: its odometry topic is not implied).
 pub fn nuscenes_mcap_config(reader: &crate::bag::BagReader) -> Option<Config> {
     use crate::io::nuscenes::RADAR_CHANNELS;
     let mut cfg = nuscenes_config(&Config::default(), &[None; 5]);
@@ -490,12 +524,9 @@ pub fn nuscenes_mcap_config(reader: &crate::bag::BagReader) -> Option<Config> {
     for (i, channel) in RADAR_CHANNELS.iter().enumerate() {
         let name = cfg.radar_names.get(i)?.clone();
         let lower = channel.to_ascii_lowercase();
-        let found = [lower.as_str(), *channel].into_iter().find(|frame| {
-            reader.topic(&format!("/{frame}")).is_some_and(|t| {
-                t.type_name == crate::bag::foxglove::POINT_CLOUD
-                    || t.type_name == crate::bag::schema::POINT_CLOUD2
-            })
-        });
+        let found = [lower.as_str(), *channel]
+            .into_iter()
+            .find(|frame| crate::bag::foxglove::is_foxglove_cloud(reader, &format!("/{frame}")));
         match (found, cfg.radars.get_mut(&name)) {
             (Some(frame), Some(r)) => {
                 r.topic = format!("/{frame}");

@@ -335,3 +335,23 @@ fn real_pcds_filter_by_the_sensor_flags() {
         assert!(devkit < 125, "{name}: the devkit filter removes points");
     }
 }
+
+/// `dc_loc sim --nuscenes-out` needs the five nuScenes radars.
+#[test]
+fn sim_nuscenes_out_needs_the_nuscenes_preset() {
+    let root = scratch("sim_out");
+    let out = dc_loc(&[
+        "sim",
+        "--out",
+        root.join("bag").to_str().unwrap(),
+        "--nuscenes-out",
+        root.join("nus").to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("--preset nuscenes"),
+        "{}",
+        text(&out.stderr)
+    );
+    assert!(!root.join("bag").exists() && !root.join("nus").exists());
+}

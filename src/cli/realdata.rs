@@ -261,8 +261,8 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
     let summaries = report::summarize(&cross.results, &methods, &eval);
     let intro = format!(
         "nuScenes {} in {}: {} scenes ({} meet another scene and were read), {} keyframes, {} pairs \
-         across scenes (ground truth within {} m), at most {} keyframes held at once, outlier \
-         threshold {} m\n",
+         across scenes (ground truth within {} m), at most {} keyframes ({:.1} MB of submap points) held \
+         at once, outlier threshold {} m\n",
         args.version,
         root.display(),
         scenes.len(),
@@ -271,6 +271,7 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
         cross.records.len(),
         eval.pair_radius,
         cross.max_retained,
+        (cross.max_points * std::mem::size_of::<crate::submap::SubmapPoint>()) as f64 / 1e6,
         eval.outlier_threshold
     );
     write_and_print(

@@ -65,6 +65,8 @@ pub struct CrossDriveEval {
     pub records: Vec<PairRecord>,
     /// Most keyframes held at once (for the memory claim).
     pub max_retained: usize,
+    /// Most submap points held at once (with the keyframes of the drive being added).
+    pub max_points: usize,
 }
 
 impl CrossDriveEval {
@@ -117,6 +119,7 @@ impl CrossDriveEval {
             results: Vec::new(),
             records: Vec::new(),
             max_retained: 0,
+            max_points: 0,
         }
     }
 
@@ -208,6 +211,13 @@ impl CrossDriveEval {
             }
         }
         combined.extend(kfs.iter().cloned());
+        let held: usize = self
+            .retained
+            .iter()
+            .map(|(_, k)| k.submap.points.len())
+            .sum::<usize>()
+            + kfs.iter().map(|k| k.submap.points.len()).sum::<usize>();
+        self.max_points = self.max_points.max(held);
         drive_of.extend(std::iter::repeat_n(d, kfs.len()));
         let results = evaluate(
             &combined,

@@ -216,7 +216,8 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
             load[d] = false;
         }
     }
-    let (mut keyframes, mut loaded) = (0usize, 0usize);
+    let (mut keyframes, mut loaded, mut scans) = (0usize, 0usize, 0u64);
+    let mut dropped: std::collections::BTreeMap<&str, u64> = Default::default();
     for (d, scene) in scenes.iter().enumerate() {
         if !load[d] {
             progress.inc(scene.sweeps.len() as u64);
@@ -233,7 +234,11 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
             }
             collector.push(&input);
         }
-        let (kfs, _) = collector.finish();
+        let (kfs, stats) = collector.finish();
+        scans += stats.scans;
+        for (reason, n) in &stats.dropped {
+            *dropped.entry(reason.name()).or_default() += n;
+        }
         keyframes += kfs.len();
         let n = cross.add_drive(d, kfs);
         progress.set_message(format!(
@@ -258,6 +263,18 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
             }
         )));
     }
+    log::info!(
+        "{scans} radar sweeps into the pipeline; dropped: {}",
+        if dropped.is_empty() {
+            "none".to_string()
+        } else {
+            dropped
+                .iter()
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    );
     let summaries = report::summarize(&cross.results, &methods, &eval);
     let intro = format!(
         "nuScenes {} in {}: {} scenes ({} meet another scene and were read), {} keyframes, {} pairs \

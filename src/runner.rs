@@ -98,6 +98,10 @@ pub enum IssueReason {
     /// The bag file is damaged from here on (messages before were read; the file ends here).
     #[error("damaged bag file: {0}")]
     Damaged(#[source] BagError),
+    /// A message of a non-ROS encoding (foxglove protobuf, [`crate::bag::foxglove`]) that does not
+    /// decode or convert.
+    #[error("does not convert: {0}")]
+    Foreign(String),
 }
 
 impl IssueReason {
@@ -108,6 +112,7 @@ impl IssueReason {
             IssueReason::NonFinitePose => "non_finite_pose",
             IssueReason::FrameMismatch { .. } => "frame_mismatch",
             IssueReason::Damaged(_) => "damaged_file",
+            IssueReason::Foreign(_) => "undecodable_foreign",
         }
     }
 }

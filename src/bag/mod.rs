@@ -13,6 +13,7 @@
 //! Times are [`Stamp`]s (ns since the epoch); a message's MCAP log time is its stamp.
 
 pub mod cdr;
+pub mod foxglove;
 pub mod metadata;
 pub mod reader;
 pub mod schema;

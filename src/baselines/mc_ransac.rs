@@ -301,7 +301,8 @@ impl ForwardSpeedEstimator {
                 ))
             }
             Err(e) => {
-                log::warn!("mc_ransac: speed estimate failed: {e}");
+                // Per scan (sparse side radars fail often on real data): debug, not warn.
+                log::debug!("mc_ransac: speed estimate failed: {e}");
                 self.twist = None;
             }
         }

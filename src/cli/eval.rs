@@ -23,11 +23,51 @@ use crate::runner::{BagInputs, Input, RunnerError};
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
     /// rosbag2 bag with radar clouds, odometry and ground truth (directory or .mcap).
-    #[arg(long, value_name = "BAG")]
-    pub bag: PathBuf,
+    #[arg(long, value_name = "BAG", required_unless_present_any = ["nuscenes", "vod"])]
+    pub bag: Option<PathBuf>,
     /// ROS 2 params YAML (e.g. the `dc_loc.yaml` that `dc_loc sim` writes into its bag directory).
+    /// Required with `--bag`; with `--nuscenes` / `--vod` it is optional (defaults, radars and
+    /// extrinsics from the dataset).
     #[arg(long, value_name = "FILE")]
-    pub params: PathBuf,
+    pub params: Option<PathBuf>,
+    /// nuScenes data root (holding `<version>/`, `samples/`, `sweeps/`): every scene is a drive, pairs
+    /// across scenes at one location.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["bag", "vod"])]
+    pub nuscenes: Option<PathBuf>,
+    /// nuScenes version folder.
+    #[arg(long, default_value = "v1.0-mini")]
+    pub version: String,
+    /// nuScenes: only these scenes (comma-separated names, e.g. scene-0061,scene-0103).
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// nuScenes: skip scenes whose sweep files are missing (a partly extracted trainval) instead of
+    /// stopping.
+    #[arg(long)]
+    pub skip_incomplete_scenes: bool,
+    /// nuScenes radar filter: kept `invalid_state` values (comma-separated, or `all`).
+    #[arg(long, default_value = "0")]
+    pub radar_invalid_states: String,
+    /// nuScenes radar filter: kept `dyn_prop` values (comma-separated, or `all`; the devkit keeps 0-6,
+    /// the DC-Loc authors' code only stationary points: 1).
+    #[arg(long, default_value = "0,1,2,3,4,5,6")]
+    pub radar_dynprop_states: String,
+    /// nuScenes radar filter: kept `ambig_state` values (comma-separated, or `all`).
+    #[arg(long, default_value = "3")]
+    pub radar_ambig_states: String,
+    /// nuScenes / VoD: odometry from the ego poses with this relative scale error (0.01 = 1 %).
+    #[arg(long, default_value_t = 0.0)]
+    pub odometry_scale_error: f64,
+    /// nuScenes / VoD: odometry from the ego poses with this yaw-rate bias, deg/s.
+    #[arg(long, default_value_t = 0.0)]
+    pub odometry_yaw_bias_deg: f64,
+    /// View-of-Delft radar directory (`velodyne/`, `pose/`, `calib/`, or a folder holding
+    /// `radar/training/`): its longest run of consecutive frames is evaluated.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["bag", "nuscenes"])]
+    pub vod: Option<PathBuf>,
+    /// VoD frame rate, Hz (the `.bin` files carry no time).
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
+
     /// Ground-truth nav_msgs/Odometry topic (map frame).
     #[arg(long, default_value = "/ground_truth/odom")]
     pub ground_truth_topic: String,
@@ -151,41 +191,66 @@ pub fn evaluate_and_report(
     progress.finish_and_clear();
     set_progress(None);
     let summaries = report::summarize(&results, methods, eval);
-    std::fs::create_dir_all(out_dir)
-        .map_err(|e| CliError::Runtime(format!("{}: {e}", out_dir.display())))?;
-    let plot = out_dir.join("eval.svg");
-    report::plot_svg(&summaries, eval, &plot).map_err(CliError::Runtime)?;
-    let jsonl = out_dir.join("pairs.jsonl");
-    write_pairs(&jsonl, kfs, &results)
-        .map_err(|e| CliError::Runtime(format!("{}: {e}", jsonl.display())))?;
-    println!(
-        "{} keyframes, {} pairs (ground truth within {} m, another pass), outlier threshold {} m\n",
-        kfs.len(),
-        pairs.len(),
-        eval.pair_radius,
-        eval.outlier_threshold
-    );
-    println!(
-        "Methods (the paper's Table 1 layout):\n{}",
-        report::table_methods(&summaries)
-    );
-    if methods.len() > 1 {
-        println!(
-            "Ablation (the paper's Table 2 layout):\n{}",
-            report::table_ablation(&summaries)
-        );
-    }
-    println!(
-        "Mean error by ego-velocity difference:\n{}",
-        report::table_velocity(&summaries, eval)
-    );
-    println!("plot: {}\nper pair: {}", plot.display(), jsonl.display());
+    let plot = write_and_print(
+        &summaries,
+        eval,
+        methods,
+        out_dir,
+        |jsonl| write_pairs(jsonl, kfs, &results),
+        &format!(
+            "{} keyframes, {} pairs (ground truth within {} m, another pass), outlier threshold {} m\n",
+            kfs.len(),
+            pairs.len(),
+            eval.pair_radius,
+            eval.outlier_threshold
+        ),
+    )?;
     Ok(EvalOutcome {
         keyframes: kfs.len(),
         pairs: pairs.len(),
         summaries,
         plot,
     })
+}
+
+/// Writes the plot and the per-pair file (`write_jsonl`) into `out_dir`, prints `intro` and the tables
+/// (Table 1 and 2 layouts, ours beside the paper's numbers, errors by velocity difference); returns the
+/// plot's path.
+pub fn write_and_print(
+    summaries: &[MethodSummary],
+    eval: &EvalConfig,
+    methods: &[Method],
+    out_dir: &Path,
+    write_jsonl: impl FnOnce(&Path) -> std::io::Result<()>,
+    intro: &str,
+) -> Result<PathBuf, CliError> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| CliError::Runtime(format!("{}: {e}", out_dir.display())))?;
+    let plot = out_dir.join("eval.svg");
+    report::plot_svg(summaries, eval, &plot).map_err(CliError::Runtime)?;
+    let jsonl = out_dir.join("pairs.jsonl");
+    write_jsonl(&jsonl).map_err(|e| CliError::Runtime(format!("{}: {e}", jsonl.display())))?;
+    println!("{intro}");
+    println!(
+        "Methods (the paper's Table 1 layout):\n{}",
+        report::table_methods(summaries)
+    );
+    if methods.len() > 1 {
+        println!(
+            "Ablation (the paper's Table 2 layout):\n{}",
+            report::table_ablation(summaries)
+        );
+    }
+    println!(
+        "Ours beside the paper's nuScenes numbers (Tables 1 and 2):\n{}",
+        report::table_paper_comparison(summaries)
+    );
+    println!(
+        "Mean error by ego-velocity difference:\n{}",
+        report::table_velocity(summaries, eval)
+    );
+    println!("plot: {}\nper pair: {}", plot.display(), jsonl.display());
+    Ok(plot)
 }
 
 fn write_pairs(path: &Path, kfs: &[EvalKeyframe], results: &[PairResult]) -> std::io::Result<()> {
@@ -225,11 +290,22 @@ pub fn eval_config(args: &EvalArgs) -> EvalConfig {
 
 /// Runs `dc_loc eval`.
 pub fn main(args: &EvalArgs) -> Result<(), CliError> {
-    let cfg = load_params(&args.params, "/", &args.node_name, &args.overrides)?;
+    if args.nuscenes.is_some() {
+        return super::realdata::eval_nuscenes(args);
+    }
+    if args.vod.is_some() {
+        return super::realdata::eval_vod(args);
+    }
+    let (Some(bag), Some(params)) = (&args.bag, &args.params) else {
+        return Err(CliError::Usage(
+            "--bag needs --params (the params file of the bag's radars and topics)".into(),
+        ));
+    };
+    let cfg = load_params(params, "/", &args.node_name, &args.overrides)?;
     let eval = eval_config(args);
     eval.validate()
         .map_err(|e| CliError::Usage(e.to_string()))?;
-    let kfs = collect(&args.bag, &cfg, &args.ground_truth_topic, &eval)?;
+    let kfs = collect(bag, &cfg, &args.ground_truth_topic, &eval)?;
     let methods = if args.dcloc_only {
         vec![Method::DCLOC]
     } else {

@@ -11,6 +11,7 @@
 
 pub mod demo;
 pub mod eval;
+pub mod realdata;
 pub mod revisits;
 pub mod run;
 pub mod sim;

@@ -22,11 +22,27 @@ use crate::runner::{BagInputs, ClosureRecord, RunItem, RunReport, RunnerError, r
 #[derive(Debug, Clone, clap::Args)]
 pub struct RunArgs {
     /// rosbag2 bag: directory or single .mcap file.
-    #[arg(long, value_name = "BAG")]
-    pub bag: PathBuf,
+    #[arg(
+        long,
+        value_name = "BAG",
+        required_unless_present = "vod",
+        conflicts_with = "vod"
+    )]
+    pub bag: Option<PathBuf>,
     /// ROS 2 params YAML (e.g. the `dc_loc.yaml` that `dc_loc sim` writes into its bag directory).
+    /// Required with `--bag`; optional with `--vod`.
     #[arg(long, value_name = "FILE")]
-    pub params: PathBuf,
+    pub params: Option<PathBuf>,
+    /// View-of-Delft radar directory (`velodyne/`, `pose/`, `calib/`, or a folder holding
+    /// `radar/training/`) instead of a bag.
+    #[arg(long, value_name = "DIR")]
+    pub vod: Option<PathBuf>,
+    /// VoD frame rate, Hz (the `.bin` files carry no time).
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
+    /// Foxglove MCAP: the frame whose `map -> <body frame>` transforms on `/tf` are the odometry.
+    #[arg(long, default_value = "map")]
+    pub map_frame: String,
     /// Output: one JSON object per loop closure and line.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
@@ -43,12 +59,12 @@ pub struct RunArgs {
 
 /// The configuration from the params file and the overrides.
 pub fn load_config(args: &RunArgs) -> Result<Config, CliError> {
-    load_params(
-        &args.params,
-        &args.namespace,
-        &args.node_name,
-        &args.overrides,
-    )
+    let Some(params) = &args.params else {
+        return Err(CliError::Usage(
+            "--bag needs --params (the params file of the bag's radars and topics)".into(),
+        ));
+    };
+    load_params(params, &args.namespace, &args.node_name, &args.overrides)
 }
 
 /// The configuration from a params file (the section of node `/namespace/node_name`) and `-p`
@@ -78,7 +94,21 @@ pub fn load_params(
 
 /// Runs `dc_loc run`.
 pub fn main(args: &RunArgs) -> Result<(), CliError> {
-    let cfg = load_config(args)?;
+    if args.vod.is_some() {
+        return super::realdata::run_vod(args);
+    }
+    let Some(bag) = &args.bag else {
+        return Err(CliError::Usage("--bag or --vod is required".into()));
+    };
+    let reader = BagReader::open(bag).map_err(|e| CliError::Runtime(e.to_string()))?;
+    // A foxglove nuscenes2mcap file runs without a params file: its radar topics say the layout.
+    let mut cfg = match (&args.params, super::realdata::nuscenes_mcap_config(&reader)) {
+        (None, Some(template)) => {
+            super::realdata::dataset_config(&template, None, &args.node_name, &args.overrides)?
+        }
+        _ => load_config(args)?,
+    };
+    super::realdata::apply_bag_extrinsics(&reader, &mut cfg)?;
     let radars: Vec<String> = cfg
         .radar_list()
         .iter()
@@ -93,20 +123,42 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         log::debug!("parameter {name} = {value}");
     }
     let body_frame = cfg.body_frame.clone();
+    let radar_topics: Vec<String> = cfg
+        .radar_list()
+        .iter()
+        .map(|(_, r)| r.topic.clone())
+        .collect();
     let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
 
-    let reader = BagReader::open(&args.bag).map_err(|e| CliError::Runtime(e.to_string()))?;
-    let inputs = BagInputs::new(&reader, pipeline.config(), None).map_err(|e| match e {
-        RunnerError::Bag(e) => CliError::Runtime(e.to_string()),
-        e => CliError::Usage(e.to_string()),
-    })?;
+    let inputs: Box<dyn Iterator<Item = Result<crate::runner::Input, crate::runner::InputIssue>>>;
+    let total;
+    if radar_topics
+        .iter()
+        .any(|t| crate::bag::foxglove::is_foxglove_cloud(&reader, t))
+    {
+        let f = crate::bag::foxglove::FoxgloveInputs::new(
+            &reader,
+            &radar_topics,
+            &args.map_frame,
+            &body_frame,
+        )
+        .map_err(|e| CliError::Runtime(e.to_string()))?;
+        total = f.total_messages();
+        inputs = Box::new(f);
+    } else {
+        let b = BagInputs::new(&reader, pipeline.config(), None).map_err(|e| match e {
+            RunnerError::Bag(e) => CliError::Runtime(e.to_string()),
+            e => CliError::Usage(e.to_string()),
+        })?;
+        total = b.total_messages();
+        inputs = Box::new(b);
+    }
     let out_path = args.out.display().to_string();
     let file =
         File::create(&args.out).map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
     let mut out = BufWriter::new(file);
 
-    let bar =
-        ProgressBar::with_draw_target(Some(inputs.total_messages()), ProgressDrawTarget::stderr());
+    let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
     if let Ok(style) = ProgressStyle::with_template(
         "{elapsed_precise} [{wide_bar}] {pos}/{len} messages, {msg} ({eta} left)",
     ) {
@@ -145,7 +197,7 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
     out.flush()
         .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
 
-    print_summary(args, &reader, &report, closures);
+    print_summary(args, bag, &reader, &report, closures);
     if !damaged.is_empty() {
         return Err(CliError::Runtime(format!(
             "the bag is damaged, closures up to the damage were written: {}",
@@ -165,12 +217,18 @@ fn counts<K: std::fmt::Display>(m: &BTreeMap<K, u64>) -> String {
         .join(", ")
 }
 
-fn print_summary(args: &RunArgs, reader: &BagReader, r: &RunReport, closures: u64) {
+fn print_summary(
+    args: &RunArgs,
+    bag: &std::path::Path,
+    reader: &BagReader,
+    r: &RunReport,
+    closures: u64,
+) {
     let span = reader.time_range().map_or(0.0, |(a, b)| b.secs_since(a));
     let s = &r.stats;
     println!(
         "bag: {} ({} messages, {span:.1} s)",
-        args.bag.display(),
+        bag.display(),
         reader.message_count()
     );
     println!(

@@ -65,6 +65,10 @@ pub struct SimArgs {
     /// Odometry yaw-rate bias, deg/s.
     #[arg(long, value_name = "DEG_PER_S", allow_negative_numbers = true)]
     pub odom_yaw_rate_bias_deg: Option<f64>,
+    /// Also write the drive as a nuScenes dataset (tables in `<DIR>/v1.0-mini`, radar PCDs, one scene
+    /// per lap) for `dc_loc eval --nuscenes DIR`; needs `--preset nuscenes`.
+    #[arg(long, value_name = "DIR")]
+    pub nuscenes_out: Option<PathBuf>,
 }
 
 /// The simulator configuration the arguments describe (file, then flags), validated.
@@ -136,6 +140,11 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
 /// Runs `dc_loc sim`.
 pub fn main(args: &SimArgs) -> Result<(), CliError> {
     let cfg = sim_config(args)?;
+    if args.nuscenes_out.is_some() && cfg.radar_preset != crate::sim::RadarPreset::Nuscenes {
+        return Err(CliError::Usage(
+            "--nuscenes-out needs the five nuScenes radars: add --preset nuscenes".into(),
+        ));
+    }
     log::info!("simulating: {}", drive_description(&cfg));
     let drive =
         simulate(&cfg).map_err(|e| CliError::Usage(format!("simulator configuration: {e}")))?;
@@ -174,5 +183,16 @@ pub fn main(args: &SimArgs) -> Result<(), CliError> {
         println!("  {} {} x{}", t.topic, t.type_name, t.count);
     }
     println!("params: {}", summary.params_file.display());
+    if let Some(dir) = &args.nuscenes_out {
+        let ex = crate::sim::nuscenes::export_nuscenes(&drive, dir, "v1.0-mini", "sim-city")
+            .map_err(|e| CliError::Runtime(e.to_string()))?;
+        println!(
+            "nuScenes: {} (v1.0-mini, scenes {}, {} sweeps of which {} keyframes)",
+            dir.display(),
+            ex.scenes.join(", "),
+            ex.sweeps,
+            ex.keyframes
+        );
+    }
     Ok(())
 }

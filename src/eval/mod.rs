@@ -15,6 +15,7 @@
 //! NDT start from the identity (a place match gives no relative pose) on the uncorrected submaps. UTR
 //! (learned) is not reproduced.
 
+pub mod drives;
 pub mod report;
 pub mod revisits;
 

@@ -2,6 +2,7 @@
 //! ego-velocity difference, and the plot of error against velocity difference.
 //!
 //! Entry points: [`summarize`], [`MethodSummary`], [`table_methods`], [`table_ablation`],
+//! [`table_paper_comparison`] (ours beside the paper's nuScenes numbers),
 //! [`table_velocity`], [`plot_svg`].
 
 use super::{EvalConfig, Method, PairResult};
@@ -156,6 +157,92 @@ pub fn table_ablation(summaries: &[MethodSummary]) -> String {
             let mark = |b: bool| if b { "yes" } else { "-" };
             row(&mut out, &format!("{} | {}", mark(ue), mark(dc)), s);
         }
+    }
+    out
+}
+
+/// The paper's nuScenes numbers (METHOD.md section 6): Table 1 as (method, mean / max / median
+/// translation m when given, mean rotation rad), Table 2 as (U.E., D.C., mean translation m).
+pub const PAPER_TABLE1: [(&str, [Option<f64>; 3], f64); 5] = [
+    ("ICP", [Some(0.993), None, None], 0.0536),
+    ("NDT", [Some(0.400), None, None], 0.0564),
+    (
+        "UTR (learned, not reproduced)",
+        [Some(1.324), None, None],
+        0.0576,
+    ),
+    ("MC-RANSAC", [Some(0.379), None, None], 0.0018),
+    ("DC-Loc", [Some(0.290), Some(0.873), Some(0.243)], 0.0017),
+];
+
+/// See [`PAPER_TABLE1`].
+pub const PAPER_TABLE2: [(bool, bool, f64); 4] = [
+    (false, false, 0.450),
+    (true, false, 0.435),
+    (false, true, 0.292),
+    (true, true, 0.290),
+];
+
+fn paper_cell(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".into(), |v| format!("{v:.digits$}"))
+}
+
+/// Table 1 and Table 2 with the paper's nuScenes numbers beside ours: `ours / paper` per cell
+/// (translation m, rotation rad). The full DC-Loc row (with the dense stage) and the paper's form are
+/// both compared with the paper's DC-Loc.
+pub fn table_paper_comparison(summaries: &[MethodSummary]) -> String {
+    let mut out = String::from(
+        "| Method | Translation mean (ours / paper) | max | median | Rotation mean (ours / paper) | inliers |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    let find = |m: Method| summaries.iter().find(|s| s.method == m);
+    let mut line = |name: &str, s: Option<&MethodSummary>, paper: &([Option<f64>; 3], f64)| {
+        let ours = |v: Option<f64>, d: usize| paper_cell(v.filter(|v| v.is_finite()), d);
+        let (t, r) = (s.map(|s| s.translation), s.map(|s| s.rotation[0]));
+        let _ = writeln!(
+            out,
+            "| {name} | {} / {} | {} / {} | {} / {} | {} / {} | {} |",
+            ours(t.map(|t| t[0]), 3),
+            paper_cell(paper.0[0], 3),
+            ours(t.map(|t| t[1]), 3),
+            paper_cell(paper.0[1], 3),
+            ours(t.map(|t| t[2]), 3),
+            paper_cell(paper.0[2], 3),
+            ours(r, 4),
+            paper_cell(Some(paper.1), 4),
+            s.map_or("-".into(), |s| format!("{}/{}", s.inliers, s.pairs)),
+        );
+    };
+    let p = |i: usize| (PAPER_TABLE1[i].1, PAPER_TABLE1[i].2);
+    line("ICP", find(Method::Icp), &p(0));
+    line("NDT", find(Method::Ndt), &p(1));
+    line(PAPER_TABLE1[2].0, None, &p(2));
+    line("MC-RANSAC-style", find(Method::McRansac), &p(3));
+    line("DC-Loc", find(Method::DCLOC), &p(4));
+    line(
+        "DC-Loc (paper: no dense stage)",
+        find(Method::DcLoc {
+            ue: true,
+            dc: true,
+            dense: false,
+        }),
+        &p(4),
+    );
+    out.push_str("\n| U.E. | D.C. | Translation mean (ours / paper) |\n|---|---|---|\n");
+    for (ue, dc, paper) in PAPER_TABLE2 {
+        let s = find(Method::DcLoc {
+            ue,
+            dc,
+            dense: true,
+        });
+        let mark = |b: bool| if b { "yes" } else { "-" };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} / {paper:.3} |",
+            mark(ue),
+            mark(dc),
+            paper_cell(s.map(|s| s.translation[0]).filter(|v| v.is_finite()), 3)
+        );
     }
     out
 }

@@ -644,6 +644,35 @@ pub fn pcd_to_pointcloud2(bytes: &[u8], header: Header) -> Result<PointCloud2, P
     })
 }
 
+/// Like [`pcd_to_pointcloud2`], keeping only the records whose point passes `filter` (the sensor's own
+/// `dyn_prop`, `invalid_state` and `ambig_state` flags); `width` is the number kept, `height` 1.
+pub fn filtered_pointcloud2(
+    bytes: &[u8],
+    filter: &NuscenesRadarFilter,
+    header: Header,
+) -> Result<PointCloud2, PcdError> {
+    let pcd = NuscenesRadarPcd::from_bytes(bytes)?;
+    let mut cloud = pcd_to_pointcloud2(bytes, header)?;
+    let step = pcd.header.point_size;
+    if step == 0 {
+        return Ok(cloud);
+    }
+    let mut data = Vec::with_capacity(cloud.data.len());
+    for (record, p) in cloud.data.chunks_exact(step).zip(&pcd.points) {
+        if filter.keeps(p) {
+            data.extend_from_slice(record);
+        }
+    }
+    let kept = u32::try_from(data.len() / step).map_err(|_| PcdError::SizeOverflow)?;
+    cloud.height = 1;
+    cloud.width = kept;
+    cloud.row_step = kept
+        .checked_mul(cloud.point_step)
+        .ok_or(PcdError::SizeOverflow)?;
+    cloud.data = data;
+    Ok(cloud)
+}
+
 /// The field mapping for nuScenes radar clouds: `x, y, z`, radial velocity from the raw `vx, vy`,
 /// `rcs`.
 pub fn nuscenes_fields_config() -> FieldsConfig {

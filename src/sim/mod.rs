@@ -25,6 +25,7 @@
 pub mod config;
 pub mod export;
 pub mod noise;
+pub mod nuscenes;
 pub mod odometry;
 pub mod revisit;
 pub mod route;

@@ -787,6 +787,8 @@ struct Worker {
     last_diag: Instant,
     last_received: BTreeMap<String, u64>,
     nan_points: u64,
+    empty_clouds: u64,
+    last_cloud_stamp: BTreeMap<usize, Stamp>,
     closures_published: u64,
     /// Map saving.
     save_to: Option<PathBuf>,
@@ -846,6 +848,8 @@ impl Worker {
             last_diag: Instant::now(),
             last_received: BTreeMap::new(),
             nan_points: 0,
+            empty_clouds: 0,
+            last_cloud_stamp: BTreeMap::new(),
             closures_published: 0,
             save_to,
             last_save: Instant::now(),
@@ -965,7 +969,10 @@ impl Worker {
                 };
                 self.nan_points += (decoded.skipped_nonfinite + decoded.skipped_zero_range) as u64;
                 if decoded.detections.is_empty() {
-                    self.shared.drop_msg(
+                    // Counted and warned about, but fed on like `dc_loc run` does (an empty scene is
+                    // possible), unless it repeats the last stamp (below).
+                    self.empty_clouds += 1;
+                    self.shared.warn(
                         "empty_cloud",
                         &format!(
                             "radar `{name}` at {:.3} s: no valid point ({} not finite)",
@@ -973,8 +980,19 @@ impl Worker {
                             decoded.skipped_nonfinite
                         ),
                     );
+                }
+                // A second cloud of one radar with the same stamp is a re-sent or bogus message.
+                if self.last_cloud_stamp.get(&radar) == Some(&stamp) {
+                    self.shared.drop_msg(
+                        "duplicate_stamp",
+                        &format!(
+                            "radar `{name}`: a second cloud stamped {:.3} s",
+                            stamp.as_secs_f64()
+                        ),
+                    );
                     return;
                 }
+                self.last_cloud_stamp.insert(radar, stamp);
                 let t0 = Instant::now();
                 let events = self.pipeline.push_scan(RadarScan {
                     radar,
@@ -1034,8 +1052,8 @@ impl Worker {
                     if let Some(a) = arrived {
                         self.closure_latency.push(a.elapsed().as_secs_f64());
                     }
-                    log::info!(
-                        "loop closure {} -> {} ({} inliers, overlap {:.2})",
+                    log::debug!(
+                        "published loop closure {} -> {} ({} inliers, overlap {:.2})",
                         c.query_id,
                         c.match_id,
                         c.inliers,
@@ -1128,6 +1146,7 @@ impl Worker {
             .map(|(k, v)| kv(k, v.to_string()))
             .collect();
         drop_values.push(kv("nan_points", self.nan_points.to_string()));
+        drop_values.push(kv("empty_clouds", self.empty_clouds.to_string()));
         drop_values.push(kv("time_resets", stats.time_resets.to_string()));
 
         let mut proc = vec![

@@ -7,5 +7,6 @@
 
 pub mod args;
 pub mod convert;
+pub mod merge;
 #[cfg(feature = "ros")]
 pub mod node;

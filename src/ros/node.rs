@@ -34,6 +34,7 @@ use ros2_client::{
 use serde_json::Value;
 
 use super::args::{ArgsError, DdsEnv, DiscoveryRange, RosArgs};
+use super::merge::StampMerger;
 use super::convert::{
     DiagnosticArray, DiagnosticStatus, KeyValue, MarkerArray, MarkerPoint, markers, submap_cloud,
 };
@@ -65,6 +66,9 @@ pub struct NodeSettings {
     pub max_cloud_points: usize,
     /// `node.warn_interval` (double, 5.0): seconds between warnings of one kind.
     pub warn_interval: f64,
+    /// `node.sync_timeout` (double, 0.2): longest wait, s, for the other inputs to reach a message's stamp
+    /// before it is processed anyway (inputs are processed in stamp order, as `dc_loc run` reads a bag).
+    pub sync_timeout: f64,
     /// `node.restart_after` (int, 20): consecutive inputs with stamps going backwards that mean a restart
     /// (bag replayed again, simulator reset) rather than stale messages.
     pub restart_after: usize,
@@ -78,6 +82,7 @@ impl Default for NodeSettings {
             diagnostics_period: 1.0,
             max_cloud_points: 200_000,
             warn_interval: 5.0,
+            sync_timeout: 0.2,
             restart_after: 20,
         }
     }
@@ -98,6 +103,7 @@ impl NodeSettings {
                 Value::from(self.max_cloud_points),
             ),
             ("node.warn_interval".into(), Value::from(self.warn_interval)),
+            ("node.sync_timeout".into(), Value::from(self.sync_timeout)),
             ("node.restart_after".into(), Value::from(self.restart_after)),
         ]
     }
@@ -138,6 +144,7 @@ impl NodeSettings {
                 "node.restart_after" => s.restart_after = count(v)?,
                 "node.diagnostics_period" => s.diagnostics_period = positive(name, secs(v)?)?,
                 "node.warn_interval" => s.warn_interval = positive(name, secs(v)?)?,
+                "node.sync_timeout" => s.sync_timeout = positive(name, secs(v)?)?,
                 n if n.starts_with("node.") => return Err(ParamError::Unknown(name.clone())),
                 _ => rest.set(name.clone(), v.clone()),
             }
@@ -320,6 +327,8 @@ struct Shared {
     queued: AtomicUsize,
     /// Most messages ever queued.
     queued_max: AtomicUsize,
+    /// Messages held by the worker to be put in stamp order.
+    held: AtomicUsize,
     /// `/clock` time, ns (sim time).
     clock_ns: AtomicI64,
     /// Rate limiting of warnings: reason -> (last warning, suppressed since).
@@ -870,21 +879,45 @@ impl Worker {
 
     fn run(mut self, rx: Receiver<Work>) -> Result<(), NodeError> {
         let period = Duration::from_secs_f64(self.settings.diagnostics_period);
+        let n_radars = self.pipeline.config().radar_names.len();
+        // Streams: each radar, then odometry.
+        let mut merger: StampMerger<Work> = StampMerger::new(
+            n_radars + 1,
+            Duration::from_secs_f64(self.settings.sync_timeout),
+            Duration::from_secs(1),
+        );
         loop {
-            let wait = period.saturating_sub(self.last_diag.elapsed());
+            let now = Instant::now();
+            let mut wait = period.saturating_sub(self.last_diag.elapsed());
+            if let Some(d) = merger.deadline() {
+                wait = wait.min(d.saturating_duration_since(now));
+            }
             match rx.recv_timeout(wait) {
                 Ok(Work::Stop) | Err(RecvTimeoutError::Disconnected) => break,
                 Ok(w) => {
                     self.shared.queued.fetch_sub(1, Ordering::SeqCst);
-                    self.handle(w);
+                    let (stream, stamp) = match &w {
+                        Work::Cloud { radar, cloud, .. } => (*radar, cloud.header.stamp.into()),
+                        Work::Odometry { stamp, .. } => (n_radars, *stamp),
+                        Work::Stop => (n_radars, Stamp(0)),
+                    };
+                    merger.push(stream, stamp, Instant::now(), w);
                 }
                 Err(RecvTimeoutError::Timeout) => {}
             }
+            while let Some(w) = merger.pop_ready(Instant::now()) {
+                self.handle(w);
+            }
+            self.shared.held.store(merger.len(), Ordering::SeqCst);
             if self.last_diag.elapsed() >= period {
                 self.publish_diagnostics();
             }
             self.maybe_save();
         }
+        while let Some(w) = merger.pop_any() {
+            self.handle(w);
+        }
+        self.shared.held.store(0, Ordering::SeqCst);
         let events = self.pipeline.finish();
         self.handle_events(events, None);
         self.publish_diagnostics();
@@ -1159,6 +1192,10 @@ impl Worker {
                 self.shared.queued_max.load(Ordering::SeqCst).to_string(),
             ),
             kv("queue_size", self.settings.queue_size.to_string()),
+            kv(
+                "held_for_order",
+                self.shared.held.load(Ordering::SeqCst).to_string(),
+            ),
             kv("pending_scans", stats.pending_scans.to_string()),
             kv("scans", stats.scans.to_string()),
             kv("keyframes", stats.keyframes.to_string()),

@@ -285,7 +285,8 @@ def main() -> int:
                 if not diag:
                     return False
                 odo = int(diag.get("dc_loc: input/odometry.received", -1))
-                queued = int(diag.get("dc_loc: processing/queue_depth", -1))
+                queued = (int(diag.get("dc_loc: processing/queue_depth", -1))
+                          + int(diag.get("dc_loc: processing/held_for_order", -1)))
                 closures = int(diag.get("dc_loc: processing/closures", -1))
                 bad_radar = sum(v for k, v in sent["malformed"].items()
                                 if k not in ("bad_odometry", "unknown_frame"))

@@ -101,7 +101,9 @@ pub fn node_main(args: &[String]) -> i32 {
 /// Without the `ros` feature there is no node: says so (exit code 2).
 #[cfg(not(feature = "ros"))]
 pub fn node_main(_args: &[String]) -> i32 {
-    eprintln!("dc_loc: built without the `ros` feature: no ROS 2 node (offline tools: dc_loc help)");
+    eprintln!(
+        "dc_loc: built without the `ros` feature: no ROS 2 node (offline tools: dc_loc help)"
+    );
     2
 }
 

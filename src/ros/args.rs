@@ -16,7 +16,9 @@ use crate::params::{ParamError, ParamSet};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ArgsError {
     /// An argument outside `--ros-args` or one that is not a ROS argument.
-    #[error("unknown argument `{0}` (the node takes `--ros-args ...`; offline tools: `dc_loc help`)")]
+    #[error(
+        "unknown argument `{0}` (the node takes `--ros-args ...`; offline tools: `dc_loc help`)"
+    )]
     Unknown(String),
     /// An option without its value.
     #[error("`{0}` needs a value")]
@@ -133,8 +135,11 @@ impl RosArgs {
                     });
                 }
                 // Accepted and without effect here (one process, no enclaves, logging to stderr).
-                "--enable-rosout-logs" | "--disable-rosout-logs" | "--enable-stdout-logs"
-                | "--disable-stdout-logs" | "--disable-external-lib-logs" => {}
+                "--enable-rosout-logs"
+                | "--disable-rosout-logs"
+                | "--enable-stdout-logs"
+                | "--disable-stdout-logs"
+                | "--disable-external-lib-logs" => {}
                 "-e" | "--enclave" => {
                     value(&mut it, a)?;
                 }
@@ -327,9 +332,16 @@ mod tests {
         assert_eq!(a.fully_qualified_name(), "/car1/loc");
         assert_eq!(a.log_level, Some(log::LevelFilter::Debug));
         assert_eq!(a.resolve_topic("/odom"), "/wheel/odom");
-        assert_eq!(a.resolve_topic("~/loop_closures"), "/car1/loc/loop_closures");
+        assert_eq!(
+            a.resolve_topic("~/loop_closures"),
+            "/car1/loc/loop_closures"
+        );
         assert_eq!(a.resolve_topic("radar"), "/r2");
-        assert_eq!(a.resolve_topic("/car1/radar"), "/r2", "relative from, resolved");
+        assert_eq!(
+            a.resolve_topic("/car1/radar"),
+            "/r2",
+            "relative from, resolved"
+        );
         assert_eq!(a.resolve_topic("/x"), "/x", "rule of another node ignored");
         assert_eq!(a.resolve_topic("/diagnostics"), "/diagnostics");
     }

@@ -278,13 +278,13 @@ mod tests {
     #[test]
     fn marker_and_diagnostics_cdr_roundtrip() {
         let m = markers(
-            Time {
-                sec: 3,
-                nanosec: 4,
-            },
+            Time { sec: 3, nanosec: 4 },
             "odom",
             &[MarkerPoint { x: 1.0, y: 2.0 }],
-            &[(MarkerPoint { x: 1.0, y: 2.0 }, MarkerPoint { x: 3.0, y: 4.0 })],
+            &[(
+                MarkerPoint { x: 1.0, y: 2.0 },
+                MarkerPoint { x: 3.0, y: 4.0 },
+            )],
         );
         assert_eq!(m.markers[1].points.len(), 2);
         let bytes = cdr_encoding::to_vec::<_, byteorder::LittleEndian>(&m).unwrap();

@@ -125,11 +125,19 @@ mod tests {
         let mut m = StampMerger::new(2, Duration::from_millis(200), Duration::from_secs(1));
         // Radar (stream 0) at 10 arrives before odometry (stream 1) at 5 and 12.
         m.push(0, Stamp(10), t0, "radar 10");
-        assert_eq!(m.pop_ready(t0), Some("radar 10"), "odometry never seen: not waited for");
+        assert_eq!(
+            m.pop_ready(t0),
+            Some("radar 10"),
+            "odometry never seen: not waited for"
+        );
         m.push(1, Stamp(5), t0, "odom 5");
         m.push(0, Stamp(20), t0, "radar 20");
         assert_eq!(m.pop_ready(t0), Some("odom 5"));
-        assert_eq!(m.pop_ready(t0), None, "radar 20 waits for odometry to pass 20");
+        assert_eq!(
+            m.pop_ready(t0),
+            None,
+            "radar 20 waits for odometry to pass 20"
+        );
         m.push(1, Stamp(15), t0, "odom 15");
         assert_eq!(m.pop_ready(t0), Some("odom 15"));
         assert_eq!(m.pop_ready(t0), None);
@@ -140,7 +148,10 @@ mod tests {
         m.push(1, Stamp(30), t0, "odom 30");
         assert_eq!(m.pop_ready(t0 + Duration::from_millis(100)), None);
         assert_eq!(m.deadline(), Some(t0 + Duration::from_millis(200)));
-        assert_eq!(m.pop_ready(t0 + Duration::from_millis(250)), Some("odom 30"));
+        assert_eq!(
+            m.pop_ready(t0 + Duration::from_millis(250)),
+            Some("odom 30")
+        );
         let later = t0 + Duration::from_millis(1100);
         m.push(1, Stamp(40), later, "odom 40");
         assert_eq!(m.pop_ready(later), Some("odom 40"), "radar idle for 1.1 s");

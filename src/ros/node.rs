@@ -27,17 +27,17 @@ use std::time::{Duration, Instant, SystemTime};
 
 use futures::StreamExt;
 use ros2_client::{
-    Context, MessageTypeName, Name, NodeName, NodeOptions, ParameterValue, Publisher,
-    QosProfile, Subscription,
+    Context, MessageTypeName, Name, NodeName, NodeOptions, ParameterValue, Publisher, QosProfile,
+    Subscription,
     qos::{Durability, History, Reliability, WhenFull},
 };
 use serde_json::Value;
 
 use super::args::{ArgsError, DdsEnv, DiscoveryRange, RosArgs};
-use super::merge::StampMerger;
 use super::convert::{
     DiagnosticArray, DiagnosticStatus, KeyValue, MarkerArray, MarkerPoint, markers, submap_cloud,
 };
+use super::merge::StampMerger;
 use crate::cloud::decode_detections;
 use crate::config::Config;
 use crate::keyframe_db::{KeyframeDb, KeyframeRecord, save_records};
@@ -489,11 +489,9 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             Ok(())
         }
     }));
-    let node_name = NodeName::new(&ros_args.namespace, &ros_args.node_name)
-        .map_err(dds("node name"))?;
-    let mut node = context
-        .new_node(node_name, options)
-        .map_err(dds("node"))?;
+    let node_name =
+        NodeName::new(&ros_args.namespace, &ros_args.node_name).map_err(dds("node name"))?;
+    let mut node = context.new_node(node_name, options).map_err(dds("node"))?;
     started.store(true, Ordering::SeqCst);
     let spinner = node.spinner().map_err(dds("spinner"))?;
     let spin_task = smol::spawn(spinner.spin());
@@ -615,8 +613,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         tx,
         shared: shared.clone(),
     };
-    let pipeline =
-        Pipeline::with_map(cfg.clone(), db).map_err(|e| NodeError::Param(e.into()))?;
+    let pipeline = Pipeline::with_map(cfg.clone(), db).map_err(|e| NodeError::Param(e.into()))?;
     let worker = {
         let shared = shared.clone();
         let settings = settings.clone();
@@ -803,7 +800,10 @@ struct Worker {
     save_to: Option<PathBuf>,
     last_save: Instant,
     saved_keyframes: usize,
-    saver: Option<(SyncSender<Vec<Arc<KeyframeRecord>>>, std::thread::JoinHandle<()>)>,
+    saver: Option<(
+        SyncSender<Vec<Arc<KeyframeRecord>>>,
+        std::thread::JoinHandle<()>,
+    )>,
 }
 
 /// A stamp more than this older than the newest input is a stamp going backwards, s (as the pipeline).
@@ -1078,7 +1078,11 @@ impl Worker {
                 Event::Closure(c) => {
                     let msg = loop_closure_msg(&c, &self.body_frame);
                     if let Err(e) = self.out.closures.publish(msg) {
-                        log::error!("loop closure {} -> {}: publish failed: {e:?}", c.query_id, c.match_id);
+                        log::error!(
+                            "loop closure {} -> {}: publish failed: {e:?}",
+                            c.query_id,
+                            c.match_id
+                        );
                     } else {
                         self.closures_published += 1;
                     }
@@ -1093,9 +1097,10 @@ impl Worker {
                         c.score
                     );
                     // Edges of this session's odometry frame only (a loaded map's are another frame).
-                    if let (Some(a), Some(b)) =
-                        (self.kf_points.get(&c.query_id), self.kf_points.get(&c.match_id))
-                    {
+                    if let (Some(a), Some(b)) = (
+                        self.kf_points.get(&c.query_id),
+                        self.kf_points.get(&c.match_id),
+                    ) {
                         self.edges.push((*a, *b));
                     }
                     new_keyframe = true;
@@ -1174,10 +1179,8 @@ impl Worker {
             *dropped.entry(r.name().to_string()).or_default() += n;
         }
         let total_dropped: u64 = dropped.values().sum();
-        let mut drop_values: Vec<KeyValue> = dropped
-            .iter()
-            .map(|(k, v)| kv(k, v.to_string()))
-            .collect();
+        let mut drop_values: Vec<KeyValue> =
+            dropped.iter().map(|(k, v)| kv(k, v.to_string())).collect();
         drop_values.push(kv("nan_points", self.nan_points.to_string()));
         drop_values.push(kv("empty_clouds", self.empty_clouds.to_string()));
         drop_values.push(kv("time_resets", stats.time_resets.to_string()));
@@ -1217,15 +1220,14 @@ impl Worker {
                 proc.push(kv(&format!("{name}.max"), format!("{max:.3}")));
             }
         }
-        let status = |name: &str, level: u8, message: String, values: Vec<KeyValue>| {
-            DiagnosticStatus {
+        let status =
+            |name: &str, level: u8, message: String, values: Vec<KeyValue>| DiagnosticStatus {
                 level,
                 name: format!("dc_loc: {name}"),
                 message,
                 hardware_id: self.hardware_id.clone(),
                 values,
-            }
-        };
+            };
         let msg = DiagnosticArray {
             header: Header {
                 stamp: self.now(),

@@ -196,11 +196,13 @@ def main() -> int:
                 if topic not in pubs:
                     pubs[topic] = rs.node.create_publisher(types[msgtype], topic, qos_pub)
             got_rclpy, got_cyclone, diag = [], [], {}
+            diag_count = [0]
 
             def on_closure(m):
                 got_rclpy.append(record(m))
 
             def on_diag(m):
+                diag_count[0] += 1
                 for st in m.status:
                     for kv in st.values:
                         diag[f"{st.name}/{kv.key}"] = kv.value
@@ -301,9 +303,8 @@ def main() -> int:
                 print(json.dumps(result, indent=1)[:3000], file=sys.stderr)
                 raise e
             # One more diagnostics message after the last closure, so the counts are final.
-            n = len(diag)
-            seen = dict(diag)
-            rs.spin_until(lambda: diag != seen or len(diag) != n, 10.0, "one more diagnostics message")
+            n = diag_count[0]
+            rs.spin_until(lambda: diag_count[0] > n, 10.0, "one more diagnostics message")
             result["diagnostics"] = dict(diag)
             if a.kill:
                 node.proc.send_signal(signal.SIGKILL)

@@ -192,6 +192,11 @@ fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
     let stdout = text(&output.stdout);
     let stderr = text(&output.stderr);
     print!("{stdout}");
+    if !output.status.success() {
+        for l in stderr.lines().filter(|l| !l.contains("INFO") && !l.contains("rustdds")) {
+            eprintln!("{l}");
+        }
+    }
     // The node's log is long: its warnings and errors, and the tail.
     for l in stderr
         .lines()

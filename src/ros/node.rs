@@ -435,6 +435,10 @@ fn reliable(depth: usize, durability: Durability) -> QosProfile {
         .history(History::KeepLast { depth })
 }
 
+/// DDS reader history of each input: deep enough that a busy executor never makes the reader discard
+/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz).
+const INPUT_DEPTH: usize = 1000;
+
 /// Best-effort, volatile, keep-last: matches reliable and best-effort publishers alike.
 fn sensor_qos(depth: usize) -> QosProfile {
     QosProfile::subscription_default()
@@ -515,11 +519,11 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             .create_topic(
                 &topic_name(topic)?,
                 MessageTypeName::new("sensor_msgs", "PointCloud2"),
-                &sensor_qos(50),
+                &sensor_qos(INPUT_DEPTH),
             )
             .map_err(dds("radar topic"))?;
         let sub: Subscription<PointCloud2> = node
-            .create_subscription(&t, Some(sensor_qos(50)))
+            .create_subscription(&t, Some(sensor_qos(INPUT_DEPTH)))
             .map_err(dds("radar subscription"))?;
         log::info!(
             "radar {} on {topic}",
@@ -536,11 +540,11 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         .create_topic(
             &topic_name(&odom_topic)?,
             MessageTypeName::new("nav_msgs", "Odometry"),
-            &sensor_qos(200),
+            &sensor_qos(INPUT_DEPTH),
         )
         .map_err(dds("odometry topic"))?;
     let odom_sub: Subscription<Odometry> = node
-        .create_subscription(&t, Some(sensor_qos(200)))
+        .create_subscription(&t, Some(sensor_qos(INPUT_DEPTH)))
         .map_err(dds("odometry subscription"))?;
     log::info!("odometry on {odom_topic}");
     let clock_sub: Option<Subscription<Clock>> = if settings.use_sim_time {

@@ -361,7 +361,7 @@ fn replayed_drive_gives_the_offline_closures_within_the_ground_truth() {
     println!("beyond 1.0 m / 0.02 rad: {off_truth:?}");
     assert!(errors[errors.len() / 2] < 0.5, "median error");
     // Nothing lost on the way.
-    assert_eq!(r.diag("queue_full"), 0);
+    assert_eq!(r.diag("queue_full") + r.diag("reception_queue_full"), 0);
     assert_eq!(
         r.diag("front.received") as usize,
         d.drive.scans.len(),

@@ -22,6 +22,7 @@ pub mod pipeline;
 pub mod place;
 pub mod radar;
 pub mod registration;
+pub mod ros;
 pub mod runner;
 pub mod sim;
 pub mod submap;

@@ -99,8 +99,17 @@ pub fn main(args: &[String]) -> i32 {
 }
 
 /// Runs the ROS 2 node; returns the process exit code.
+#[cfg(feature = "ros")]
 pub fn node_main(args: &[String]) -> i32 {
-    eprintln!("dc_loc: the ROS 2 node is being written (args: {args:?})");
+    crate::ros::node::main(args)
+}
+
+/// Without the `ros` feature there is no node: says so (exit code 2).
+#[cfg(not(feature = "ros"))]
+pub fn node_main(_args: &[String]) -> i32 {
+    eprintln!(
+        "dc_loc: built without the `ros` feature: no ROS 2 node (offline tools: dc_loc help)"
+    );
     2
 }
 

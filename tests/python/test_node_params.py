@@ -1,0 +1,130 @@
+"""The dc_loc node's parameters, namespace and remapping as a ROS 2 user sees them (run by tests/node.rs).
+
+    test_node_params.py --node BIN --params FILE
+
+Starts ``BIN --ros-args --params-file <own file> --params-file FILE -p keyframe.distance:=6.0
+-r __ns:=/car1 -r __node:=loc -r /odom:=/wheel/odom`` on loopback with a domain id of its own, then checks
+with rclpy:
+1. the graph has node ``loc`` in namespace ``/car1``; it subscribes ``/wheel/odom`` (nav_msgs/msg/Odometry)
+   and publishes ``/car1/loc/loop_closures`` (dc_loc/msg/LoopClosure), ``/car1/loc/markers``,
+   ``/car1/loc/submap``, ``/diagnostics``;
+2. ``get_parameters`` (what ``ros2 param get`` calls): the ``-p`` override, the own file's ``/car1/loc``
+   section, the ``/**`` wildcard, defaults, ``use_sim_time``;
+3. ``set_parameters`` of a running node is refused (the pipeline is built at start-up) and the value stays;
+4. SIGINT ends the node with exit code 0.
+Prints "params: all checks passed" and exits 0, or names the failed check and exits 1.
+"""
+
+import argparse
+import signal
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import dcloc_testlib as tl
+
+OWN_PARAMS = """\
+/**:
+  ros__parameters:
+    submap:
+      max_span: 2.5
+/car1/loc:
+  ros__parameters:
+    submap:
+      size: 7
+    keyframe:
+      distance: 4.0
+other_node:
+  ros__parameters:
+    submap:
+      size: 99
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--node", required=True)
+    ap.add_argument("--params", required=True)
+    a = ap.parse_args()
+
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import GetParameters, SetParameters
+
+    failures = []
+
+    def check(ok: bool, what: str) -> None:
+        print(("ok   " if ok else "FAIL ") + what)
+        if not ok:
+            failures.append(what)
+
+    with tempfile.TemporaryDirectory() as tmp, tl.reserve_domain_id() as res:
+        own = Path(tmp) / "own.yaml"
+        own.write_text(OWN_PARAMS)
+        env = tl.loopback_env(res.domain_id)
+        argv = [a.node, "--ros-args", "--params-file", str(own), "-p", "keyframe.distance:=6.0",
+                "-r", "__ns:=/car1", "-r", "__node:=loc", "-r", "/odom:=/wheel/odom"]
+        with tl.ManagedProcess(argv, env, name="dc_loc") as node, \
+                tl.RclpySession("dc_loc_params_check", res.domain_id) as rs:
+            node.wait_for_line(lambda l: "running" in l, 30.0, "the node's running line")
+            rs.spin_until(lambda: ("loc", "/car1") in rs.node.get_node_names_and_namespaces(), 20.0,
+                          "node /car1/loc in the graph")
+            check(True, "node /car1/loc in the graph")
+            rs.spin_until(lambda: rs.topic_types("/car1/loc/loop_closures") != [], 20.0,
+                          "the loop closure topic")
+            for topic, ty in [("/car1/loc/loop_closures", "dc_loc/msg/LoopClosure"),
+                              ("/car1/loc/markers", "visualization_msgs/msg/MarkerArray"),
+                              ("/car1/loc/submap", "sensor_msgs/msg/PointCloud2"),
+                              ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")]:
+                rs.spin_until(lambda: rs.node.get_publishers_info_by_topic(topic) != [], 20.0,
+                              f"a publisher on {topic}")
+                infos = rs.node.get_publishers_info_by_topic(topic)
+                check(any(i.topic_type == ty for i in infos), f"{topic} published as {ty}")
+            rs.spin_until(lambda: rs.node.get_subscriptions_info_by_topic("/wheel/odom") != [], 20.0,
+                          "a subscription on /wheel/odom")
+            subs = rs.node.get_subscriptions_info_by_topic("/wheel/odom")
+            check(any(s.topic_type == "nav_msgs/msg/Odometry" for s in subs), "/odom remapped to /wheel/odom")
+            check(rs.node.get_subscriptions_info_by_topic("/odom") == [], "nothing subscribes /odom")
+
+            def call(srv_type, name, request):
+                client = rs.node.create_client(srv_type, name)
+                rs.spin_until(client.service_is_ready, 20.0, f"service {name}")
+                future = client.call_async(request)
+                rs.spin_until(future.done, 20.0, f"reply of {name}")
+                return future.result()
+
+            names = ["keyframe.distance", "submap.size", "submap.max_span", "loop.search_radius",
+                     "radars.front.topic", "use_sim_time", "node.queue_size"]
+            reply = call(GetParameters, "/car1/loc/get_parameters", GetParameters.Request(names=names))
+            values = dict(zip(names, reply.values))
+            check(values["keyframe.distance"].double_value == 6.0, "-p override wins over the file")
+            check(values["submap.size"].type == ParameterType.PARAMETER_INTEGER
+                  and values["submap.size"].integer_value == 7, "/car1/loc section of the file")
+            check(values["submap.max_span"].double_value == 2.5, "/** section of the file")
+            check(values["loop.search_radius"].double_value == 15.0, "default value")
+            check(values["radars.front.topic"].string_value == "/radar/points", "string parameter")
+            check(values["use_sim_time"].type == ParameterType.PARAMETER_BOOL
+                  and not values["use_sim_time"].bool_value, "use_sim_time declared, false")
+            check(values["node.queue_size"].integer_value == 2000, "node.queue_size default")
+
+            req = SetParameters.Request(parameters=[Parameter(
+                name="keyframe.distance",
+                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=9.0))])
+            reply = call(SetParameters, "/car1/loc/set_parameters", req)
+            check(not reply.results[0].successful, "set_parameters refused while running")
+            again = call(GetParameters, "/car1/loc/get_parameters",
+                         GetParameters.Request(names=["keyframe.distance"]))
+            check(again.values[0].double_value == 6.0, "value unchanged after the refused set")
+
+            node.proc.send_signal(signal.SIGINT)
+            code = node.proc.wait(timeout=20)
+            check(code == 0, f"SIGINT: exit code {code}")
+    if failures:
+        print(f"params: {len(failures)} checks failed: {failures}")
+        return 1
+    print("params: all checks passed")
+    return 0
+
+
+if __name__ == "__main__":
+    tl.run_main(main)

@@ -898,9 +898,12 @@ impl Pipeline {
                 );
             } else {
                 log::debug!(
-                    "closure {} -> {} held until another closure to session {session} confirms it",
+                    "closure {} -> {} held until another closure to session {session} confirms it (alignment {:.2} {:.2} {:.3})",
                     c.query_id,
-                    c.match_id
+                    c.match_id,
+                    a.translation.x,
+                    a.translation.y,
+                    a.rotation.angle()
                 );
                 pending.push((c, a, query.path_distance));
                 // Old unconfirmed hypotheses expire: a true one is confirmed within a few keyframes.
@@ -1132,11 +1135,12 @@ fn alignment_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
 
 /// Squared Mahalanobis distance between two alignments of the same odometry frame found `path_gap`
 /// metres of path apart, compared where they are used (the body pose `at`): two true closures agree to
-/// registration accuracy (1 m, 0.02 rad standard deviation, generous) plus the drift between them.
+/// registration accuracy (1 m, 0.02 rad standard deviation, generous) plus the drift between them (the
+/// drift model's rates read as two standard deviations, as in [`alignment_sigmas`]).
 fn alignment_distance(a: &Iso2, b: &Iso2, at: &Iso2, path_gap: f64, lc: &LoopConfig) -> f64 {
     let e = se2_log(&((a * at).inverse() * (b * at)));
     let gap = path_gap.abs();
-    let st = 1.0 + lc.drift_rate * gap;
-    let sr = 0.02 + lc.drift_yaw_rate * gap;
+    let st = 1.0 + 0.5 * lc.drift_rate * gap;
+    let sr = 0.02 + 0.5 * lc.drift_yaw_rate * gap;
     (e.x * e.x + e.y * e.y) / (st * st) + e.z * e.z / (sr * sr)
 }

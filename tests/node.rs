@@ -193,7 +193,10 @@ fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
     let stderr = text(&output.stderr);
     print!("{stdout}");
     if !output.status.success() {
-        for l in stderr.lines().filter(|l| !l.contains("INFO") && !l.contains("rustdds")) {
+        for l in stderr
+            .lines()
+            .filter(|l| !l.contains("INFO") && !l.contains("rustdds"))
+        {
             eprintln!("{l}");
         }
     }

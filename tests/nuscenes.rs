@@ -355,3 +355,34 @@ fn sim_nuscenes_out_needs_the_nuscenes_preset() {
     );
     assert!(!root.join("bag").exists() && !root.join("nus").exists());
 }
+
+/// `dc_loc run --nuscenes`: the two scenes of one location through one pipeline close loops across
+/// the scenes (the second lap revisits the first).
+#[test]
+fn run_nuscenes_closes_loops_across_scenes() {
+    let f = fixture();
+    let root = scratch("run");
+    let out = root.join("closures.jsonl");
+    let run = dc_loc(&[
+        "run",
+        "--nuscenes",
+        f.dataroot.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = text(&run.stdout);
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    assert!(stdout.contains("2 scenes at 1 locations"), "{stdout}");
+    let db = NuscenesDb::open(&f.dataroot, "v1.0-mini", &mut |_| {}).unwrap();
+    let second_start = db.scenes[1].sweeps[0].timestamp_us as f64 * 1e-6;
+    let lines = std::fs::read_to_string(&out).unwrap();
+    let across = lines
+        .lines()
+        .filter(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v["query_stamp"].as_f64().unwrap() >= second_start
+                && v["match_stamp"].as_f64().unwrap() < second_start
+        })
+        .count();
+    assert!(across >= 3, "{across} closures across scenes\n{stdout}");
+}

@@ -472,9 +472,11 @@ impl NuscenesDb {
             .into_iter()
             .map(|e| (e.token, pose_from_table(e.translation, e.rotation)))
             .collect();
+        drop(needed);
 
+        // Rows are consumed (their strings moved, not copied) as the sweeps are built.
         let mut by_scene: BTreeMap<&str, Vec<RadarSweep>> = BTreeMap::new();
-        for d in &data {
+        for d in data {
             let dangling = |field, token: &str| NuscenesError::DanglingToken {
                 table: "sample_data",
                 row: d.token.clone(),
@@ -497,12 +499,13 @@ impl NuscenesDb {
                     channel,
                     timestamp_us: d.timestamp,
                     is_key_frame: d.is_key_frame,
-                    filename: d.filename.clone(),
-                    token: d.token.clone(),
+                    filename: d.filename,
+                    token: d.token,
                     t_ego_radar,
                     t_global_ego,
                 });
         }
+        drop(ego);
         let mut scenes = Vec::with_capacity(scene_rows.len());
         for s in scene_rows {
             let log = logs

@@ -16,7 +16,8 @@ use dc_loc::runner::Input;
 use dc_loc::sim::{SimDrive, SimScan, simulate};
 use prost::Message;
 
-const REAL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/real");
+mod common;
+use common::real_data;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
@@ -60,11 +61,8 @@ fn closures(path: &Path) -> usize {
 /// truth, odometry and a cloud of all its points, with the radar near the camera in the map frame.
 #[test]
 fn real_vod_example_frames_are_three_runs() {
-    let dir = Path::new(REAL).join("view-of-delft-example");
-    if !dir.is_dir() {
-        eprintln!("skipped: {} not present", dir.display());
-        return;
-    }
+    let Some(real) = real_data() else { return };
+    let dir = real.join("view-of-delft-example");
     let seqs = open_sequences(&dir).unwrap();
     let numbers: Vec<Vec<u32>> = seqs
         .iter()
@@ -88,7 +86,7 @@ fn real_vod_example_frames_are_three_runs() {
         }
     }
     // Not a VoD directory: named.
-    let e = open_sequences(&Path::new(REAL).join("nuscenes-radar-pcd")).unwrap_err();
+    let e = open_sequences(&real.join("nuscenes-radar-pcd")).unwrap_err();
     assert!(e.to_string().contains("velodyne"), "{e}");
 }
 

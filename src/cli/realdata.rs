@@ -1,13 +1,17 @@
-//! `dc_loc eval --nuscenes`: the paper's nuScenes protocol on a nuScenes dataset on disk.
+//! The datasets on disk, without a converter: `dc_loc eval --nuscenes` / `run --nuscenes` (nuScenes
+//! tables and sweeps), `eval --vod` / `run --vod` (View-of-Delft directories), and the foxglove-MCAP
+//! helpers of `run --bag` ([`nuscenes_mcap_config`], [`apply_bag_extrinsics`]).
 //!
-//! Steps: read the tables ([`NuscenesDb::open`], with a progress bar over the table bytes); describe
-//! every scene as a drive from its ego poses ([`DriveInfo`]); skip scenes that meet no other scene; drive
-//! each remaining scene through the same [`Collector`] as `dc_loc eval --bag` (its own extrinsics from
-//! calibrated_sensor, the radar flags filter, odometry from the ego poses with optional drift); pair and
-//! evaluate keyframes across scenes as each scene finishes ([`CrossDriveEval`]); print the same tables.
+//! `eval --nuscenes` ([`eval_nuscenes`]), the paper's nuScenes protocol: read the tables
+//! ([`NuscenesDb::open`], with a progress bar over the table bytes); describe every scene as a drive from
+//! its ego poses ([`DriveInfo`]); check that the sweep files of the scenes to read are there; skip scenes
+//! that meet no other scene; drive each remaining scene through the same [`Collector`] as
+//! `dc_loc eval --bag` (its own extrinsics from calibrated_sensor, the radar flags filter, odometry from
+//! the ego poses with optional drift); pair and evaluate keyframes across scenes as each scene finishes
+//! ([`CrossDriveEval`]); print the same tables.
 //!
-//! Parameters: the defaults with the five nuScenes radars ([`nuscenes_config`]), then the params file
-//! (optional), then `-p` overrides; extrinsics always come from the dataset.
+//! Parameters: the defaults with the dataset's radars ([`nuscenes_config`], `vod_config`), then the
+//! params file (optional), then `-p` overrides ([`dataset_config`]); extrinsics come from the dataset.
 
 use std::io::Write;
 use std::path::Path;

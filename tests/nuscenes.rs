@@ -6,6 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+mod common;
+use common::real_data;
+
 use dc_loc::io::nuscenes::{NuscenesDb, NuscenesError, RADAR_CHANNELS};
 use dc_loc::io::nuscenes_pcd::{NuscenesRadarFilter, NuscenesRadarPcd, filtered_pointcloud2};
 use dc_loc::msgs::std_msgs::Header;
@@ -289,8 +292,6 @@ fn wrong_directory_version_table_or_sweep_are_named() {
     assert!(e.to_string().contains("sample"), "{e}");
 }
 
-const REAL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/real");
-
 /// The real ARS408 files through the flag filter: the PointCloud2 keeps exactly the records the
 /// devkit's default filter keeps, byte for byte.
 #[test]
@@ -299,11 +300,8 @@ fn real_pcds_filter_by_the_sensor_flags() {
         "n008-2018-08-01-15-34-25-0400__RADAR_BACK_RIGHT__1533152711219287.pcd",
         "n015-2018-07-25-16-15-50+0800__RADAR_BACK_LEFT__1532506682462345.pcd",
     ] {
-        let path = Path::new(REAL).join("nuscenes-radar-pcd").join(name);
-        let Ok(bytes) = std::fs::read(&path) else {
-            eprintln!("skipped: {} not present", path.display());
-            return;
-        };
+        let Some(real) = real_data() else { return };
+        let bytes = std::fs::read(real.join("nuscenes-radar-pcd").join(name)).unwrap();
         let pcd = NuscenesRadarPcd::from_bytes(&bytes).unwrap();
         assert_eq!(pcd.points.len(), 125);
         for (filter, label) in [
@@ -354,4 +352,35 @@ fn sim_nuscenes_out_needs_the_nuscenes_preset() {
         text(&out.stderr)
     );
     assert!(!root.join("bag").exists() && !root.join("nus").exists());
+}
+
+/// `dc_loc run --nuscenes`: the two scenes of one location through one pipeline close loops across
+/// the scenes (the second lap revisits the first).
+#[test]
+fn run_nuscenes_closes_loops_across_scenes() {
+    let f = fixture();
+    let root = scratch("run");
+    let out = root.join("closures.jsonl");
+    let run = dc_loc(&[
+        "run",
+        "--nuscenes",
+        f.dataroot.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = text(&run.stdout);
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    assert!(stdout.contains("2 scenes at 1 locations"), "{stdout}");
+    let db = NuscenesDb::open(&f.dataroot, "v1.0-mini", &mut |_| {}).unwrap();
+    let second_start = db.scenes[1].sweeps[0].timestamp_us as f64 * 1e-6;
+    let lines = std::fs::read_to_string(&out).unwrap();
+    let across = lines
+        .lines()
+        .filter(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v["query_stamp"].as_f64().unwrap() >= second_start
+                && v["match_stamp"].as_f64().unwrap() < second_start
+        })
+        .count();
+    assert!(across >= 3, "{across} closures across scenes\n{stdout}");
 }

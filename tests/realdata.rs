@@ -16,7 +16,8 @@ use dc_loc::runner::Input;
 use dc_loc::sim::{SimDrive, SimScan, simulate};
 use prost::Message;
 
-const REAL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/real");
+mod common;
+use common::real_data;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
@@ -60,11 +61,8 @@ fn closures(path: &Path) -> usize {
 /// truth, odometry and a cloud of all its points, with the radar near the camera in the map frame.
 #[test]
 fn real_vod_example_frames_are_three_runs() {
-    let dir = Path::new(REAL).join("view-of-delft-example");
-    if !dir.is_dir() {
-        eprintln!("skipped: {} not present", dir.display());
-        return;
-    }
+    let Some(real) = real_data() else { return };
+    let dir = real.join("view-of-delft-example");
     let seqs = open_sequences(&dir).unwrap();
     let numbers: Vec<Vec<u32>> = seqs
         .iter()
@@ -88,7 +86,7 @@ fn real_vod_example_frames_are_three_runs() {
         }
     }
     // Not a VoD directory: named.
-    let e = open_sequences(&Path::new(REAL).join("nuscenes-radar-pcd")).unwrap_err();
+    let e = open_sequences(&real.join("nuscenes-radar-pcd")).unwrap_err();
     assert!(e.to_string().contains("velodyne"), "{e}");
 }
 
@@ -441,4 +439,46 @@ fn foxglove_nuscenes2mcap_file_runs() {
     }
     // Both layouts carry the same drive: the same closures, byte for byte.
     assert_eq!(outputs[0], outputs[1]);
+}
+
+/// A ROS 2 bag's /tf_static overrides the params file's extrinsics: a params file with a wrong radar
+/// mounting gives the same closures as the right one, and the run says where the extrinsic came from.
+#[test]
+fn ros2_bag_extrinsics_come_from_tf_static() {
+    use dc_loc::sim::export::{export_drive, params_yaml};
+    let d = drive("carla");
+    let root = scratch("tf_static");
+    let bag = export_drive(&d, &root.join("bag")).unwrap().bag_dir;
+    let mut wrong = d.to_config();
+    for r in wrong.radars.values_mut() {
+        r.extrinsic = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    }
+    let wrong_params = root.join("wrong.yaml");
+    std::fs::write(&wrong_params, params_yaml(&wrong, "wrong extrinsics")).unwrap();
+    let mut outputs = Vec::new();
+    for params in [bag.join("dc_loc.yaml"), wrong_params] {
+        let out = root.join("closures.jsonl");
+        let run = dc_loc(&[
+            "run",
+            "--bag",
+            bag.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let stderr = text(&run.stderr);
+        assert!(run.status.success(), "{stderr}");
+        assert!(
+            stderr.contains("extrinsic from the bag's transforms (base_link -> radar_front)"),
+            "{stderr}"
+        );
+        outputs.push(std::fs::read_to_string(&out).unwrap());
+    }
+    assert!(closures_in(&outputs[0]) >= 1);
+    assert_eq!(outputs[0], outputs[1]);
+}
+
+fn closures_in(text: &str) -> usize {
+    text.lines().count()
 }

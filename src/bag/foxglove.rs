@@ -448,3 +448,84 @@ impl Iterator for FoxgloveInputs {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(stride: u32, data: Vec<u8>, types: &[i32]) -> PointCloud {
+        PointCloud {
+            timestamp: Some(Timestamp {
+                seconds: 5,
+                nanos: 7,
+            }),
+            frame_id: "radar_front".into(),
+            pose: None,
+            point_stride: stride,
+            fields: types
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| PackedElementField {
+                    name: format!("f{i}"),
+                    offset: i as u32,
+                    r#type: t,
+                })
+                .collect(),
+            data,
+        }
+    }
+
+    #[test]
+    fn numeric_types_map_to_point_field_datatypes() {
+        // UINT8, INT8, UINT16, INT16, UINT32, INT32, FLOAT32, FLOAT64.
+        let c = cloud(8, vec![0; 16], &[1, 2, 3, 4, 5, 6, 7, 8]);
+        let pc = point_cloud_to_pointcloud2(&c).unwrap();
+        let types: Vec<u8> = pc.fields.iter().map(|f| f.datatype).collect();
+        assert_eq!(types, [2, 1, 4, 3, 6, 5, 7, 8]);
+        assert_eq!((pc.width, pc.point_step, pc.row_step), (2, 8, 16));
+        assert_eq!(Stamp::from(pc.header.stamp), Stamp(5_000_000_007));
+        // Through the protobuf bytes and back.
+        let back = PointCloud::decode(c.encode_to_vec().as_slice()).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn bad_stride_and_unknown_type_are_named() {
+        let e = point_cloud_to_pointcloud2(&cloud(43, vec![0; 50], &[7])).unwrap_err();
+        assert!(e.to_string().contains("point_stride 43"), "{e}");
+        let e = point_cloud_to_pointcloud2(&cloud(0, Vec::new(), &[7])).unwrap_err();
+        assert!(matches!(e, FoxgloveError::Stride { .. }));
+        let e = point_cloud_to_pointcloud2(&cloud(4, vec![0; 4], &[0])).unwrap_err();
+        assert!(e.to_string().contains("`f0`"), "{e}");
+        assert!(PointCloud::decode(&[0xff, 0xff][..]).is_err());
+    }
+
+    #[test]
+    fn frame_transform_pose_and_non_finite() {
+        let mut t = FrameTransform {
+            timestamp: None,
+            parent_frame_id: "base_link".into(),
+            child_frame_id: "radar_front".into(),
+            translation: Some(Vector3 {
+                x: 3.412,
+                y: 0.0,
+                z: 0.5,
+            }),
+            rotation: Some(Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0017453283658983088,
+                w: 0.9999984769132877,
+            }),
+        };
+        let p = t.to_iso3().unwrap();
+        assert!((p.rotation.euler_angles().2.to_degrees() - 0.2).abs() < 1e-6);
+        assert_eq!(p.translation.x, 3.412);
+        t.translation = Some(Vector3 {
+            x: f64::NAN,
+            y: 0.0,
+            z: 0.0,
+        });
+        assert!(t.to_iso3().is_none());
+    }
+}

@@ -54,10 +54,10 @@ pub struct EvalArgs {
     /// nuScenes radar filter: kept `ambig_state` values (comma-separated, or `all`).
     #[arg(long, default_value = "3")]
     pub radar_ambig_states: String,
-    /// nuScenes / VoD: odometry from the ego poses with this relative scale error (0.01 = 1 %).
+    /// nuScenes: odometry from the ego poses with this relative scale error (0.01 = 1 %).
     #[arg(long, default_value_t = 0.0)]
     pub odometry_scale_error: f64,
-    /// nuScenes / VoD: odometry from the ego poses with this yaw-rate bias, deg/s.
+    /// nuScenes: odometry from the ego poses with this yaw-rate bias, deg/s.
     #[arg(long, default_value_t = 0.0)]
     pub odometry_yaw_bias_deg: f64,
     /// View-of-Delft radar directory (`velodyne/`, `pose/`, `calib/`, or a folder holding

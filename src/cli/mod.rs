@@ -1,7 +1,7 @@
 //! Command-line front ends: the offline subcommands and the node's entry point.
 //!
 //! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`], [`demo`],
-//! [`revisits`]),
+//! [`revisits`]; the datasets on disk, `--nuscenes` and `--vod` of `run` and `eval`, in [`realdata`]),
 //! [`node_main`] (the ROS 2 node).
 //!
 //! Conventions of every subcommand: results and summaries on stdout; logs on stderr through

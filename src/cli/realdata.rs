@@ -1,13 +1,17 @@
-//! `dc_loc eval --nuscenes`: the paper's nuScenes protocol on a nuScenes dataset on disk.
+//! The datasets on disk, without a converter: `dc_loc eval --nuscenes` / `run --nuscenes` (nuScenes
+//! tables and sweeps), `eval --vod` / `run --vod` (View-of-Delft directories), and the foxglove-MCAP
+//! helpers of `run --bag` ([`nuscenes_mcap_config`], [`apply_bag_extrinsics`]).
 //!
-//! Steps: read the tables ([`NuscenesDb::open`], with a progress bar over the table bytes); describe
-//! every scene as a drive from its ego poses ([`DriveInfo`]); skip scenes that meet no other scene; drive
-//! each remaining scene through the same [`Collector`] as `dc_loc eval --bag` (its own extrinsics from
-//! calibrated_sensor, the radar flags filter, odometry from the ego poses with optional drift); pair and
-//! evaluate keyframes across scenes as each scene finishes ([`CrossDriveEval`]); print the same tables.
+//! `eval --nuscenes` ([`eval_nuscenes`]), the paper's nuScenes protocol: read the tables
+//! ([`NuscenesDb::open`], with a progress bar over the table bytes); describe every scene as a drive from
+//! its ego poses ([`DriveInfo`]); check that the sweep files of the scenes to read are there; skip scenes
+//! that meet no other scene; drive each remaining scene through the same [`Collector`] as
+//! `dc_loc eval --bag` (its own extrinsics from calibrated_sensor, the radar flags filter, odometry from
+//! the ego poses with optional drift); pair and evaluate keyframes across scenes as each scene finishes
+//! ([`CrossDriveEval`]); print the same tables.
 //!
-//! Parameters: the defaults with the five nuScenes radars ([`nuscenes_config`]), then the params file
-//! (optional), then `-p` overrides; extrinsics always come from the dataset.
+//! Parameters: the defaults with the dataset's radars ([`nuscenes_config`], `vod_config`), then the
+//! params file (optional), then `-p` overrides ([`dataset_config`]); extrinsics come from the dataset.
 
 use std::io::Write;
 use std::path::Path;
@@ -79,6 +83,46 @@ fn bar(len: u64, template: &str) -> ProgressBar {
     bar
 }
 
+/// The tables of `root/version`, with a progress bar over their bytes.
+fn open_nuscenes(root: &Path, version: &str) -> Result<NuscenesDb, CliError> {
+    let progress = bar(
+        0,
+        "{elapsed_precise} [{wide_bar}] {bytes}/{total_bytes} tables ({msg})",
+    );
+    let db = NuscenesDb::open(root, version, &mut |p| {
+        progress.set_length(p.total);
+        progress.set_position(p.read);
+        progress.set_message(p.table);
+    });
+    progress.finish_and_clear();
+    set_progress(None);
+    db.map_err(|e| match e {
+        crate::io::nuscenes::NuscenesError::Table { .. } => CliError::Runtime(e.to_string()),
+        e => CliError::Usage(e.to_string()),
+    })
+}
+
+/// The scenes named in `names` (all when empty); an unknown name is a usage error.
+fn select_scenes<'a>(
+    db: &'a NuscenesDb,
+    names: &[String],
+) -> Result<Vec<&'a crate::io::nuscenes::NuscenesScene>, CliError> {
+    for name in names {
+        if !db.scenes.iter().any(|s| &s.name == name) {
+            return Err(CliError::Usage(format!(
+                "--scenes: no scene `{name}` in {} {}",
+                db.dataroot.display(),
+                db.version
+            )));
+        }
+    }
+    Ok(db
+        .scenes
+        .iter()
+        .filter(|s| names.is_empty() || names.contains(&s.name))
+        .collect())
+}
+
 /// Runs `dc_loc eval --nuscenes DIR --version V`.
 pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
     let Some(root) = &args.nuscenes else {
@@ -115,35 +159,8 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
     eval.validate()
         .map_err(|e| CliError::Usage(e.to_string()))?;
 
-    let progress = bar(
-        0,
-        "{elapsed_precise} [{wide_bar}] {bytes}/{total_bytes} tables ({msg})",
-    );
-    let db = NuscenesDb::open(root, &args.version, &mut |p| {
-        progress.set_length(p.total);
-        progress.set_position(p.read);
-        progress.set_message(p.table);
-    });
-    progress.finish_and_clear();
-    set_progress(None);
-    let db = db.map_err(|e| match e {
-        crate::io::nuscenes::NuscenesError::Table { .. } => CliError::Runtime(e.to_string()),
-        e => CliError::Usage(e.to_string()),
-    })?;
-    for name in &args.scenes {
-        if !db.scenes.iter().any(|s| &s.name == name) {
-            return Err(CliError::Usage(format!(
-                "--scenes: no scene `{name}` in {} {}",
-                root.display(),
-                args.version
-            )));
-        }
-    }
-    let scenes: Vec<&crate::io::nuscenes::NuscenesScene> = db
-        .scenes
-        .iter()
-        .filter(|s| args.scenes.is_empty() || args.scenes.contains(&s.name))
-        .collect();
+    let db = open_nuscenes(root, &args.version)?;
+    let scenes = select_scenes(&db, &args.scenes)?;
     let drives: Vec<DriveInfo> = scenes
         .iter()
         .map(|s| DriveInfo {
@@ -596,5 +613,107 @@ pub fn apply_bag_extrinsics(
             );
         }
     }
+    Ok(())
+}
+
+/// Runs `dc_loc run --nuscenes DIR`: per location, its scenes in time order through one pipeline
+/// (odometry = ego poses in the location's global frame, so revisits across scenes are found), loop
+/// closures to `--out`. The extrinsics are those of the location's first scene (a warning names a scene
+/// whose calibration differs).
+pub fn run_nuscenes(args: &super::run::RunArgs) -> Result<(), CliError> {
+    use crate::pipeline::{Event, Pipeline};
+    use crate::runner::{ClosureRecord, drive_pipeline};
+    let Some(root) = &args.nuscenes else {
+        return Err(CliError::Usage("--nuscenes DIR is required".into()));
+    };
+    let base = dataset_config(
+        &nuscenes_config(&Config::default(), &[None; 5]),
+        args.params.as_deref(),
+        &args.node_name,
+        &args.overrides,
+    )?;
+    let filter = NuscenesRadarFilter {
+        invalid_states: parse_states("radar-invalid-states", &args.radar_invalid_states)?,
+        dynprop_states: parse_states("radar-dynprop-states", &args.radar_dynprop_states)?,
+        ambig_states: parse_states("radar-ambig-states", &args.radar_ambig_states)?,
+    };
+    let db = open_nuscenes(root, &args.version)?;
+    let mut scenes = select_scenes(&db, &args.scenes)?;
+    scenes.retain(|s| !s.sweeps.is_empty());
+    scenes.sort_by_key(|s| s.sweeps.first().map_or(0, |w| w.timestamp_us));
+    let mut locations: Vec<&str> = scenes.iter().map(|s| s.location.as_str()).collect();
+    locations.sort_unstable();
+    locations.dedup();
+    let sweeps: usize = scenes.iter().map(|s| s.sweeps.len()).sum();
+    let out_path = args.out.display().to_string();
+    let file = std::fs::File::create(&args.out)
+        .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
+    let mut out = std::io::BufWriter::new(file);
+    let progress = bar(
+        sweeps as u64,
+        "{elapsed_precise} [{wide_bar}] {pos}/{len} sweeps, {msg} ({eta} left)",
+    );
+    let mut closures = 0u64;
+    let mut keyframes = 0u64;
+    for location in &locations {
+        let here: Vec<_> = scenes.iter().filter(|s| s.location == *location).collect();
+        let Some(first) = here.first() else { continue };
+        let extrinsics = first.extrinsics();
+        let cfg = nuscenes_config(&base, &extrinsics);
+        let body_frame = cfg.body_frame.clone();
+        let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
+        let mut write = |events: Vec<Event>, closures: &mut u64| -> Result<(), CliError> {
+            for e in events {
+                if let Event::Closure(c) = e {
+                    *closures += 1;
+                    writeln!(
+                        out,
+                        "{}",
+                        ClosureRecord::new(&c, &body_frame).to_json_line()
+                    )
+                    .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
+                }
+            }
+            Ok(())
+        };
+        for scene in &here {
+            for (a, b) in scene.extrinsics().iter().zip(&extrinsics) {
+                if let (Some(a), Some(b)) = (a, b) {
+                    if (a.translation.vector - b.translation.vector).norm() > 0.01
+                        || a.rotation.angle_to(&b.rotation) > 0.1f64.to_radians()
+                    {
+                        log::warn!(
+                            "{}: radar calibration differs from {}'s, which this run uses",
+                            scene.name,
+                            first.name
+                        );
+                        break;
+                    }
+                }
+            }
+            progress.set_message(format!("{} ({location}), {closures} closures", scene.name));
+            for input in SceneInputs::new(&db.dataroot, scene, filter.clone(), Default::default()) {
+                let input = input.map_err(|e| CliError::Runtime(e.to_string()))?;
+                if matches!(input, crate::runner::Input::Radar { .. }) {
+                    progress.inc(1);
+                }
+                write(drive_pipeline(&mut pipeline, &input), &mut closures)?;
+            }
+        }
+        write(pipeline.finish(), &mut closures)?;
+        keyframes += pipeline.stats().keyframes;
+    }
+    progress.finish_and_clear();
+    set_progress(None);
+    out.flush()
+        .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
+    println!(
+        "nuScenes {} in {}: {} scenes at {} locations, {sweeps} radar sweeps, {keyframes} keyframes",
+        args.version,
+        root.display(),
+        scenes.len(),
+        locations.len()
+    );
+    println!("closures {closures} -> {}", args.out.display());
     Ok(())
 }

@@ -25,8 +25,8 @@ pub struct RunArgs {
     #[arg(
         long,
         value_name = "BAG",
-        required_unless_present = "vod",
-        conflicts_with = "vod"
+        required_unless_present_any = ["vod", "nuscenes"],
+        conflicts_with_all = ["vod", "nuscenes"]
     )]
     pub bag: Option<PathBuf>,
     /// ROS 2 params YAML (e.g. the `dc_loc.yaml` that `dc_loc sim` writes into its bag directory).
@@ -40,6 +40,25 @@ pub struct RunArgs {
     /// VoD frame rate, Hz (the `.bin` files carry no time).
     #[arg(long, default_value_t = 10.0)]
     pub frame_rate: f64,
+    /// nuScenes data root instead of a bag: the scenes of each location run through one pipeline, in
+    /// time order (odometry from the ego poses).
+    #[arg(long, value_name = "DIR", conflicts_with = "vod")]
+    pub nuscenes: Option<PathBuf>,
+    /// nuScenes version folder.
+    #[arg(long, default_value = "v1.0-mini")]
+    pub version: String,
+    /// nuScenes: only these scenes (comma-separated names).
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// nuScenes radar filter: kept `invalid_state` values (comma-separated, or `all`).
+    #[arg(long, default_value = "0")]
+    pub radar_invalid_states: String,
+    /// nuScenes radar filter: kept `dyn_prop` values (comma-separated, or `all`).
+    #[arg(long, default_value = "0,1,2,3,4,5,6")]
+    pub radar_dynprop_states: String,
+    /// nuScenes radar filter: kept `ambig_state` values (comma-separated, or `all`).
+    #[arg(long, default_value = "3")]
+    pub radar_ambig_states: String,
     /// Foxglove MCAP: the frame whose `map -> <body frame>` transforms on `/tf` are the odometry.
     #[arg(long, default_value = "map")]
     pub map_frame: String,
@@ -96,6 +115,9 @@ pub fn load_params(
 pub fn main(args: &RunArgs) -> Result<(), CliError> {
     if args.vod.is_some() {
         return super::realdata::run_vod(args);
+    }
+    if args.nuscenes.is_some() {
+        return super::realdata::run_nuscenes(args);
     }
     let Some(bag) = &args.bag else {
         return Err(CliError::Usage("--bag or --vod is required".into()));

@@ -472,9 +472,11 @@ impl NuscenesDb {
             .into_iter()
             .map(|e| (e.token, pose_from_table(e.translation, e.rotation)))
             .collect();
+        drop(needed);
 
+        // Rows are consumed (their strings moved, not copied) as the sweeps are built.
         let mut by_scene: BTreeMap<&str, Vec<RadarSweep>> = BTreeMap::new();
-        for d in &data {
+        for d in data {
             let dangling = |field, token: &str| NuscenesError::DanglingToken {
                 table: "sample_data",
                 row: d.token.clone(),
@@ -497,12 +499,13 @@ impl NuscenesDb {
                     channel,
                     timestamp_us: d.timestamp,
                     is_key_frame: d.is_key_frame,
-                    filename: d.filename.clone(),
-                    token: d.token.clone(),
+                    filename: d.filename,
+                    token: d.token,
                     t_ego_radar,
                     t_global_ego,
                 });
         }
+        drop(ego);
         let mut scenes = Vec::with_capacity(scene_rows.len());
         for s in scene_rows {
             let log = logs
@@ -515,6 +518,7 @@ impl NuscenesDb {
                 })?;
             let mut sweeps = by_scene.remove(s.token.as_str()).unwrap_or_default();
             sweeps.sort_by_key(|w| (w.timestamp_us, w.channel));
+            let sweeps = contiguous_part(&s.name, sweeps);
             scenes.push(NuscenesScene {
                 token: s.token,
                 name: s.name,
@@ -530,6 +534,39 @@ impl NuscenesDb {
             scenes,
         })
     }
+}
+
+/// Longest gap between two sweeps of one scene, microseconds (a radar sweeps at ~13 Hz).
+const MAX_SWEEP_GAP_US: i64 = 1_000_000;
+
+/// The sweeps of a scene without a detached part: a non-keyframe sweep belongs to the sample that
+/// follows it (schema.md), so sweeps recorded before a scene starts, after a gap in the log, can land in
+/// it. The sweeps are split at gaps over [`MAX_SWEEP_GAP_US`] and the part with the most keyframes kept.
+fn contiguous_part(scene: &str, sweeps: Vec<RadarSweep>) -> Vec<RadarSweep> {
+    let mut parts: Vec<Vec<RadarSweep>> = Vec::new();
+    for w in sweeps {
+        match parts.last_mut() {
+            Some(p)
+                if p.last()
+                    .is_some_and(|l| w.timestamp_us - l.timestamp_us <= MAX_SWEEP_GAP_US) =>
+            {
+                p.push(w)
+            }
+            _ => parts.push(vec![w]),
+        }
+    }
+    if parts.len() > 1 {
+        log::warn!(
+            "{scene}: the radar sweeps fall into {} parts separated by more than {} s; the part with the most \
+             keyframes is used",
+            parts.len(),
+            MAX_SWEEP_GAP_US as f64 * 1e-6
+        );
+    }
+    parts
+        .into_iter()
+        .max_by_key(|p| (p.iter().filter(|w| w.is_key_frame).count(), p.len()))
+        .unwrap_or_default()
 }
 
 /// The pipeline configuration of the five nuScenes radars on top of `base` (its non-radar sections
@@ -738,6 +775,25 @@ mod tests {
         );
         assert!((t.rotation.euler_angles().2.to_degrees() - 174.41).abs() < 0.01);
         assert_eq!(t.translation.x, -0.562);
+    }
+
+    #[test]
+    fn sweeps_detached_from_the_scene_are_dropped() {
+        let sweep = |t: i64, key: bool| RadarSweep {
+            channel: 0,
+            timestamp_us: t,
+            is_key_frame: key,
+            filename: String::new(),
+            token: t.to_string(),
+            t_ego_radar: Iso3::identity(),
+            t_global_ego: Iso3::identity(),
+        };
+        // Two stray sweeps 60 s before the scene, then the scene with its keyframes.
+        let mut v = vec![sweep(0, false), sweep(77_000, false)];
+        v.extend((0..30).map(|k| sweep(60_000_000 + 77_000 * k, k % 7 == 0)));
+        let kept = contiguous_part("scene-x", v);
+        assert_eq!(kept.len(), 30);
+        assert_eq!(kept[0].timestamp_us, 60_000_000);
     }
 
     #[test]

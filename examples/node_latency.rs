@@ -90,7 +90,12 @@ fn main() {
         if m.topic() == "/odom" {
             messages.push((t, m.topic().to_string(), None, m.decode::<Odometry>().ok()));
         } else {
-            messages.push((t, m.topic().to_string(), m.decode::<PointCloud2>().ok(), None));
+            messages.push((
+                t,
+                m.topic().to_string(),
+                m.decode::<PointCloud2>().ok(),
+                None,
+            ));
         }
     }
     let radars = topics.len() - 1;
@@ -98,15 +103,14 @@ fn main() {
         "drive: {} radars, {} messages over {:.0} s, replayed at {rate}x",
         radars,
         messages.len(),
-        messages.last().map_or(0.0, |m| m.0.secs_since(messages[0].0))
+        messages
+            .last()
+            .map_or(0.0, |m| m.0.secs_since(messages[0].0))
     );
 
     // The node.
     // Arguments after `--` go to the node (e.g. `-p node.sync_timeout:=0.01`).
-    let extra: Vec<String> = std::env::args()
-        .skip_while(|a| a != "--")
-        .skip(1)
-        .collect();
+    let extra: Vec<String> = std::env::args().skip_while(|a| a != "--").skip(1).collect();
     let mut node_proc = Command::new(&node_bin)
         .args(["--ros-args", "--params-file"])
         .arg(&summary.params_file)
@@ -146,10 +150,17 @@ fn main() {
             ("sensor_msgs", "PointCloud2")
         };
         let topic = node
-            .create_topic(&Name::parse(t).expect("topic"), MessageTypeName::new(pkg, ty), &qos)
+            .create_topic(
+                &Name::parse(t).expect("topic"),
+                MessageTypeName::new(pkg, ty),
+                &qos,
+            )
             .expect("topic");
         if t == "/odom" {
-            odom_pub = Some(node.create_publisher::<Odometry>(&topic, None).expect("pub"));
+            odom_pub = Some(
+                node.create_publisher::<Odometry>(&topic, None)
+                    .expect("pub"),
+            );
         } else {
             cloud_pubs.insert(
                 t.clone(),
@@ -177,9 +188,14 @@ fn main() {
         // Wait for the node to match every publisher (discovery takes 0.2 to 1.5 s).
         let t0 = Instant::now();
         while odom_pub.get_subscription_count(&node) == 0
-            || cloud_pubs.values().any(|p| p.get_subscription_count(&node) == 0)
+            || cloud_pubs
+                .values()
+                .any(|p| p.get_subscription_count(&node) == 0)
         {
-            assert!(t0.elapsed() < Duration::from_secs(30), "the node did not match");
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "the node did not match"
+            );
             smol::Timer::after(Duration::from_millis(50)).await;
         }
         let latest2 = latest.clone();

@@ -193,7 +193,10 @@ fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
     let stderr = text(&output.stderr);
     print!("{stdout}");
     if !output.status.success() {
-        for l in stderr.lines().filter(|l| !l.contains("INFO") && !l.contains("rustdds")) {
+        for l in stderr
+            .lines()
+            .filter(|l| !l.contains("INFO") && !l.contains("rustdds"))
+        {
             eprintln!("{l}");
         }
     }
@@ -459,6 +462,26 @@ fn bad_parameters_stop_the_start_naming_them() {
             err.contains(name),
             "{args:?}: message does not name {name}: {err}"
         );
+    }
+    // The shell launcher passes its options and the arguments after `--` on.
+    let launcher = venv::repo_root().join("launch_scripts/dc_loc.sh");
+    for (args, name) in [
+        (vec!["-p", "/nonexistent.yaml"], "/nonexistent.yaml"),
+        (
+            vec!["-p", params, "--", "-p", "submap.size:=ten"],
+            "submap.size",
+        ),
+    ] {
+        let out = Command::new("bash")
+            .arg(&launcher)
+            .args(&args)
+            .env("DC_LOC", env!("CARGO_BIN_EXE_dc_loc"))
+            .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+            .output()
+            .unwrap();
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "dc_loc.sh {args:?}: {err}");
+        assert!(err.contains(name), "dc_loc.sh {args:?}: {err}");
     }
     let out = Command::new(env!("CARGO_BIN_EXE_dc_loc"))
         .args(["--ros-args"])

@@ -408,8 +408,10 @@ impl Inbox {
             }
             Err(TrySendError::Full(_)) => {
                 self.shared.queued.fetch_sub(1, Ordering::SeqCst);
-                self.shared
-                    .drop_msg("reception_queue_full", "the worker is behind; message dropped");
+                self.shared.drop_msg(
+                    "reception_queue_full",
+                    "the worker is behind; message dropped",
+                );
             }
             Err(TrySendError::Disconnected(_)) => {
                 self.shared.queued.fetch_sub(1, Ordering::SeqCst);

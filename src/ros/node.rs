@@ -806,11 +806,14 @@ struct Worker {
     save_to: Option<PathBuf>,
     last_save: Instant,
     saved_keyframes: usize,
-    saver: Option<(
-        SyncSender<Vec<Arc<KeyframeRecord>>>,
-        std::thread::JoinHandle<()>,
-    )>,
+    saver: Option<Saver>,
 }
+
+/// The map saver thread and the channel of snapshots to it.
+type Saver = (
+    SyncSender<Vec<Arc<KeyframeRecord>>>,
+    std::thread::JoinHandle<()>,
+);
 
 /// A stamp more than this older than the newest input is a stamp going backwards, s (as the pipeline).
 const BACKWARDS_TOLERANCE: f64 = 1.0;

@@ -589,7 +589,21 @@ fn map_survives_sigkill_and_the_second_half_closes_on_the_first() {
     assert_eq!(out.status.code(), Some(2));
     let err = text(&out.stderr);
     assert!(err.contains("map.file") && err.contains("corrupt"), "{err}");
-    let _ = Path::new(&map);
+    // ... and with map.start_empty_on_error the node starts empty, leaves it alone, saves to `.new`
+    // (stopped with SIGTERM).
+    let out = venv::python_script("test_node_map_fallback.py")
+        .args(["--node", env!("CARGO_BIN_EXE_dc_loc"), "--map"])
+        .arg(&map)
+        .output()
+        .unwrap();
+    let stdout = text(&out.stdout);
+    print!("{stdout}");
+    assert!(
+        out.status.success() && stdout.contains("fallback: all checks passed"),
+        "{}",
+        text(&out.stderr)
+    );
+    assert!(Path::new(&format!("{}.new", map.display())).exists());
 }
 
 /// The bound on every closure, on `dc_loc run`'s closures (the node's are the same, see

@@ -203,12 +203,12 @@ pub fn main(args: &[String]) -> i32 {
 }
 
 /// env_logger on stderr: `RUST_LOG` (default `warn,dc_loc=info`, DDS internals at `error`: rustdds warns
-/// about every loopback peer), dc_loc's level set by `--log-level`.
+/// about every loopback peer; ros2-client's node module off: it logs an error for each matched-publisher
+/// query before the first match), dc_loc's level set by `--log-level`.
 fn init_logging(level: Option<log::LevelFilter>) {
-    let mut b = env_logger::Builder::from_env(
-        env_logger::Env::default()
-            .default_filter_or("warn,rustdds=error,ros2_client=error,dc_loc=info"),
-    );
+    let mut b = env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(
+        "warn,rustdds=error,ros2_client=error,ros2_client::node=off,dc_loc=info",
+    ));
     if let Some(l) = level {
         b.filter_module("dc_loc", l);
     }
@@ -323,6 +323,8 @@ struct Shared {
     received: Mutex<BTreeMap<String, u64>>,
     /// Messages not used, by reason.
     dropped: Mutex<BTreeMap<String, u64>>,
+    /// Matched publishers per input.
+    publishers: Mutex<BTreeMap<String, usize>>,
     /// Messages in the queue now.
     queued: AtomicUsize,
     /// Most messages ever queued.
@@ -417,6 +419,14 @@ impl Inbox {
                 self.shared.queued.fetch_sub(1, Ordering::SeqCst);
             }
         }
+    }
+}
+
+/// Asks the worker to stop after what is queued.
+fn self_stop(inbox: &Inbox) {
+    inbox.shared.queued.fetch_add(1, Ordering::SeqCst);
+    if inbox.tx.send(Work::Stop).is_err() {
+        inbox.shared.queued.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
@@ -730,11 +740,31 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 }
             }));
         }
+        // Matched publishers per input, for /diagnostics (a user or test waits for them before sending).
+        {
+            let shared = shared.clone();
+            let node = &node;
+            let radar_subs = &radar_subs;
+            let odom_sub = &odom_sub;
+            tasks.push(Box::pin(async move {
+                loop {
+                    let mut counts = Vec::new();
+                    for (_, radars, sub) in radar_subs {
+                        let n = sub.get_publisher_count(node);
+                        counts.extend(radars.iter().map(|(_, name, _)| (name.clone(), n)));
+                    }
+                    counts.push(("odometry".to_string(), odom_sub.get_publisher_count(node)));
+                    lock(&shared.publishers).extend(counts);
+                    smol::Timer::after(Duration::from_millis(250)).await;
+                }
+            }));
+        }
         let inputs = futures::future::join_all(tasks);
         futures::future::select(std::pin::pin!(inputs), std::pin::pin!(stop_rx.recv())).await;
     });
     log::info!("shutting down: processing the queued messages");
-    inbox.send(Work::Stop);
+    // Blocking: the worker is draining the queue, and Stop must not be dropped as a full queue would.
+    self_stop(&inbox);
     drop(inbox);
     let result = worker.join();
     // Drop order: streams and entities before the context.
@@ -902,9 +932,12 @@ impl Worker {
                 wait = wait.min(d.saturating_duration_since(now));
             }
             match rx.recv_timeout(wait) {
-                Ok(Work::Stop) | Err(RecvTimeoutError::Disconnected) => break,
+                Err(RecvTimeoutError::Disconnected) => break,
                 Ok(w) => {
                     self.shared.queued.fetch_sub(1, Ordering::SeqCst);
+                    if matches!(w, Work::Stop) {
+                        break;
+                    }
                     let (stream, stamp) = match &w {
                         Work::Cloud { radar, cloud, .. } => (*radar, cloud.header.stamp.into()),
                         Work::Odometry { stamp, .. } => (n_radars, *stamp),
@@ -1181,6 +1214,9 @@ impl Worker {
             input.push(kv(&format!("{name}.received"), n.to_string()));
         }
         self.last_received = received;
+        for (name, n) in lock(&self.shared.publishers).iter() {
+            input.push(kv(&format!("{name}.publishers"), n.to_string()));
+        }
 
         let stats = self.pipeline.stats().clone();
         let mut dropped: BTreeMap<String, u64> = lock(&self.shared.dropped).clone();

@@ -652,6 +652,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     println!("dc_loc: node {} running", ros_args.fully_qualified_name());
 
     let max_points = settings.max_cloud_points;
+    let use_sim_time = settings.use_sim_time;
     smol::block_on(async {
         let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
         for (topic, radars, sub) in &radar_subs {
@@ -662,7 +663,14 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 while let Some(r) = stream.next().await {
                     let arrived = Instant::now();
                     let cloud = match r {
-                        Ok((c, _)) => c,
+                        Ok((mut c, _)) => {
+                            // A zero stamp (drivers that leave it unset): the receive time, as
+                            // `dc_loc run` takes the bag's log time.
+                            if Stamp::from(c.header.stamp) == Stamp(0) {
+                                c.header.stamp = receive_time(&shared, use_sim_time).into();
+                            }
+                            c
+                        }
                         Err(e) => {
                             shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
                             continue;
@@ -706,7 +714,12 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 while let Some(r) = stream.next().await {
                     let arrived = Instant::now();
                     let odom = match r {
-                        Ok((o, _)) => o,
+                        Ok((mut o, _)) => {
+                            if Stamp::from(o.header.stamp) == Stamp(0) {
+                                o.header.stamp = receive_time(&shared, use_sim_time).into();
+                            }
+                            o
+                        }
                         Err(e) => {
                             shared.drop_msg("undecodable", &format!("{odom_topic}: {e:?}"));
                             continue;
@@ -778,6 +791,19 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         Ok(Ok(())) => Ok(()),
         Ok(Err(e)) => Err(e),
         Err(_) => Err(NodeError::Dds("the worker thread panicked".into())),
+    }
+}
+
+/// Now: `/clock` time with `use_sim_time`, else the system clock.
+fn receive_time(shared: &Shared, use_sim_time: bool) -> Stamp {
+    if use_sim_time {
+        Stamp(shared.clock_ns.load(Ordering::SeqCst))
+    } else {
+        Stamp(
+            SystemTime::now()
+                .duration_since(SystemTime::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as i64),
+        )
     }
 }
 
@@ -906,14 +932,7 @@ impl Worker {
     }
 
     fn now(&self) -> Time {
-        if self.settings.use_sim_time {
-            Stamp(self.shared.clock_ns.load(Ordering::SeqCst)).into()
-        } else {
-            let ns = SystemTime::now()
-                .duration_since(SystemTime::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos() as i64);
-            Stamp(ns).into()
-        }
+        receive_time(&self.shared, self.settings.use_sim_time).into()
     }
 
     fn run(mut self, rx: Receiver<Work>) -> Result<(), NodeError> {

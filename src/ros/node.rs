@@ -642,9 +642,14 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             .map_err(|e| NodeError::Dds(format!("worker thread: {e}")))?
     };
 
-    // Shutdown on SIGINT/SIGTERM.
+    // Shutdown on SIGINT/SIGTERM; a second signal ends the process at once.
     let (stop_tx, stop_rx) = smol::channel::bounded::<()>(1);
+    let requested = AtomicBool::new(false);
     if let Err(e) = ctrlc::set_handler(move || {
+        if requested.swap(true, Ordering::SeqCst) {
+            eprintln!("dc_loc: second signal: exiting without saving");
+            std::process::exit(130);
+        }
         let _ = stop_tx.try_send(());
     }) {
         log::warn!("cannot install the SIGINT/SIGTERM handler: {e}");

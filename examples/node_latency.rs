@@ -5,14 +5,14 @@
 //! (`closure_latency_ms`); the node's CPU share comes from /proc.
 //!
 //! ```text
-//! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] [--node target/release/dc_loc]
+//! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] \
+//!     [--node target/release/dc_loc] [-- NODE ROS ARGS, e.g. -p node.sync_timeout:=0.01]
 //! ```
 //! DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; domain ROS_DOMAIN_ID, default 77).
 //! Prints one line per second and a summary; the figures go into README_NODE.md.
 
 use std::collections::BTreeMap;
 use std::net::Ipv4Addr;
-use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -109,9 +109,12 @@ fn main() {
     );
 
     // The node.
+    // Arguments after `--` go to the node (e.g. `-p node.sync_timeout:=0.01`).
+    let extra: Vec<String> = std::env::args().skip_while(|a| a != "--").skip(1).collect();
     let mut node_proc = Command::new(&node_bin)
         .args(["--ros-args", "--params-file"])
         .arg(&summary.params_file)
+        .args(&extra)
         .env("ROS_DOMAIN_ID", domain.to_string())
         .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         .env("RUST_LOG", "warn,rustdds=off,ros2_client=off")

@@ -463,6 +463,26 @@ fn bad_parameters_stop_the_start_naming_them() {
             "{args:?}: message does not name {name}: {err}"
         );
     }
+    // The shell launcher passes its options and the arguments after `--` on.
+    let launcher = venv::repo_root().join("launch_scripts/dc_loc.sh");
+    for (args, name) in [
+        (vec!["-p", "/nonexistent.yaml"], "/nonexistent.yaml"),
+        (
+            vec!["-p", params, "--", "-p", "submap.size:=ten"],
+            "submap.size",
+        ),
+    ] {
+        let out = Command::new("bash")
+            .arg(&launcher)
+            .args(&args)
+            .env("DC_LOC", env!("CARGO_BIN_EXE_dc_loc"))
+            .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+            .output()
+            .unwrap();
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "dc_loc.sh {args:?}: {err}");
+        assert!(err.contains(name), "dc_loc.sh {args:?}: {err}");
+    }
     let out = Command::new(env!("CARGO_BIN_EXE_dc_loc"))
         .args(["--ros-args"])
         .env("ROS_DOMAIN_ID", "999")
@@ -569,7 +589,21 @@ fn map_survives_sigkill_and_the_second_half_closes_on_the_first() {
     assert_eq!(out.status.code(), Some(2));
     let err = text(&out.stderr);
     assert!(err.contains("map.file") && err.contains("corrupt"), "{err}");
-    let _ = Path::new(&map);
+    // ... and with map.start_empty_on_error the node starts empty, leaves it alone, saves to `.new`
+    // (stopped with SIGTERM).
+    let out = venv::python_script("test_node_map_fallback.py")
+        .args(["--node", env!("CARGO_BIN_EXE_dc_loc"), "--map"])
+        .arg(&map)
+        .output()
+        .unwrap();
+    let stdout = text(&out.stdout);
+    print!("{stdout}");
+    assert!(
+        out.status.success() && stdout.contains("fallback: all checks passed"),
+        "{}",
+        text(&out.stderr)
+    );
+    assert!(Path::new(&format!("{}.new", map.display())).exists());
 }
 
 /// The bound on every closure, on `dc_loc run`'s closures (the node's are the same, see

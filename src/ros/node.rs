@@ -203,12 +203,12 @@ pub fn main(args: &[String]) -> i32 {
 }
 
 /// env_logger on stderr: `RUST_LOG` (default `warn,dc_loc=info`, DDS internals at `error`: rustdds warns
-/// about every loopback peer), dc_loc's level set by `--log-level`.
+/// about every loopback peer; ros2-client's node module off: it logs an error for each matched-publisher
+/// query before the first match), dc_loc's level set by `--log-level`.
 fn init_logging(level: Option<log::LevelFilter>) {
-    let mut b = env_logger::Builder::from_env(
-        env_logger::Env::default()
-            .default_filter_or("warn,rustdds=error,ros2_client=error,dc_loc=info"),
-    );
+    let mut b = env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(
+        "warn,rustdds=error,ros2_client=error,ros2_client::node=off,dc_loc=info",
+    ));
     if let Some(l) = level {
         b.filter_module("dc_loc", l);
     }
@@ -323,6 +323,8 @@ struct Shared {
     received: Mutex<BTreeMap<String, u64>>,
     /// Messages not used, by reason.
     dropped: Mutex<BTreeMap<String, u64>>,
+    /// Matched publishers per input.
+    publishers: Mutex<BTreeMap<String, usize>>,
     /// Messages in the queue now.
     queued: AtomicUsize,
     /// Most messages ever queued.
@@ -417,6 +419,14 @@ impl Inbox {
                 self.shared.queued.fetch_sub(1, Ordering::SeqCst);
             }
         }
+    }
+}
+
+/// Asks the worker to stop after what is queued.
+fn self_stop(inbox: &Inbox) {
+    inbox.shared.queued.fetch_add(1, Ordering::SeqCst);
+    if inbox.tx.send(Work::Stop).is_err() {
+        inbox.shared.queued.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
@@ -632,9 +642,14 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             .map_err(|e| NodeError::Dds(format!("worker thread: {e}")))?
     };
 
-    // Shutdown on SIGINT/SIGTERM.
+    // Shutdown on SIGINT/SIGTERM; a second signal ends the process at once.
     let (stop_tx, stop_rx) = smol::channel::bounded::<()>(1);
+    let requested = AtomicBool::new(false);
     if let Err(e) = ctrlc::set_handler(move || {
+        if requested.swap(true, Ordering::SeqCst) {
+            eprintln!("dc_loc: second signal: exiting without saving");
+            std::process::exit(130);
+        }
         let _ = stop_tx.try_send(());
     }) {
         log::warn!("cannot install the SIGINT/SIGTERM handler: {e}");
@@ -642,6 +657,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     println!("dc_loc: node {} running", ros_args.fully_qualified_name());
 
     let max_points = settings.max_cloud_points;
+    let use_sim_time = settings.use_sim_time;
     smol::block_on(async {
         let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
         for (topic, radars, sub) in &radar_subs {
@@ -652,7 +668,14 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 while let Some(r) = stream.next().await {
                     let arrived = Instant::now();
                     let cloud = match r {
-                        Ok((c, _)) => c,
+                        Ok((mut c, _)) => {
+                            // A zero stamp (drivers that leave it unset): the receive time, as
+                            // `dc_loc run` takes the bag's log time.
+                            if Stamp::from(c.header.stamp) == Stamp(0) {
+                                c.header.stamp = receive_time(&shared, use_sim_time).into();
+                            }
+                            c
+                        }
                         Err(e) => {
                             shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
                             continue;
@@ -696,7 +719,12 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 while let Some(r) = stream.next().await {
                     let arrived = Instant::now();
                     let odom = match r {
-                        Ok((o, _)) => o,
+                        Ok((mut o, _)) => {
+                            if Stamp::from(o.header.stamp) == Stamp(0) {
+                                o.header.stamp = receive_time(&shared, use_sim_time).into();
+                            }
+                            o
+                        }
                         Err(e) => {
                             shared.drop_msg("undecodable", &format!("{odom_topic}: {e:?}"));
                             continue;
@@ -730,11 +758,31 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                 }
             }));
         }
+        // Matched publishers per input, for /diagnostics (a user or test waits for them before sending).
+        {
+            let shared = shared.clone();
+            let node = &node;
+            let radar_subs = &radar_subs;
+            let odom_sub = &odom_sub;
+            tasks.push(Box::pin(async move {
+                loop {
+                    let mut counts = Vec::new();
+                    for (_, radars, sub) in radar_subs {
+                        let n = sub.get_publisher_count(node);
+                        counts.extend(radars.iter().map(|(_, name, _)| (name.clone(), n)));
+                    }
+                    counts.push(("odometry".to_string(), odom_sub.get_publisher_count(node)));
+                    lock(&shared.publishers).extend(counts);
+                    smol::Timer::after(Duration::from_millis(250)).await;
+                }
+            }));
+        }
         let inputs = futures::future::join_all(tasks);
         futures::future::select(std::pin::pin!(inputs), std::pin::pin!(stop_rx.recv())).await;
     });
     log::info!("shutting down: processing the queued messages");
-    inbox.send(Work::Stop);
+    // Blocking: the worker is draining the queue, and Stop must not be dropped as a full queue would.
+    self_stop(&inbox);
     drop(inbox);
     let result = worker.join();
     // Drop order: streams and entities before the context.
@@ -748,6 +796,19 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         Ok(Ok(())) => Ok(()),
         Ok(Err(e)) => Err(e),
         Err(_) => Err(NodeError::Dds("the worker thread panicked".into())),
+    }
+}
+
+/// Now: `/clock` time with `use_sim_time`, else the system clock.
+fn receive_time(shared: &Shared, use_sim_time: bool) -> Stamp {
+    if use_sim_time {
+        Stamp(shared.clock_ns.load(Ordering::SeqCst))
+    } else {
+        Stamp(
+            SystemTime::now()
+                .duration_since(SystemTime::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as i64),
+        )
     }
 }
 
@@ -806,11 +867,14 @@ struct Worker {
     save_to: Option<PathBuf>,
     last_save: Instant,
     saved_keyframes: usize,
-    saver: Option<(
-        SyncSender<Vec<Arc<KeyframeRecord>>>,
-        std::thread::JoinHandle<()>,
-    )>,
+    saver: Option<Saver>,
 }
+
+/// The map saver thread and the channel of snapshots to it.
+type Saver = (
+    SyncSender<Vec<Arc<KeyframeRecord>>>,
+    std::thread::JoinHandle<()>,
+);
 
 /// A stamp more than this older than the newest input is a stamp going backwards, s (as the pipeline).
 const BACKWARDS_TOLERANCE: f64 = 1.0;
@@ -873,14 +937,7 @@ impl Worker {
     }
 
     fn now(&self) -> Time {
-        if self.settings.use_sim_time {
-            Stamp(self.shared.clock_ns.load(Ordering::SeqCst)).into()
-        } else {
-            let ns = SystemTime::now()
-                .duration_since(SystemTime::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos() as i64);
-            Stamp(ns).into()
-        }
+        receive_time(&self.shared, self.settings.use_sim_time).into()
     }
 
     fn run(mut self, rx: Receiver<Work>) -> Result<(), NodeError> {
@@ -899,9 +956,12 @@ impl Worker {
                 wait = wait.min(d.saturating_duration_since(now));
             }
             match rx.recv_timeout(wait) {
-                Ok(Work::Stop) | Err(RecvTimeoutError::Disconnected) => break,
+                Err(RecvTimeoutError::Disconnected) => break,
                 Ok(w) => {
                     self.shared.queued.fetch_sub(1, Ordering::SeqCst);
+                    if matches!(w, Work::Stop) {
+                        break;
+                    }
                     let (stream, stamp) = match &w {
                         Work::Cloud { radar, cloud, .. } => (*radar, cloud.header.stamp.into()),
                         Work::Odometry { stamp, .. } => (n_radars, *stamp),
@@ -1178,6 +1238,9 @@ impl Worker {
             input.push(kv(&format!("{name}.received"), n.to_string()));
         }
         self.last_received = received;
+        for (name, n) in lock(&self.shared.publishers).iter() {
+            input.push(kv(&format!("{name}.publishers"), n.to_string()));
+        }
 
         let stats = self.pipeline.stats().clone();
         let mut dropped: BTreeMap<String, u64> = lock(&self.shared.dropped).clone();

@@ -11,7 +11,9 @@ with rclpy:
 2. ``get_parameters`` (what ``ros2 param get`` calls): the ``-p`` override, the own file's ``/car1/loc``
    section, the ``/**`` wildcard, defaults, ``use_sim_time``;
 3. ``set_parameters`` of a running node is refused (the pipeline is built at start-up) and the value stays;
-4. SIGINT ends the node with exit code 0.
+4. SIGINT ends the node with exit code 0;
+5. with ``-p use_sim_time:=true`` the node stamps its diagnostics with the ``/clock`` time an rclpy
+   publisher sends (rosgraph_msgs/Clock).
 Prints "params: all checks passed" and exits 0, or names the failed check and exits 1.
 """
 
@@ -119,6 +121,34 @@ def main() -> int:
             node.proc.send_signal(signal.SIGINT)
             code = node.proc.wait(timeout=20)
             check(code == 0, f"SIGINT: exit code {code}")
+
+        # use_sim_time: the outputs follow /clock (rosgraph_msgs/Clock).
+        from builtin_interfaces.msg import Time
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rosgraph_msgs.msg import Clock
+
+        argv = [a.node, "--ros-args", "-p", "use_sim_time:=true", "-p", "node.diagnostics_period:=0.2"]
+        with tl.ManagedProcess(argv, env, name="dc_loc") as node, \
+                tl.RclpySession("dc_loc_clock_check", res.domain_id) as rs:
+            node.wait_for_line(lambda l: "running" in l, 30.0, "the node's running line")
+            stamps = []
+            clock_pub = rs.node.create_publisher(Clock, "/clock", 10)
+            diag_sub = rs.node.create_subscription(
+                DiagnosticArray, "/diagnostics", lambda m: stamps.append((m.header.stamp.sec,
+                                                                          m.header.stamp.nanosec)), 10)
+            rs.wait_for_subscriptions(clock_pub, 1)
+            rs.wait_for_publishers(diag_sub, 1)
+            sim = (4242, 500_000_000)
+
+            def clock_seen():
+                clock_pub.publish(Clock(clock=Time(sec=sim[0], nanosec=sim[1])))
+                return sim in stamps
+
+            rs.spin_until(clock_seen, 20.0, "diagnostics stamped with the /clock time")
+            check(True, "use_sim_time: /diagnostics stamped with /clock time")
+            node.proc.send_signal(signal.SIGINT)
+            code = node.proc.wait(timeout=20)
+            check(code == 0, f"SIGINT (sim time): exit code {code}")
     if failures:
         print(f"params: {len(failures)} checks failed: {failures}")
         return 1

@@ -222,6 +222,14 @@ def main() -> int:
             rs.wait_for_publishers(diag_sub, 1)
             tl.wait_for_matched(reader, 1, what="cyclone closure reader matched")
 
+            # The node's readers must have matched the publishers too (matching is not symmetric in time):
+            # its diagnostics count the matched publishers per input.
+            def node_matched():
+                n = {k: int(v) for k, v in diag.items() if k.endswith(".publishers")}
+                return len(n) >= 2 and all(v >= 1 for v in n.values())
+
+            rs.spin_until(node_matched, 30.0, "the node's readers to match the publishers")
+
             # Replay at --rate, malformed messages interleaved.
             radar_topic = next(t for _, t, ty, _ in messages if ty.endswith("PointCloud2"))
             bad_plan = []

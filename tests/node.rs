@@ -155,6 +155,8 @@ struct Replay {
     sent_malformed: BTreeMap<String, u64>,
     node_exit: i64,
     replay_seconds: f64,
+    /// `~/markers` (points per marker namespace of the latest) and `~/submap` (count, points, fields).
+    outputs: serde_json::Value,
 }
 
 impl Replay {
@@ -246,6 +248,7 @@ fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
             .collect(),
         node_exit: v["node_exit"].as_i64().unwrap(),
         replay_seconds: v["replay_seconds"].as_f64().unwrap(),
+        outputs: v["outputs"].clone(),
     }
 }
 
@@ -363,6 +366,24 @@ fn replayed_drive_gives_the_offline_closures_within_the_ground_truth() {
     // asserted above): see `every_closure_within_1m_and_0_02rad_of_the_ground_truth`.
     println!("beyond 1.0 m / 0.02 rad: {off_truth:?}");
     assert!(errors[errors.len() / 2] < 0.5, "median error");
+    // The markers show every keyframe and closure; submaps came with the x y z v_r fields.
+    let o = &r.outputs;
+    assert_eq!(
+        o["markers"]["keyframes"].as_u64(),
+        Some(r.diag("keyframes")),
+        "{o}"
+    );
+    assert_eq!(
+        o["markers"]["loop_closures"].as_u64(),
+        Some(2 * r.rclpy.len() as u64),
+        "{o}"
+    );
+    assert!(o["submaps"].as_u64().unwrap_or(0) >= 100, "{o}");
+    assert!(o["submap_points"].as_u64().unwrap_or(0) >= 50, "{o}");
+    assert_eq!(
+        o["submap_fields"],
+        serde_json::json!(["x", "y", "z", "v_r"])
+    );
     // Nothing lost on the way.
     assert_eq!(r.diag("queue_full") + r.diag("reception_queue_full"), 0);
     assert_eq!(

@@ -82,10 +82,25 @@ struct Drive {
 /// The drive, its offline closures and its revisit opportunities (once per test binary).
 fn drive() -> &'static Drive {
     static DRIVE: OnceLock<Drive> = OnceLock::new();
+    DRIVE.get_or_init(|| make_drive("drive", SHORT_DRIVE))
+}
+
+/// The same drive with the five radars of the nuScenes car (13 Hz each).
+fn five_radar_drive() -> &'static Drive {
+    static DRIVE: OnceLock<Drive> = OnceLock::new();
     DRIVE.get_or_init(|| {
-        let root = scratch("drive");
+        make_drive(
+            "drive_nuscenes",
+            &format!("{SHORT_DRIVE}radar_preset: nuscenes\n"),
+        )
+    })
+}
+
+fn make_drive(name: &str, sim_yaml: &str) -> Drive {
+    {
+        let root = scratch(name);
         let config = root.join("short.yaml");
-        std::fs::write(&config, SHORT_DRIVE).unwrap();
+        std::fs::write(&config, sim_yaml).unwrap();
         let dir = root.join("short");
         let out = dc_loc(&[
             "sim",
@@ -129,7 +144,7 @@ fn drive() -> &'static Drive {
             .iter()
             .map(|p| (kfs[p.query].id, kfs[p.target].id))
             .collect();
-        let sim_cfg: SimConfig = yaml_serde::from_str(SHORT_DRIVE).unwrap();
+        let sim_cfg: SimConfig = yaml_serde::from_str(sim_yaml).unwrap();
         Drive {
             dir,
             params,
@@ -137,7 +152,7 @@ fn drive() -> &'static Drive {
             offline,
             opportunities,
         }
-    })
+    }
 }
 
 fn read_records(lines: &str) -> Vec<ClosureRecord> {
@@ -155,6 +170,8 @@ struct Replay {
     sent_malformed: BTreeMap<String, u64>,
     node_exit: i64,
     replay_seconds: f64,
+    /// `~/markers` (points per marker namespace of the latest) and `~/submap` (count, points, fields).
+    outputs: serde_json::Value,
 }
 
 impl Replay {
@@ -171,7 +188,11 @@ fn replay_rate() -> String {
 
 /// Runs the replay script (`script_args`, then `--` and the node's ROS arguments).
 fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
-    let d = drive();
+    replay_on(drive(), name, script_args, node_args)
+}
+
+/// [`replay`] of drive `d`.
+fn replay_on(d: &Drive, name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
     let out_path = scratch(name).join("result.json");
     let rate = replay_rate();
     let mut cmd = venv::python_script("test_node_replay.py");
@@ -246,6 +267,7 @@ fn replay(name: &str, script_args: &[&str], node_args: &[&str]) -> Replay {
             .collect(),
         node_exit: v["node_exit"].as_i64().unwrap(),
         replay_seconds: v["replay_seconds"].as_f64().unwrap(),
+        outputs: v["outputs"].clone(),
     }
 }
 
@@ -363,6 +385,24 @@ fn replayed_drive_gives_the_offline_closures_within_the_ground_truth() {
     // asserted above): see `every_closure_within_1m_and_0_02rad_of_the_ground_truth`.
     println!("beyond 1.0 m / 0.02 rad: {off_truth:?}");
     assert!(errors[errors.len() / 2] < 0.5, "median error");
+    // The markers show every keyframe and closure; submaps came with the x y z v_r fields.
+    let o = &r.outputs;
+    assert_eq!(
+        o["markers"]["keyframes"].as_u64(),
+        Some(r.diag("keyframes")),
+        "{o}"
+    );
+    assert_eq!(
+        o["markers"]["loop_closures"].as_u64(),
+        Some(2 * r.rclpy.len() as u64),
+        "{o}"
+    );
+    assert!(o["submaps"].as_u64().unwrap_or(0) >= 100, "{o}");
+    assert!(o["submap_points"].as_u64().unwrap_or(0) >= 50, "{o}");
+    assert_eq!(
+        o["submap_fields"],
+        serde_json::json!(["x", "y", "z", "v_r"])
+    );
     // Nothing lost on the way.
     assert_eq!(r.diag("queue_full") + r.diag("reception_queue_full"), 0);
     assert_eq!(
@@ -371,6 +411,39 @@ fn replayed_drive_gives_the_offline_closures_within_the_ground_truth() {
         "radar clouds received"
     );
     assert_eq!(r.diag("odometry.received") as usize, d.drive.odometry.len());
+}
+
+#[test]
+fn five_radars_give_the_offline_closures() {
+    let _serial = serial();
+    let d = five_radar_drive();
+    let r = replay_on(
+        d,
+        "five_radars",
+        // 9515 messages: at 3x real time (the last --rate wins).
+        &["--rate", "3"],
+        &["--params-file", d.params.to_str().unwrap()],
+    );
+    assert_eq!(r.node_exit, 0);
+    assert_same_as_offline(&r, &d.offline);
+    assert!(r.rclpy.len() >= 50, "{} closures", r.rclpy.len());
+    let received: u64 = [
+        "front",
+        "front_left",
+        "front_right",
+        "back_left",
+        "back_right",
+    ]
+    .iter()
+    .map(|n| r.diag(&format!("{n}.received")))
+    .sum();
+    assert_eq!(
+        received as usize,
+        d.drive.scans.len(),
+        "{:?}",
+        r.diagnostics
+    );
+    println!("five radars: {} closures, as dc_loc run", r.rclpy.len());
 }
 
 #[test]

@@ -7,7 +7,9 @@
 //! - one async task per input topic takes messages off DDS, does the cheap checks (frame id, size) and
 //!   hands them to the worker through a bounded channel (`node.queue_size`); a full queue drops the
 //!   message and counts it, so reception never waits for registration;
-//! - the worker thread owns the pipeline: stamps going backwards are held back (a single stale message
+//! - the worker thread owns the pipeline: inputs are put back in stamp order across topics
+//!   ([`super::merge::StampMerger`], at most `node.sync_timeout` of waiting) so that the pipeline sees
+//!   the sequence `dc_loc run` reads from a bag; stamps going backwards are held back (a single stale message
 //!   is dropped; a run of them is a restart and resets the pipeline), clouds are decoded, closures,
 //!   markers and the submap are published as they come, diagnostics every `node.diagnostics_period`,
 //!   the map is saved every `map.save_interval` by a saver thread;

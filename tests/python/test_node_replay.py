@@ -210,6 +210,25 @@ def main() -> int:
             rs.node.create_subscription(LoopClosure, closures_topic, on_closure,
                                         tl.rclpy_qos_loop_closure())
             diag_sub = rs.node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+            # ~/markers (transient local, the latest) and ~/submap.
+            from visualization_msgs.msg import MarkerArray
+
+            outputs = {"markers": None, "submaps": 0, "submap_points": 0, "submap_fields": []}
+
+            def on_markers(m):
+                outputs["markers"] = {mk.ns: len(mk.points) for mk in m.markers}
+
+            def on_submap(c):
+                outputs["submaps"] += 1
+                outputs["submap_points"] = c.width * c.height
+                outputs["submap_fields"] = [f.name for f in c.fields]
+
+            node_ns = a.node_name.rstrip("/")
+            rs.node.create_subscription(
+                MarkerArray, node_ns + "/markers", on_markers,
+                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            rs.node.create_subscription(PointCloud2, node_ns + "/submap", on_submap, 10)
             reader = cs.reader(closures_topic, tl.LoopClosure, tl.cyclone_qos_loop_closure())
 
             def poll_cyclone():
@@ -323,6 +342,7 @@ def main() -> int:
             # Nothing more may arrive after the shutdown (the node flushed before exiting).
             rs.spin_until(lambda: True, 1.0, "spin")
             poll_cyclone()
+            result["outputs"] = outputs
             result["rclpy"] = got_rclpy
             result["cyclone"] = got_cyclone
     finally:

@@ -79,7 +79,7 @@ impl<const K: usize> GrowingIndex<K> {
 
     /// Calls `visit(index, squared distance)` for every point within `radius` of `centre` (any order).
     pub fn within(&self, centre: &[f64; K], radius: f64, mut visit: impl FnMut(usize, f64)) {
-        if !(radius >= 0.0) {
+        if radius.is_nan() || radius < 0.0 {
             return;
         }
         let r2 = radius * radius;

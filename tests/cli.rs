@@ -546,9 +546,11 @@ fn shipped_params_files_equal_their_configs() {
             // preset), the raw vx/vy fields of the PCD records, nuscenes2mcap's topics and frames; every
             // other section the defaults.
             let drive = sim(RadarPreset::Nuscenes, "nuscenes").0;
-            let mut base = Config::default();
-            base.radars = drive.radars.clone();
-            base.radar_names = drive.radar_names.clone();
+            let base = Config {
+                radars: drive.radars.clone(),
+                radar_names: drive.radar_names.clone(),
+                ..Config::default()
+            };
             (
                 dc_loc::io::nuscenes::nuscenes_config(&base, &[None; 5]),
                 format!(

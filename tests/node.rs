@@ -680,10 +680,8 @@ fn map_survives_sigkill_and_the_second_half_closes_on_the_first() {
 }
 
 /// The bound on every closure, on `dc_loc run`'s closures (the node's are the same, see
-/// `replayed_drive_gives_the_offline_closures_within_the_ground_truth`). Ignored while the core gives one
-/// closure of 97 beyond it on this drive (200 -> 96: 1.33 m); run with `--ignored`.
+/// `replayed_drive_gives_the_offline_closures_within_the_ground_truth`).
 #[test]
-#[ignore = "core: closure 200 -> 96 of the short drive is 1.33 m from the ground truth"]
 fn every_closure_within_1m_and_0_02rad_of_the_ground_truth() {
     let d = drive();
     let mut off = Vec::new();

@@ -420,6 +420,18 @@ impl KeyframeDb {
         if let Some((c, r)) = corrected {
             around(c, r, &mut found, false);
         }
+        // Only the odometry hits nearest the (corrected) predicted position are ranked further: a long
+        // drive makes the drift radius hold hundreds of keyframes, and comparing place descriptors with
+        // all of them would dominate the query (the place retrieval below still sees every keyframe).
+        let keep = (4 * s.max_candidates).max(16);
+        if found.len() > keep {
+            let centre = corrected.map_or(p, |(c, _)| c);
+            let d2 =
+                |i: usize| (self.records[i].t_odom_body.translation.vector - centre).norm_squared();
+            found.sort_by(|a, b| d2(a.0).total_cmp(&d2(b.0)).then(a.0.cmp(&b.0)));
+            found.dedup_by_key(|f| f.0);
+            found.truncate(keep);
+        }
         // 2. Place descriptors, any session.
         for (item, _) in self.place.nearest(&query.place, s.place_retrieve) {
             let i = item as usize;

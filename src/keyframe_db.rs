@@ -18,7 +18,7 @@
 
 use crate::growing_index::GrowingIndex;
 use crate::math::{Iso2, Mat2, Stamp, Vec2};
-use crate::place::{PlaceConfig, PlaceDescriptor, PlaceIndex};
+use crate::place::{PlaceConfig, PlaceDescriptor, PlaceIndex, column_distance};
 use crate::registration::{PointSet2, PreparedSubmap, RegistrationConfig, RegistrationError};
 use crate::submap::Submap;
 use serde::{Deserialize, Serialize};
@@ -298,6 +298,8 @@ pub struct KeyframeDb {
     records: Vec<Arc<KeyframeRecord>>,
     /// Planar odometry positions by id.
     positions: GrowingIndex<2>,
+    /// Place-descriptor columns by id ([`PlaceDescriptor::columns`]), for fast ranking.
+    place_columns: Vec<Vec<u32>>,
     place: PlaceIndex,
     place_cfg: PlaceConfig,
     cache: VecDeque<(usize, Arc<PreparedSubmap>)>,
@@ -310,6 +312,7 @@ impl KeyframeDb {
         KeyframeDb {
             records: Vec::new(),
             positions: GrowingIndex::default(),
+            place_columns: Vec::new(),
             place: PlaceIndex::default(),
             place_cfg,
             cache: VecDeque::new(),
@@ -365,6 +368,7 @@ impl KeyframeDb {
             return false;
         }
         self.place.insert(item, &rec.place);
+        self.place_columns.push(rec.place.columns());
         self.records.push(Arc::new(rec));
         true
     }
@@ -451,10 +455,15 @@ impl KeyframeDb {
                 _ => merged.push((i, src)),
             }
         }
+        let query_columns = query.place.columns();
         let all: Vec<Candidate> = merged
             .into_iter()
             .filter_map(|(index, source)| {
-                let place_distance = query.place.distance(&self.records[index].place).0;
+                let place_distance = if query.place.sectors == self.records[index].place.sectors {
+                    column_distance(&query_columns, &self.place_columns[index]).0
+                } else {
+                    1.0
+                };
                 let keep =
                     source != CandidateSource::Place || place_distance <= s.place_max_distance;
                 keep.then_some(Candidate {

@@ -116,42 +116,66 @@ impl PlaceDescriptor {
         }
     }
 
+    /// The grid's columns as bitmasks of occupied rings (what [`PlaceDescriptor::distance`] compares);
+    /// worth keeping when one descriptor is compared with many.
+    pub fn columns(&self) -> Vec<u32> {
+        let s = self.sectors as usize;
+        (0..s)
+            .map(|j| {
+                (0..RING_KEY_DIM).fold(0u32, |m, r| {
+                    m | (u32::from(self.grid.get(r * s + j).is_some_and(|&v| v > 0)) << r)
+                })
+            })
+            .collect()
+    }
+
     /// Scan-Context distance (0 = identical, 1 = nothing in common) minimised over cyclic sector shifts,
     /// and the yaw of `other` relative to `self` at the best shift (rad): the mean cosine distance of
     /// occupied columns, with occupancy as binary.
     pub fn distance(&self, other: &PlaceDescriptor) -> (f64, f64) {
-        let s = self.sectors as usize;
-        if s == 0 || other.sectors != self.sectors {
+        if self.sectors == 0 || other.sectors != self.sectors {
             return (1.0, 0.0);
         }
-        let rings = RING_KEY_DIM;
-        let col = |d: &PlaceDescriptor, j: usize| -> u32 {
-            // Column as a bitmask of occupied rings.
-            (0..rings).fold(0u32, |m, r| m | (u32::from(d.grid[r * s + j] > 0) << r))
-        };
-        let a: Vec<u32> = (0..s).map(|j| col(self, j)).collect();
-        let b: Vec<u32> = (0..s).map(|j| col(other, j)).collect();
-        let mut best = (f64::INFINITY, 0usize);
-        for shift in 0..s {
-            let (mut sum, mut n) = (0.0, 0usize);
-            for j in 0..s {
-                let (x, y) = (a[j], b[(j + shift) % s]);
-                if x == 0 && y == 0 {
-                    continue;
-                }
-                let inter = (x & y).count_ones() as f64;
-                let norm = ((x.count_ones() as f64) * (y.count_ones() as f64)).sqrt();
-                sum += if norm > 0.0 { 1.0 - inter / norm } else { 1.0 };
-                n += 1;
-            }
-            let d = if n > 0 { sum / n as f64 } else { 1.0 };
-            if d < best.0 {
-                best = (d, shift);
-            }
-        }
-        let yaw = best.1 as f64 * std::f64::consts::TAU / s as f64;
-        (best.0, crate::math::wrap_angle(yaw))
+        column_distance(&self.columns(), &other.columns())
     }
+}
+
+/// [`PlaceDescriptor::distance`] on precomputed [`PlaceDescriptor::columns`] (equal lengths).
+pub fn column_distance(a: &[u32], b: &[u32]) -> (f64, f64) {
+    let s = a.len();
+    if s == 0 || b.len() != s {
+        return (1.0, 0.0);
+    }
+    // sqrt(|x| |y|) for every pair of ring counts.
+    let mut norms = [[0f64; RING_KEY_DIM + 1]; RING_KEY_DIM + 1];
+    for (i, row) in norms.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = ((i as f64) * (j as f64)).sqrt();
+        }
+    }
+    let ca: Vec<usize> = a.iter().map(|x| x.count_ones() as usize).collect();
+    let cb: Vec<usize> = b.iter().map(|x| x.count_ones() as usize).collect();
+    let mut best = (f64::INFINITY, 0usize);
+    for shift in 0..s {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for j in 0..s {
+            let k = (j + shift) % s;
+            let (x, y) = (a[j], b[k]);
+            if x == 0 && y == 0 {
+                continue;
+            }
+            let inter = (x & y).count_ones() as f64;
+            let norm = norms[ca[j].min(RING_KEY_DIM)][cb[k].min(RING_KEY_DIM)];
+            sum += if norm > 0.0 { 1.0 - inter / norm } else { 1.0 };
+            n += 1;
+        }
+        let d = if n > 0 { sum / n as f64 } else { 1.0 };
+        if d < best.0 {
+            best = (d, shift);
+        }
+    }
+    let yaw = best.1 as f64 * std::f64::consts::TAU / s as f64;
+    (best.0, crate::math::wrap_angle(yaw))
 }
 
 /// Ring keys of many keyframes, for retrieval by kiddo.

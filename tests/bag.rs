@@ -35,6 +35,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
 
+mod common;
+
 const REPO: &str = env!("CARGO_MANIFEST_DIR");
 
 fn fixture(name: &str) -> PathBuf {
@@ -43,12 +45,7 @@ fn fixture(name: &str) -> PathBuf {
 
 /// A fresh empty scratch directory under the target directory.
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("bag_tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("bag_tests", name)
 }
 
 fn hex(bytes: &[u8]) -> String {

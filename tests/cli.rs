@@ -34,45 +34,10 @@ use dc_loc::sim::export::{GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC, params_yaml};
 use dc_loc::sim::{RadarPreset, SimConfig, SimDrive, simulate};
 use serde_json::json;
 
+mod common;
+use common::{SHORT_DRIVE, text};
+
 const REPO: &str = env!("CARGO_MANIFEST_DIR");
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("cli_tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn dc_loc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dc_loc"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A short drive: two laps (54 and 36 km/h) of a 170 x 110 m block, about 106 s, fewer pose samples.
-const SHORT_DRIVE: &str = "\
-seed: 3
-laps:
-  - speed: 15.0
-  - speed: 10.0
-ground_truth_rate: 20.0
-odometry:
-  rate: 25.0
-route:
-  corners:
-    - {x: 0.0, y: 0.0, radius: 15.0, junction: true}
-    - {x: 170.0, y: 0.0, radius: 20.0, junction: false}
-    - {x: 170.0, y: 110.0, radius: 15.0, junction: true}
-    - {x: 0.0, y: 110.0, radius: 20.0, junction: false}
-";
 
 struct SimBag {
     dir: PathBuf,
@@ -81,6 +46,14 @@ struct SimBag {
 }
 
 /// `dc_loc sim` of the short drive (once per test binary), and the same drive simulated here.
+fn scratch(name: &str) -> PathBuf {
+    common::scratch("cli_tests", name)
+}
+
+fn dc_loc(args: &[&str]) -> Output {
+    common::run_dc_loc(args, "warn")
+}
+
 fn sim_bag() -> &'static SimBag {
     static BAG: OnceLock<SimBag> = OnceLock::new();
     BAG.get_or_init(|| {

@@ -12,6 +12,8 @@
 #[path = "python/venv.rs"]
 mod venv;
 
+mod common;
+use common::{SHORT_DRIVE, text};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -25,35 +27,13 @@ use dc_loc::runner::{BagInputs, ClosureRecord, PoseRecord};
 use dc_loc::sim::export::GROUND_TRUTH_TOPIC;
 use dc_loc::sim::{SimConfig, SimDrive, simulate};
 
-/// Two laps of a small block (as tests/cli.rs).
-const SHORT_DRIVE: &str = "\
-seed: 3
-laps:
-  - speed: 15.0
-  - speed: 10.0
-ground_truth_rate: 20.0
-odometry:
-  rate: 25.0
-route:
-  corners:
-    - {x: 0.0, y: 0.0, radius: 15.0, junction: true}
-    - {x: 170.0, y: 0.0, radius: 20.0, junction: false}
-    - {x: 170.0, y: 110.0, radius: 15.0, junction: true}
-    - {x: 0.0, y: 110.0, radius: 20.0, junction: false}
-";
-
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("node_tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("node_tests", name)
 }
 
 fn dc_loc(args: &[&str]) -> Output {
@@ -62,10 +42,6 @@ fn dc_loc(args: &[&str]) -> Output {
         .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         .output()
         .expect("cannot start dc_loc")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
 }
 
 struct Drive {

@@ -3,11 +3,11 @@
 //! drive as a bag; the reader's errors; the real PCD files through the flag filter.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
 mod common;
-use common::real_data;
+use common::{real_data, text};
 
 use dc_loc::io::nuscenes::{NuscenesDb, NuscenesError, RADAR_CHANNELS};
 use dc_loc::io::nuscenes_pcd::{NuscenesRadarFilter, NuscenesRadarPcd, filtered_pointcloud2};
@@ -15,27 +15,6 @@ use dc_loc::msgs::std_msgs::Header;
 use dc_loc::sim::export::export_drive;
 use dc_loc::sim::nuscenes::export_nuscenes;
 use dc_loc::sim::{SimConfig, simulate};
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("nuscenes_tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn dc_loc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dc_loc"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
 
 /// Two laps (54 and 36 km/h) of a 130 x 80 m block with the five nuScenes radars.
 const DRIVE: &str = "\
@@ -62,6 +41,14 @@ struct Fixture {
 }
 
 /// The drive as a bag and as a nuScenes dataset (once per test binary).
+fn scratch(name: &str) -> PathBuf {
+    common::scratch("nuscenes_tests", name)
+}
+
+fn dc_loc(args: &[&str]) -> Output {
+    common::run_dc_loc(args, "warn")
+}
+
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {

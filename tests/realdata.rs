@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use dc_loc::bag::foxglove::{
     FrameTransform, PackedElementField, PointCloud, Quaternion, Timestamp, Vector3,
@@ -17,30 +17,17 @@ use dc_loc::sim::{SimDrive, SimScan, simulate};
 use prost::Message;
 
 mod common;
-use common::real_data;
+use common::{real_data, text};
 
+/// Two laps of a 130 x 80 m block (54 and 36 km/h).
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("realdata_tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("realdata_tests", name)
 }
 
 fn dc_loc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dc_loc"))
-        .args(args)
-        .env("RUST_LOG", "warn,dc_loc=info")
-        .output()
-        .unwrap()
+    common::run_dc_loc(args, "warn,dc_loc=info")
 }
 
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// Two laps of a 130 x 80 m block (54 and 36 km/h).
 fn drive(preset: &str) -> SimDrive {
     let yaml = format!(
         "seed: 7\nradar_preset: {preset}\nlaps:\n  - speed: 15.0\n  - speed: 10.0\n\

@@ -22,3 +22,44 @@ pub fn real_data() -> Option<PathBuf> {
     }
     found
 }
+
+/// A fresh scratch directory `<target tmp>/<suite>/<name>` (emptied first).
+pub fn scratch(suite: &str, name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(suite)
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs the `dc_loc` binary with `RUST_LOG` set to `rust_log` and waits for it.
+pub fn run_dc_loc(args: &[&str], rust_log: &str) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_dc_loc"))
+        .args(args)
+        .env("RUST_LOG", rust_log)
+        .output()
+        .expect("cannot start dc_loc")
+}
+
+/// Bytes of a child's output as text.
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A short drive: two laps (54 and 36 km/h) of a 170 x 110 m block, about 106 s, fewer pose samples.
+pub const SHORT_DRIVE: &str = "\
+seed: 3
+laps:
+  - speed: 15.0
+  - speed: 10.0
+ground_truth_rate: 20.0
+odometry:
+  rate: 25.0
+route:
+  corners:
+    - {x: 0.0, y: 0.0, radius: 15.0, junction: true}
+    - {x: 170.0, y: 0.0, radius: 20.0, junction: false}
+    - {x: 170.0, y: 110.0, radius: 15.0, junction: true}
+    - {x: 0.0, y: 110.0, radius: 20.0, junction: false}
+";

@@ -1,8 +1,8 @@
-//! Per-step CPU time of the registration pipeline on synthetic pairs (single thread).
+//! Per-step time of the registration pipeline on synthetic pairs (single thread).
 //!
-//! `cargo run --release --example registration_profile [points] [repetitions]` (default 1000, 100).
-//! Each step is repeated on the same pairs and timed by the thread's CPU time from /proc (Linux),
-//! which a loaded machine does not inflate the way it inflates the wall clock.
+//! `cargo run --release --example registration_profile [points] [repetitions]` (default 1000, 100);
+//! `MAXSRC=n` sets `registration.dense.max_source_points`.
+//! Each step is repeated on the same pairs and timed by the wall clock (run it on an idle machine).
 #[path = "../tests/support/radar_scene.rs"]
 mod radar_scene;
 use dc_loc::registration::*;
@@ -10,22 +10,15 @@ use radar_scene::*;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 
-/// Thread CPU time (user + system), s, from /proc/thread-self/stat (10 ms ticks).
-fn cpu_s() -> f64 {
-    let s = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
-    let rest = s.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
-}
-
+/// Mean wall-clock time of `reps` runs of `f`, ms, and its last result. Run it on an idle machine:
+/// the thread CPU time in /proc ticks at 10 ms, too coarse for steps of a fraction of a millisecond.
 fn timed<R>(reps: usize, mut f: impl FnMut() -> R) -> (R, f64) {
-    let t0 = cpu_s();
+    let t0 = std::time::Instant::now();
     let mut r = f();
     for _ in 1..reps {
         r = f();
     }
-    (r, (cpu_s() - t0) / reps as f64 * 1e3)
+    (r, t0.elapsed().as_secs_f64() / reps as f64 * 1e3)
 }
 
 fn main() {
@@ -37,7 +30,10 @@ fn main() {
         .nth(2)
         .and_then(|s| s.parse().ok())
         .unwrap_or(100);
-    let cfg = RegistrationConfig::default();
+    let mut cfg = RegistrationConfig::default();
+    if let Some(m) = std::env::var("MAXSRC").ok().and_then(|v| v.parse().ok()) {
+        cfg.dense.max_source_points = m;
+    }
     let mut rng = StdRng::seed_from_u64(1);
     let v = View {
         t_world_sensor: dc_loc::math::Iso2::identity(),
@@ -91,6 +87,21 @@ fn main() {
             )
             .unwrap()
         });
+        let (full, t_reg) = timed(reps, || register_prepared(&s, &g, &cfg).unwrap());
+        let (fe, fr) = pose_error(&full.t_target_source, &t);
+        eprintln!("full pipeline error {fe:.4} m {fr:.5} rad");
+        let (_, t_tree) = timed(reps, || dense::target_tree(s.points()).unwrap());
+        let tree = dense::target_tree(s.points()).unwrap();
+        let (_, t_surf) = timed(reps, || {
+            dense::with_surface_covariances(s.points(), &tree, &cfg.dense)
+        });
+        let (_, t_dsc) = timed(reps, || {
+            let kp = descriptor::keypoint_indices(s.points().len(), &cfg.descriptor);
+            descriptor::compute_descriptors(&s.points().points, &kp, &cfg.descriptor).unwrap()
+        });
+        eprintln!(
+            "register_prepared {t_reg:.2} tree {t_tree:.2} surface {t_surf:.2} descriptors(one) {t_dsc:.2}"
+        );
         let (_, t_all) = timed(reps, || {
             let s = PreparedSubmap::new(pair.source.set.clone(), &cfg).unwrap();
             let g = PreparedSubmap::new(pair.target.set.clone(), &cfg).unwrap();
@@ -98,7 +109,7 @@ fn main() {
         });
         let (te, re) = pose_error(&lm.t_target_source, &t);
         println!(
-            "n {} / {} cands {} inl {} draws {} err {:.3} m {:.4} rad | cpu ms: describe {:.2} match {:.2} ransac {:.2} lm {:.2} all {:.2}",
+            "n {} / {} cands {} inl {} draws {} err {:.3} m {:.4} rad | ms: describe {:.2} match {:.2} ransac {:.2} lm {:.2} all {:.2}",
             s.points().len(),
             g.points().len(),
             cands.len(),
@@ -117,7 +128,7 @@ fn main() {
         }
     }
     println!(
-        "mean cpu ms: describe(both) {:.2} match {:.2} ransac {:.2} lm {:.2} | whole pipeline {:.2}",
+        "mean ms: describe(both) {:.2} match {:.2} ransac {:.2} lm {:.2} | whole pipeline {:.2}",
         tot[0], tot[1], tot[2], tot[3], tot[4]
     );
 }

@@ -368,6 +368,11 @@ pub enum DropReason {
     NoOdometry,
     /// The pending-scan queue was full (odometry far behind).
     QueueFull,
+    /// A stamp more than 1 s older than the newest input, not (yet) taken as a restart (see
+    /// [`Pipeline::set_restart_after`]).
+    StampBackwards,
+    /// A second scan of one radar with the same stamp (a re-sent or bogus message).
+    DuplicateStamp,
 }
 
 impl DropReason {
@@ -379,6 +384,8 @@ impl DropReason {
             DropReason::BadOdometry => "bad_odometry",
             DropReason::NoOdometry => "no_odometry",
             DropReason::QueueFull => "queue_full",
+            DropReason::StampBackwards => "stamp_backwards",
+            DropReason::DuplicateStamp => "duplicate_stamp",
         }
     }
 }
@@ -441,6 +448,9 @@ pub struct PipelineStats {
     pub detections_dynamic: u64,
     /// Non-finite or zero-range detections skipped while decoding or compensating.
     pub detections_invalid: u64,
+    /// Scans without a valid detection, counted before the duplicate check (fed on all the same: an
+    /// empty scene is possible).
+    pub empty_scans: u64,
     /// Scans whose Doppler ego-motion fit failed.
     pub doppler_fit_failures: u64,
     /// Inputs dropped, by reason.
@@ -484,6 +494,11 @@ pub struct Pipeline {
     path_distance: f64,
     last_odom: Option<Iso3>,
     newest_input: Option<Stamp>,
+    /// Inputs in a row with stamps going backwards, and how many make a restart.
+    backwards_run: usize,
+    restart_after: usize,
+    /// Newest scan stamp per radar (duplicates are dropped).
+    last_scan_stamp: BTreeMap<usize, Stamp>,
     stats: PipelineStats,
 }
 
@@ -517,6 +532,9 @@ impl Pipeline {
             path_distance: 0.0,
             last_odom: None,
             newest_input: None,
+            backwards_run: 0,
+            restart_after: 1,
+            last_scan_stamp: BTreeMap::new(),
             stats: PipelineStats::default(),
             cfg,
         })
@@ -552,9 +570,33 @@ impl Pipeline {
         self.cfg.radar_names.iter().position(|n| n == name)
     }
 
-    fn check_time(&mut self, stamp: Stamp, out: &mut Vec<Event>) {
+    /// How many inputs in a row with stamps more than 1 s before the newest input mean a restart (a bag
+    /// replayed again, a simulator reset) rather than stale messages (default 1: the first one, as in
+    /// an offline bag; the node uses `node.restart_after`). The ones before are dropped as
+    /// [`DropReason::StampBackwards`]. Values below 1 count as 1.
+    pub fn set_restart_after(&mut self, n: usize) {
+        self.restart_after = n.max(1);
+    }
+
+    /// True when an input at `stamp` may go on: its stamp is not too far back, or a run of them is
+    /// taken as a restart (then everything but the keyframes is reset, [`Event::TimeReset`]).
+    fn check_time(&mut self, stamp: Stamp, what: &str, out: &mut Vec<Event>) -> bool {
         if let Some(prev) = self.newest_input {
             if prev.secs_since(stamp) > BACKWARDS_TOLERANCE {
+                self.backwards_run += 1;
+                if self.backwards_run < self.restart_after {
+                    self.drop(
+                        DropReason::StampBackwards,
+                        format!(
+                            "{what} at {:.3} s, {:.3} s before the newest input",
+                            stamp.as_secs_f64(),
+                            prev.secs_since(stamp)
+                        ),
+                        out,
+                    );
+                    return false;
+                }
+                self.backwards_run = 0;
                 log::warn!(
                     "time went backwards ({:.3} s -> {:.3} s): resetting odometry and the rolling submap, keeping {} keyframes",
                     prev.as_secs_f64(),
@@ -566,16 +608,19 @@ impl Pipeline {
                 self.pending.clear();
                 self.last_keyframe = None;
                 self.last_odom = None;
+                self.last_scan_stamp.clear();
                 self.newest_input = Some(stamp);
                 self.stats.time_resets += 1;
                 out.push(Event::TimeReset {
                     previous: prev,
                     got: stamp,
                 });
-                return;
+                return true;
             }
         }
+        self.backwards_run = 0;
         self.newest_input = Some(self.newest_input.map_or(stamp, |p| p.max(stamp)));
+        true
     }
 
     fn drop(&mut self, reason: DropReason, detail: String, out: &mut Vec<Event>) {
@@ -586,7 +631,9 @@ impl Pipeline {
     /// Feeds one odometry sample (`t_odom_body` at `stamp`); releases scans that were waiting for it.
     pub fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
         let mut out = Vec::new();
-        self.check_time(stamp, &mut out);
+        if !self.check_time(stamp, "odometry", &mut out) {
+            return out;
+        }
         match self.odom.push(stamp, t_odom_body) {
             Ok(()) => {}
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
@@ -662,7 +709,23 @@ impl Pipeline {
             );
             return out;
         }
-        self.check_time(scan.stamp, &mut out);
+        if !self.check_time(scan.stamp, "radar scan", &mut out) {
+            return out;
+        }
+        if scan.detections.is_empty() {
+            self.stats.empty_scans += 1;
+        }
+        // A second scan of one radar with the same stamp is a re-sent or bogus message.
+        if self.last_scan_stamp.get(&scan.radar) == Some(&scan.stamp) {
+            let name = &self.cfg.radar_names[scan.radar];
+            let detail = format!(
+                "radar `{name}`: a second scan stamped {:.3} s",
+                scan.stamp.as_secs_f64()
+            );
+            self.drop(DropReason::DuplicateStamp, detail, &mut out);
+            return out;
+        }
+        self.last_scan_stamp.insert(scan.radar, scan.stamp);
         if self.pending.len() >= MAX_PENDING {
             if let Some(old) = self.pending.pop_front() {
                 self.drop(
@@ -1143,4 +1206,79 @@ fn alignment_distance(a: &Iso2, b: &Iso2, at: &Iso2, path_gap: f64, lc: &LoopCon
     let st = 1.0 + 0.5 * lc.drift_rate * gap;
     let sr = 0.02 + 0.5 * lc.drift_yaw_rate * gap;
     (e.x * e.x + e.y * e.y) / (st * st) + e.z * e.z / (sr * sr)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Vec3;
+    use crate::radar::Detection;
+
+    fn scan(stamp: f64) -> RadarScan {
+        RadarScan {
+            radar: 0,
+            stamp: Stamp::from_secs_f64(stamp),
+            detections: vec![Detection {
+                p_radar: Vec3::new(10.0, 1.0, 0.0),
+                v_r: -1.0,
+                rcs: None,
+            }],
+        }
+    }
+
+    fn dropped(events: &[Event], reason: DropReason) -> bool {
+        events
+            .iter()
+            .any(|e| matches!(e, Event::Dropped { reason: r, .. } if *r == reason))
+    }
+
+    #[test]
+    fn backwards_stamps_are_dropped_until_a_run_makes_a_restart() {
+        let mut p = Pipeline::new(Config::default()).expect("default config");
+        p.set_restart_after(3);
+        let odom =
+            |p: &mut Pipeline, t: f64| p.push_odometry(Stamp::from_secs_f64(t), Iso3::identity());
+        odom(&mut p, 100.0);
+        p.push_scan(scan(100.0));
+        // Two stale inputs: dropped, nothing reset.
+        assert!(dropped(&odom(&mut p, 50.0), DropReason::StampBackwards));
+        assert!(dropped(
+            &p.push_scan(scan(50.1)),
+            DropReason::StampBackwards
+        ));
+        assert_eq!(p.stats().time_resets, 0);
+        // A fresh input ends the run; two more stale ones are dropped again.
+        assert!(!dropped(&odom(&mut p, 100.1), DropReason::StampBackwards));
+        odom(&mut p, 10.0);
+        odom(&mut p, 10.1);
+        assert_eq!(p.stats().dropped[&DropReason::StampBackwards], 4);
+        // The third in a row is a restart.
+        let ev = odom(&mut p, 10.2);
+        assert!(ev.iter().any(|e| matches!(e, Event::TimeReset { .. })));
+        assert_eq!(p.stats().time_resets, 1);
+        // The default (as `dc_loc run`): the first stale input restarts.
+        let mut q = Pipeline::new(Config::default()).expect("default config");
+        odom(&mut q, 100.0);
+        odom(&mut q, 10.0);
+        assert_eq!(q.stats().time_resets, 1);
+        assert!(!q.stats().dropped.contains_key(&DropReason::StampBackwards));
+    }
+
+    #[test]
+    fn a_second_scan_with_the_same_stamp_is_dropped_and_empty_scans_are_counted() {
+        let mut p = Pipeline::new(Config::default()).expect("default config");
+        assert!(!dropped(
+            &p.push_scan(scan(5.0)),
+            DropReason::DuplicateStamp
+        ));
+        let mut empty = scan(5.0);
+        empty.detections.clear();
+        assert!(dropped(&p.push_scan(empty), DropReason::DuplicateStamp));
+        assert_eq!(p.stats().empty_scans, 1);
+        assert!(!dropped(
+            &p.push_scan(scan(5.1)),
+            DropReason::DuplicateStamp
+        ));
+        assert_eq!(p.stats().dropped[&DropReason::DuplicateStamp], 1);
+    }
 }

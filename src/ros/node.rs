@@ -40,7 +40,6 @@ use super::convert::{
     DiagnosticArray, DiagnosticStatus, KeyValue, MarkerArray, MarkerPoint, markers, submap_cloud,
 };
 use super::merge::StampMerger;
-use crate::cloud::decode_detections;
 use crate::config::Config;
 use crate::keyframe_db::{KeyframeDb, KeyframeRecord, save_records};
 use crate::math::{Iso3, Stamp};
@@ -52,7 +51,6 @@ use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
 use crate::params::{ParamError, ParamSet, apply, flatten_config};
 use crate::pipeline::{Event, Pipeline};
-use crate::radar::RadarScan;
 use crate::runner::loop_closure_msg;
 
 /// The node's own settings (not part of [`Config`], which the offline tools share).
@@ -848,9 +846,6 @@ struct Worker {
     hardware_id: String,
     body_frame: String,
     odom_frame: String,
-    /// Newest stamp fed to the pipeline, and how many inputs in a row were older than it by > 1 s.
-    newest: Option<Stamp>,
-    backwards_run: usize,
     /// Markers: keyframe positions (odometry frame) and closure edges.
     kf_points: BTreeMap<u64, MarkerPoint>,
     edges: Vec<(MarkerPoint, MarkerPoint)>,
@@ -861,9 +856,6 @@ struct Worker {
     /// Counters at the last diagnostics, for rates.
     last_diag: Instant,
     last_received: BTreeMap<String, u64>,
-    nan_points: u64,
-    empty_clouds: u64,
-    last_cloud_stamp: BTreeMap<usize, Stamp>,
     closures_published: u64,
     /// Map saving.
     save_to: Option<PathBuf>,
@@ -877,9 +869,6 @@ type Saver = (
     SyncSender<Vec<Arc<KeyframeRecord>>>,
     std::thread::JoinHandle<()>,
 );
-
-/// A stamp more than this older than the newest input is a stamp going backwards, s (as the pipeline).
-const BACKWARDS_TOLERANCE: f64 = 1.0;
 
 impl Worker {
     fn new(
@@ -910,6 +899,8 @@ impl Worker {
             });
             (tx, h)
         });
+        let mut pipeline = pipeline;
+        pipeline.set_restart_after(settings.restart_after);
         Worker {
             body_frame: pipeline.config().body_frame.clone(),
             saved_keyframes: pipeline.db().len(),
@@ -919,8 +910,6 @@ impl Worker {
             settings,
             hardware_id,
             odom_frame: "odom".into(),
-            newest: None,
-            backwards_run: 0,
             kf_points,
             edges: Vec::new(),
             input_latency: Latencies::default(),
@@ -928,9 +917,6 @@ impl Worker {
             keyframe_time: Latencies::default(),
             last_diag: Instant::now(),
             last_received: BTreeMap::new(),
-            nan_points: 0,
-            empty_clouds: 0,
-            last_cloud_stamp: BTreeMap::new(),
             closures_published: 0,
             save_to,
             last_save: Instant::now(),
@@ -1015,97 +1001,30 @@ impl Worker {
 
     /// False (and counted) for an input whose stamp went backwards, unless it is a run long enough to be
     /// a restart.
-    fn stamp_ok(&mut self, stamp: Stamp, what: &str) -> bool {
-        if let Some(newest) = self.newest {
-            if newest.secs_since(stamp) > BACKWARDS_TOLERANCE {
-                self.backwards_run += 1;
-                if self.backwards_run < self.settings.restart_after {
-                    self.shared.drop_msg(
-                        "stamp_backwards",
-                        &format!(
-                            "{what} at {:.3} s, {:.3} s before the newest input",
-                            stamp.as_secs_f64(),
-                            newest.secs_since(stamp)
-                        ),
-                    );
-                    return false;
-                }
-                self.shared.warn(
-                    "time_reset",
-                    &format!(
-                        "{} inputs in a row went back in time: treating it as a restart",
-                        self.backwards_run
-                    ),
-                );
-                self.newest = Some(stamp);
-                self.backwards_run = 0;
-                return true;
-            }
-        }
-        self.backwards_run = 0;
-        self.newest = Some(self.newest.map_or(stamp, |n| n.max(stamp)));
-        true
-    }
-
+    /// One message through the pipeline's input path (the one `dc_loc run` uses): decoding, stamps going
+    /// backwards, duplicate stamps and odometry gaps are checked and counted there.
     fn handle(&mut self, w: Work) {
-        match w {
+        let (events, arrived) = match w {
             Work::Cloud {
                 radar,
                 cloud,
                 arrived,
             } => {
-                let stamp: Stamp = cloud.header.stamp.into();
-                if !self.stamp_ok(stamp, "radar cloud") {
-                    return;
-                }
-                let name = self.pipeline.config().radar_names[radar].clone();
-                let fields = &self.pipeline.config().radars[&name].fields;
-                let decoded = match decode_detections(&cloud, fields) {
-                    Ok(d) => d,
-                    Err(e) => {
-                        self.shared
-                            .drop_msg("bad_cloud", &format!("radar `{name}`: {e}"));
-                        return;
-                    }
-                };
-                self.nan_points += (decoded.skipped_nonfinite + decoded.skipped_zero_range) as u64;
-                if decoded.detections.is_empty() {
-                    // Counted and warned about, but fed on like `dc_loc run` does (an empty scene is
-                    // possible), unless it repeats the last stamp (below).
-                    self.empty_clouds += 1;
+                let empty_before = self.pipeline.stats().empty_scans;
+                let t0 = Instant::now();
+                let events = self.pipeline.push_cloud(radar, &cloud);
+                if self.pipeline.stats().empty_scans > empty_before {
+                    let name = &self.pipeline.config().radar_names[radar];
+                    let stamp: Stamp = cloud.header.stamp.into();
                     self.shared.warn(
                         "empty_cloud",
                         &format!(
-                            "radar `{name}` at {:.3} s: no valid point ({} not finite)",
-                            stamp.as_secs_f64(),
-                            decoded.skipped_nonfinite
-                        ),
-                    );
-                }
-                // A second cloud of one radar with the same stamp is a re-sent or bogus message.
-                if self.last_cloud_stamp.get(&radar) == Some(&stamp) {
-                    self.shared.drop_msg(
-                        "duplicate_stamp",
-                        &format!(
-                            "radar `{name}`: a second cloud stamped {:.3} s",
+                            "radar `{name}` at {:.3} s: no valid point",
                             stamp.as_secs_f64()
                         ),
                     );
-                    return;
                 }
-                self.last_cloud_stamp.insert(radar, stamp);
-                let t0 = Instant::now();
-                let events = self.pipeline.push_scan(RadarScan {
-                    radar,
-                    stamp,
-                    detections: decoded.detections,
-                });
-                let keyframe = events.iter().any(|e| matches!(e, Event::Keyframe { .. }));
-                self.handle_events(events, Some(arrived));
-                if keyframe {
-                    self.keyframe_time.push(t0.elapsed().as_secs_f64());
-                }
-                self.input_latency.push(arrived.elapsed().as_secs_f64());
+                ((events, t0), arrived)
             }
             Work::Odometry {
                 stamp,
@@ -1113,23 +1032,23 @@ impl Worker {
                 frame_id,
                 arrived,
             } => {
-                if !self.stamp_ok(stamp, "odometry") {
-                    return;
-                }
-                if !frame_id.is_empty() {
-                    self.odom_frame = frame_id;
-                }
                 let t0 = Instant::now();
                 let events = self.pipeline.push_odometry(stamp, t_odom_body);
-                let keyframe = events.iter().any(|e| matches!(e, Event::Keyframe { .. }));
-                self.handle_events(events, Some(arrived));
-                if keyframe {
-                    self.keyframe_time.push(t0.elapsed().as_secs_f64());
+                let accepted = !events.iter().any(|e| matches!(e, Event::Dropped { .. }));
+                if accepted && !frame_id.is_empty() {
+                    self.odom_frame = frame_id;
                 }
-                self.input_latency.push(arrived.elapsed().as_secs_f64());
+                ((events, t0), arrived)
             }
-            Work::Stop => {}
+            Work::Stop => return,
+        };
+        let (events, t0) = events;
+        let keyframe = events.iter().any(|e| matches!(e, Event::Keyframe { .. }));
+        self.handle_events(events, Some(arrived));
+        if keyframe {
+            self.keyframe_time.push(t0.elapsed().as_secs_f64());
         }
+        self.input_latency.push(arrived.elapsed().as_secs_f64());
     }
 
     fn handle_events(&mut self, events: Vec<Event>, arrived: Option<Instant>) {
@@ -1252,8 +1171,8 @@ impl Worker {
         let total_dropped: u64 = dropped.values().sum();
         let mut drop_values: Vec<KeyValue> =
             dropped.iter().map(|(k, v)| kv(k, v.to_string())).collect();
-        drop_values.push(kv("nan_points", self.nan_points.to_string()));
-        drop_values.push(kv("empty_clouds", self.empty_clouds.to_string()));
+        drop_values.push(kv("nan_points", stats.detections_invalid.to_string()));
+        drop_values.push(kv("empty_clouds", stats.empty_scans.to_string()));
         drop_values.push(kv("time_resets", stats.time_resets.to_string()));
 
         let mut proc = vec![

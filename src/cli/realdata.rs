@@ -482,7 +482,7 @@ pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
 pub fn run_vod(args: &super::run::RunArgs) -> Result<(), CliError> {
     use crate::io::vod_sequence::{VodInputs, vod_config};
     use crate::pipeline::{Event, Pipeline};
-    use crate::runner::{ClosureRecord, drive_pipeline};
+    use crate::runner::drive_pipeline;
     let Some(dir) = &args.vod else {
         return Err(CliError::Usage("--vod DIR is required".into()));
     };
@@ -506,19 +506,8 @@ pub fn run_vod(args: &super::run::RunArgs) -> Result<(), CliError> {
         "{elapsed_precise} [{wide_bar}] {pos}/{len} frames, {msg} ({eta} left)",
     );
     let mut closures = 0u64;
-    let mut write = |events: Vec<Event>, closures: &mut u64| -> Result<(), CliError> {
-        for e in events {
-            if let Event::Closure(c) = e {
-                *closures += 1;
-                writeln!(
-                    out,
-                    "{}",
-                    ClosureRecord::new(&c, &body_frame).to_json_line()
-                )
-                .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
-            }
-        }
-        Ok(())
+    let mut write = |events: Vec<Event>, closures: &mut u64| {
+        write_closures(&mut out, &out_path, &body_frame, events, closures)
     };
     for seq in &sequences {
         for input in VodInputs::new(seq, args.frame_rate) {
@@ -622,7 +611,7 @@ pub fn apply_bag_extrinsics(
 /// whose calibration differs).
 pub fn run_nuscenes(args: &super::run::RunArgs) -> Result<(), CliError> {
     use crate::pipeline::{Event, Pipeline};
-    use crate::runner::{ClosureRecord, drive_pipeline};
+    use crate::runner::drive_pipeline;
     let Some(root) = &args.nuscenes else {
         return Err(CliError::Usage("--nuscenes DIR is required".into()));
     };
@@ -662,19 +651,8 @@ pub fn run_nuscenes(args: &super::run::RunArgs) -> Result<(), CliError> {
         let cfg = nuscenes_config(&base, &extrinsics);
         let body_frame = cfg.body_frame.clone();
         let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
-        let mut write = |events: Vec<Event>, closures: &mut u64| -> Result<(), CliError> {
-            for e in events {
-                if let Event::Closure(c) = e {
-                    *closures += 1;
-                    writeln!(
-                        out,
-                        "{}",
-                        ClosureRecord::new(&c, &body_frame).to_json_line()
-                    )
-                    .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
-                }
-            }
-            Ok(())
+        let mut write = |events: Vec<Event>, closures: &mut u64| {
+            write_closures(&mut out, &out_path, &body_frame, events, closures)
         };
         for scene in &here {
             for (a, b) in scene.extrinsics().iter().zip(&extrinsics) {
@@ -715,5 +693,27 @@ pub fn run_nuscenes(args: &super::run::RunArgs) -> Result<(), CliError> {
         locations.len()
     );
     println!("closures {closures} -> {}", args.out.display());
+    Ok(())
+}
+
+/// Writes the closures among `events` to `out` as JSON lines (`path` names it in errors), counting them.
+fn write_closures(
+    out: &mut impl Write,
+    path: &str,
+    body_frame: &str,
+    events: Vec<crate::pipeline::Event>,
+    closures: &mut u64,
+) -> Result<(), CliError> {
+    for e in events {
+        if let crate::pipeline::Event::Closure(c) = e {
+            *closures += 1;
+            writeln!(
+                out,
+                "{}",
+                crate::runner::ClosureRecord::new(&c, body_frame).to_json_line()
+            )
+            .map_err(|e| CliError::Runtime(format!("--out {path}: {e}")))?;
+        }
+    }
     Ok(())
 }

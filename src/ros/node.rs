@@ -999,8 +999,6 @@ impl Worker {
         Ok(())
     }
 
-    /// False (and counted) for an input whose stamp went backwards, unless it is a run long enough to be
-    /// a restart.
     /// One message through the pipeline's input path (the one `dc_loc run` uses): decoding, stamps going
     /// backwards, duplicate stamps and odometry gaps are checked and counted there.
     fn handle(&mut self, w: Work) {

@@ -1012,7 +1012,8 @@ impl Worker {
                 let t0 = Instant::now();
                 let events = self.pipeline.push_cloud(radar, &cloud);
                 if self.pipeline.stats().empty_scans > empty_before {
-                    let name = &self.pipeline.config().radar_names[radar];
+                    let names = &self.pipeline.config().radar_names;
+                    let name = names.get(radar).map_or("?", String::as_str);
                     let stamp: Stamp = cloud.header.stamp.into();
                     self.shared.warn(
                         "empty_cloud",

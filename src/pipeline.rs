@@ -444,6 +444,12 @@ pub enum Event {
         /// Details for the log.
         detail: String,
     },
+    /// A scan without a valid detection: counted (`empty_scans`) and fed on all the same (an empty
+    /// scene is possible).
+    EmptyScan {
+        /// Details for the log.
+        detail: String,
+    },
     /// Time went backwards: odometry, scans and the rolling submap were reset; keyframes are kept.
     TimeReset {
         /// Newest stamp seen before.
@@ -732,6 +738,13 @@ impl Pipeline {
         }
         if scan.detections.is_empty() {
             self.stats.empty_scans += 1;
+            let name = &self.cfg.radar_names[scan.radar];
+            out.push(Event::EmptyScan {
+                detail: format!(
+                    "radar `{name}` at {:.3} s: no valid point",
+                    scan.stamp.as_secs_f64()
+                ),
+            });
         }
         // A second scan of one radar with the same stamp is a re-sent or bogus message.
         if self.last_scan_stamp.get(&scan.radar) == Some(&scan.stamp) {
@@ -1302,7 +1315,9 @@ mod tests {
         ));
         let mut empty = scan(5.0);
         empty.detections.clear();
-        assert!(dropped(&p.push_scan(empty), DropReason::DuplicateStamp));
+        let ev = p.push_scan(empty);
+        assert!(dropped(&ev, DropReason::DuplicateStamp));
+        assert!(ev.iter().any(|e| matches!(e, Event::EmptyScan { .. })));
         assert_eq!(p.stats().empty_scans, 1);
         assert!(!dropped(
             &p.push_scan(scan(5.1)),

@@ -1002,46 +1002,28 @@ impl Worker {
     /// One message through the pipeline's input path (the one `dc_loc run` uses): decoding, stamps going
     /// backwards, duplicate stamps and odometry gaps are checked and counted there.
     fn handle(&mut self, w: Work) {
+        let t0 = Instant::now();
         let (events, arrived) = match w {
             Work::Cloud {
                 radar,
                 cloud,
                 arrived,
-            } => {
-                let empty_before = self.pipeline.stats().empty_scans;
-                let t0 = Instant::now();
-                let events = self.pipeline.push_cloud(radar, &cloud);
-                if self.pipeline.stats().empty_scans > empty_before {
-                    let names = &self.pipeline.config().radar_names;
-                    let name = names.get(radar).map_or("?", String::as_str);
-                    let stamp: Stamp = cloud.header.stamp.into();
-                    self.shared.warn(
-                        "empty_cloud",
-                        &format!(
-                            "radar `{name}` at {:.3} s: no valid point",
-                            stamp.as_secs_f64()
-                        ),
-                    );
-                }
-                ((events, t0), arrived)
-            }
+            } => (self.pipeline.push_cloud(radar, &cloud), arrived),
             Work::Odometry {
                 stamp,
                 t_odom_body,
                 frame_id,
                 arrived,
             } => {
-                let t0 = Instant::now();
                 let events = self.pipeline.push_odometry(stamp, t_odom_body);
                 let accepted = !events.iter().any(|e| matches!(e, Event::Dropped { .. }));
                 if accepted && !frame_id.is_empty() {
                     self.odom_frame = frame_id;
                 }
-                ((events, t0), arrived)
+                (events, arrived)
             }
             Work::Stop => return,
         };
-        let (events, t0) = events;
         let keyframe = events.iter().any(|e| matches!(e, Event::Keyframe { .. }));
         self.handle_events(events, Some(arrived));
         if keyframe {
@@ -1096,6 +1078,7 @@ impl Worker {
                     // Counted in the pipeline's stats; warned here, rate-limited.
                     self.shared.warn(reason.name(), &detail);
                 }
+                Event::EmptyScan { detail } => self.shared.warn("empty_cloud", &detail),
                 Event::TimeReset { previous, got } => {
                     self.shared.warn(
                         "time_reset",

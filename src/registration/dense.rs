@@ -248,8 +248,8 @@ pub fn refine_dense(
     let mut iterations = 0;
     // The pairs change from round to round, so the rounds in between solve only to a tenth of the
     // stopping step (0.1 mm, 1 microrad); the last pairs are then solved to `lm_cfg`'s tolerances.
-    // Measured on the synthetic pairs of `examples/registration_profile.rs`: the same poses to
-    // 0.1 mm at 40 % of the LM iterations.
+    // Measured on the synthetic 1000- and 5000-point pairs of `examples/registration_profile.rs`: the
+    // same pose errors to 0.1 mm, about 5 % less registration time.
     let round_cfg = LmConfig {
         step_tolerance: lm_cfg.step_tolerance.max(1e-4),
         cost_tolerance: lm_cfg.cost_tolerance.max(1e-7),

@@ -1,6 +1,10 @@
-//! A k-d index that grows one point at a time: kiddo's immutable tree over a prefix of the points and a
-//! linearly scanned tail, rebuilt when the tail outgrows an eighth of the tree (amortised O(log n) per
-//! insertion, queries O(log n + tail)).
+//! A k-d index that grows one point at a time, by the logarithmic method (Bentley & Saxe 1980): the
+//! points are covered by a few of kiddo's immutable trees over consecutive ranges, each at most half the
+//! size of the one before, plus a short tail searched linearly. When the tail reaches `TAIL_MAX` points it
+//! becomes a tree, and the newest trees are merged (rebuilt as one) while the newer is at least half the
+//! older. A point is rebuilt O(log n) times (amortised O(log² n) per insertion), a query visits
+//! O(log n) trees and at most `TAIL_MAX` tail points, and no insertion rebuilds more than the trees it
+//! merges.
 //!
 //! Why not kiddo's mutable tree: its `add` refuses a bucket whose points share a coordinate on the split
 //! axis (`UnsplittableBucket`), which is exactly what keyframes along an axis-aligned road or identical
@@ -10,22 +14,31 @@
 
 use kiddo::SquaredEuclidean;
 
-/// Points searched linearly before the tree is first built.
-const TAIL_MIN: usize = 64;
+/// Points searched linearly before they are put in a tree.
+const TAIL_MAX: usize = 256;
+
+/// One immutable tree over the points `start..start + len`.
+struct Level<const K: usize> {
+    start: usize,
+    len: usize,
+    tree: kiddo::ImmutableKdTree<f64, K>,
+}
 
 /// Points in `K` dimensions, identified by their insertion index.
 pub struct GrowingIndex<const K: usize> {
     points: Vec<[f64; K]>,
-    tree: Option<kiddo::ImmutableKdTree<f64, K>>,
-    tree_len: usize,
+    /// Trees over consecutive ranges, oldest (largest) first.
+    levels: Vec<Level<K>>,
+    /// Points covered by `levels`; the rest is the tail.
+    covered: usize,
 }
 
 impl<const K: usize> Default for GrowingIndex<K> {
     fn default() -> Self {
         GrowingIndex {
             points: Vec::new(),
-            tree: None,
-            tree_len: 0,
+            levels: Vec::new(),
+            covered: 0,
         }
     }
 }
@@ -34,7 +47,10 @@ impl<const K: usize> std::fmt::Debug for GrowingIndex<K> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GrowingIndex")
             .field("len", &self.points.len())
-            .field("tree_len", &self.tree_len)
+            .field(
+                "levels",
+                &self.levels.iter().map(|l| l.len).collect::<Vec<_>>(),
+            )
             .finish()
     }
 }
@@ -65,13 +81,30 @@ impl<const K: usize> GrowingIndex<K> {
             return None;
         }
         self.points.push(p);
-        if self.points.len() - self.tree_len > (self.tree_len / 8).max(TAIL_MIN) {
-            match kiddo::ImmutableKdTree::new_from_slice(&self.points) {
-                Ok(t) => {
-                    self.tree = Some(t);
-                    self.tree_len = self.points.len();
+        if self.points.len() - self.covered >= TAIL_MAX {
+            // The tail and the trees it is at least half of become one tree.
+            let mut start = self.covered;
+            while let Some(last) = self.levels.last() {
+                if 2 * (self.points.len() - start) < last.len {
+                    break;
                 }
-                Err(e) => log::warn!("k-d index not rebuilt ({e}); searching its tail linearly"),
+                start = last.start;
+                self.levels.pop();
+            }
+            match kiddo::ImmutableKdTree::new_from_slice(&self.points[start..]) {
+                Ok(tree) => {
+                    self.levels.push(Level {
+                        start,
+                        len: self.points.len() - start,
+                        tree,
+                    });
+                    self.covered = self.points.len();
+                }
+                Err(e) => {
+                    // The popped trees' points are searched linearly until a rebuild succeeds.
+                    self.covered = start;
+                    log::warn!("k-d index not rebuilt ({e}); searching its tail linearly");
+                }
             }
         }
         Some(self.points.len() - 1)
@@ -83,13 +116,15 @@ impl<const K: usize> GrowingIndex<K> {
             return;
         }
         let r2 = radius * radius;
-        if let Some(tree) = &self.tree {
-            tree.query(centre)
+        for level in &self.levels {
+            level
+                .tree
+                .query(centre)
                 .within::<SquaredEuclidean<f64>>(r2)
                 .unsorted()
-                .visit(|n| visit(n.item as usize, n.distance));
+                .visit(|n| visit(level.start + n.item as usize, n.distance));
         }
-        for (i, q) in self.points.iter().enumerate().skip(self.tree_len) {
+        for (i, q) in self.points.iter().enumerate().skip(self.covered) {
             let d2 = dist2(q, centre);
             if d2 <= r2 {
                 visit(i, d2);
@@ -102,21 +137,23 @@ impl<const K: usize> GrowingIndex<K> {
         let Some(nz) = std::num::NonZeroUsize::new(k) else {
             return Vec::new();
         };
-        let mut out: Vec<(usize, f64)> = Vec::with_capacity(k * 2);
-        if let Some(tree) = &self.tree {
+        let mut out: Vec<(usize, f64)> = Vec::with_capacity(k * (self.levels.len() + 1) + TAIL_MAX);
+        for level in &self.levels {
             out.extend(
-                tree.query(centre)
+                level
+                    .tree
+                    .query(centre)
                     .nearest_n::<SquaredEuclidean<f64>>(nz)
                     .execute()
                     .iter()
-                    .map(|n| (n.item as usize, n.distance)),
+                    .map(|n| (level.start + n.item as usize, n.distance)),
             );
         }
         out.extend(
             self.points
                 .iter()
                 .enumerate()
-                .skip(self.tree_len)
+                .skip(self.covered)
                 .map(|(i, q)| (i, dist2(q, centre))),
         );
         out.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
@@ -126,8 +163,8 @@ impl<const K: usize> GrowingIndex<K> {
 
     /// Approximate heap bytes held.
     pub fn heap_bytes(&self) -> usize {
-        // The points, and the tree's own copy of the prefix with its split values and indices.
-        self.points.capacity() * K * 8 + self.tree_len * (K * 8 + 8 + 8)
+        // The points, and each tree's own copy of its range with split values and indices.
+        self.points.capacity() * K * 8 + self.covered * (K * 8 + 8 + 8)
     }
 }
 
@@ -147,7 +184,7 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(7);
         let mut idx = GrowingIndex::<2>::default();
         let mut pts = Vec::new();
-        for i in 0..3000 {
+        for i in 0..6000 {
             // Runs along x = const (the case kiddo's mutable tree refuses), exact duplicates, and noise.
             let p = match i % 3 {
                 0 => [100.0, (i / 3) as f64 * 0.5],
@@ -180,8 +217,17 @@ mod tests {
                 assert_eq!(near.len(), 5.min(pts.len()));
             }
         }
-        assert!(idx.tree_len > 2000, "the tree is built as the index grows");
+        assert!(idx.covered > 5700, "trees are built as the index grows");
+        assert!(
+            idx.levels.len() <= 7,
+            "logarithmically many trees: {:?}",
+            idx
+        );
+        for w in idx.levels.windows(2) {
+            assert_eq!(w[0].start + w[0].len, w[1].start);
+            assert!(w[1].len < w[0].len, "{idx:?}");
+        }
         assert_eq!(idx.push([f64::NAN, 0.0]), None);
-        assert_eq!(idx.len(), 3000);
+        assert_eq!(idx.len(), 6000);
     }
 }

@@ -330,7 +330,7 @@ mod tests {
         for trial in 0..200 {
             let s = [8, 60, 61][trial % 3];
             // Sparse columns (many empty ones), as radar submaps give.
-            let mut col = |rng: &mut rand::rngs::StdRng| {
+            let col = |rng: &mut rand::rngs::StdRng| {
                 if rng.random_range(0.0..1.0) < 0.4 {
                     0
                 } else {

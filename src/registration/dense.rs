@@ -12,7 +12,7 @@
 
 use super::lm::{self, LmConfig};
 use super::{PointSet2, RegistrationError};
-use crate::math::{Iso2, Mat2};
+use crate::math::{Iso2, Mat2, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
@@ -42,6 +42,13 @@ pub struct DenseConfig {
     pub surface_neighbours: usize,
     /// Radius of that neighbourhood, m (default 2.0).
     pub surface_radius: f64,
+    /// Accelerated rounds ([`polish_dense`]) that continue the winning hypothesis's rounds when they
+    /// have not settled (default 3; 0 = off). Measured with `dc_loc eval` on the demo drive, DC-Loc mean
+    /// / median translation error over the inliers: off 0.121 / 0.082 m, 2 rounds 0.111 / 0.078, 3:
+    /// 0.103 / 0.077, 4: 0.107 / 0.080, 6: 0.111 / 0.084, 8: 0.104 / 0.079 (differences below about
+    /// 5 mm are which pairs fall inside the 2 m threshold); registration time +10 % (1000 points) to
+    /// +30 % (5000 points) at 8 rounds, see README.
+    pub polish_rounds: usize,
     /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
     /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
     /// every reflector several times. Measured on the four 5000-point synthetic pairs of
@@ -66,6 +73,7 @@ impl Default for DenseConfig {
             min_pairs: 30,
             surface_neighbours: 8,
             surface_radius: 2.0,
+            polish_rounds: 3,
             max_source_points: 2000,
             covariance_scale: 0.35,
         }
@@ -231,10 +239,50 @@ pub struct DenseResult {
     pub converged: bool,
     /// Final cost.
     pub cost: f64,
+    /// The last round moved the pose less than the stopping step (1 mm, 0.01 mrad).
+    pub settled: bool,
 }
 
-/// Re-associates and re-solves eq. 10 from `initial`; `None` when too few pairs pass the gates (the
-/// caller keeps its estimate).
+/// Metres per radian in the parameter vector of the Anderson mixing (balances a rotation against a
+/// translation of the points about 10 m out, a typical radius of a submap's reflectors).
+const AA_LENGTH: f64 = 10.0;
+
+/// Earlier rounds the Anderson mixing combines (3 parameters: at most 2 differences are independent).
+const AA_DEPTH: usize = 2;
+
+/// `(x, y, L theta)` of `t`, the angle unwrapped next to `near` (same units).
+fn aa_vector(t: &Iso2, near: f64) -> Vec3 {
+    let theta = t.rotation.angle();
+    let near_theta = near / AA_LENGTH;
+    let theta = near_theta + crate::math::wrap_angle(theta - near_theta);
+    Vec3::new(t.translation.x, t.translation.y, theta * AA_LENGTH)
+}
+
+fn aa_pose(v: &Vec3) -> Iso2 {
+    Iso2::new(v.xy(), v.z / AA_LENGTH)
+}
+
+/// Anderson mixing (type II, Walker & Ni 2011) of the rounds' outputs `g` and residuals `f = g - u`,
+/// oldest first: `g_last - dG gamma` with `gamma = argmin |f_last - dF gamma|`. `None` when the
+/// differences are degenerate.
+fn anderson(history: &[(Vec3, Vec3)]) -> Option<Vec3> {
+    let n = history.len().checked_sub(1).filter(|&n| n > 0)?;
+    let (g_last, f_last) = history.last()?;
+    let df = nalgebra::DMatrix::from_fn(3, n, |r, c| history[c + 1].1[r] - history[c].1[r]);
+    let dg = nalgebra::DMatrix::from_fn(3, n, |r, c| history[c + 1].0[r] - history[c].0[r]);
+    let rhs = nalgebra::DVector::from_column_slice(f_last.as_slice());
+    let gamma = df.svd(true, true).solve(&rhs, 1e-12).ok()?;
+    let next = g_last - Vec3::from_column_slice((dg * gamma).as_slice());
+    next.iter().all(|v| v.is_finite()).then_some(next)
+}
+
+/// Re-associates and re-solves eq. 10 from `initial`, at most `cfg.iterations` rounds; `None` when too
+/// few pairs pass the gates (the caller keeps its estimate).
+///
+/// A round pairs every source point with its nearest target point and solves eq. 10 over those pairs:
+/// a fixed-point iteration (ICP). It converges slowly along a facade, where the radar's long
+/// cross-range covariances leave the pose free to slide a little each round (on the demo drive the
+/// rounds' steps shrink by only 0.7-0.8 each); [`polish_dense`] continues it faster.
 pub fn refine_dense(
     source: &PointSet2,
     target: &PointSet2,
@@ -243,19 +291,76 @@ pub fn refine_dense(
     cfg: &DenseConfig,
     lm_cfg: &LmConfig,
 ) -> Result<Option<DenseResult>, RegistrationError> {
-    let mut t = *initial;
+    dense_rounds(
+        source,
+        target,
+        tree,
+        initial,
+        cfg,
+        lm_cfg,
+        cfg.iterations,
+        false,
+    )
+}
+
+/// The rounds of [`refine_dense`] continued from `initial`, at most `cfg.polish_rounds`, with Anderson
+/// acceleration (AA-ICP, Pavlov
+/// et al., ICRA 2018): each next pose mixes the last rounds' outputs so as to cancel their residuals.
+/// The pairs are Euclidean nearest neighbours while eq. 10 is Mahalanobis, so no energy decreases from
+/// round to round that could safeguard the mixing (measured: the truncated robust energy rose while
+/// the rounds converged, and a safeguard on it refused useful mixes); the mixed pose is instead kept
+/// within ten round steps of the plain one.
+///
+/// Registration polishes only the winning hypothesis with it: accelerating every hypothesis also slid
+/// wrong ones along a street to alignments fitting nearly as well, which the ambiguity gate then
+/// refused (revisit recall on the five-radar 1 % drive 96.0 -> 94.9 %). Measured with `dc_loc eval` on
+/// the demo drive, DC-Loc mean / median translation error over the inliers: 8 plain rounds
+/// 0.121 / 0.082 m, 20 plain rounds 0.096 / 0.079 m, every hypothesis's 8 rounds accelerated
+/// 0.103 / 0.079 m, and the polishing rounds as [`DenseConfig::polish_rounds`] says.
+pub fn polish_dense(
+    source: &PointSet2,
+    target: &PointSet2,
+    tree: &TargetTree,
+    initial: &Iso2,
+    cfg: &DenseConfig,
+    lm_cfg: &LmConfig,
+) -> Result<Option<DenseResult>, RegistrationError> {
+    dense_rounds(
+        source,
+        target,
+        tree,
+        initial,
+        cfg,
+        lm_cfg,
+        cfg.polish_rounds,
+        true,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn dense_rounds(
+    source: &PointSet2,
+    target: &PointSet2,
+    tree: &TargetTree,
+    initial: &Iso2,
+    cfg: &DenseConfig,
+    lm_cfg: &LmConfig,
+    rounds: usize,
+    accelerate: bool,
+) -> Result<Option<DenseResult>, RegistrationError> {
     let mut out: Option<DenseResult> = None;
     let mut iterations = 0;
     // The pairs change from round to round, so the rounds in between solve only to a tenth of the
     // stopping step (0.1 mm, 1 microrad); the last pairs are then solved to `lm_cfg`'s tolerances.
-    // Measured on the synthetic 1000- and 5000-point pairs of `examples/registration_profile.rs`: the
-    // same pose errors to 0.1 mm, about 5 % less registration time.
     let round_cfg = LmConfig {
         step_tolerance: lm_cfg.step_tolerance.max(1e-4),
         cost_tolerance: lm_cfg.cost_tolerance.max(1e-7),
         ..lm_cfg.clone()
     };
-    for _ in 0..cfg.iterations {
+    // The current pose; with acceleration also as the parameter vector of the mixing.
+    let mut t = *initial;
+    let mut history: Vec<(Vec3, Vec3)> = Vec::with_capacity(AA_DEPTH + 1);
+    for _ in 0..rounds {
         let pairs = associate(source, target, tree, &t, cfg);
         if pairs.len() < cfg.min_pairs {
             break;
@@ -263,16 +368,32 @@ pub fn refine_dense(
         let p = lm::refine_pose(source, target, &pairs, &t, &round_cfg)?;
         iterations += p.iterations;
         let step = t.inverse() * p.t_target_source;
-        t = p.t_target_source;
+        let settled = step.translation.vector.norm() < 1e-3 && step.rotation.angle().abs() < 1e-5;
         out = Some(DenseResult {
-            t_target_source: t,
+            t_target_source: p.t_target_source,
             pairs,
             iterations,
             converged: p.converged,
             cost: p.cost,
+            settled,
         });
-        if step.translation.vector.norm() < 1e-3 && step.rotation.angle().abs() < 1e-5 {
+        if settled {
             break;
+        }
+        let previous = t;
+        t = p.t_target_source;
+        if accelerate {
+            // Angles unwrapped next to the initial one, so that the history never straddles +-pi.
+            let anchor = initial.rotation.angle() * AA_LENGTH;
+            let (u, g) = (aa_vector(&previous, anchor), aa_vector(&t, anchor));
+            if history.len() > AA_DEPTH {
+                history.remove(0);
+            }
+            history.push((g, g - u));
+            if let Some(m) = anderson(&history).filter(|m| (m - g).norm() <= 10.0 * (g - u).norm())
+            {
+                t = aa_pose(&m);
+            }
         }
     }
     if let Some(d) = out.as_mut() {
@@ -283,4 +404,50 @@ pub fn refine_dense(
         d.cost = p.cost;
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Mat3;
+
+    /// On a slowly contracting linear map `G(u) = A u + b` (what the rounds look like near the solution:
+    /// steps shrinking by 0.8 along one direction), the mixing reaches the fixed point in a few rounds
+    /// where plain iteration crawls.
+    #[test]
+    fn anderson_mixing_finds_the_fixed_point_of_a_slow_linear_map() {
+        let a = Mat3::new(0.8, 0.05, 0.0, -0.05, 0.5, 0.1, 0.0, 0.02, 0.3);
+        let b = Vec3::new(0.3, -0.2, 0.1);
+        let fixed = (Mat3::identity() - a).try_inverse().expect("invertible") * b;
+        let g_of = |u: &Vec3| a * u + b;
+        let (mut plain, mut mixed) = (Vec3::zeros(), Vec3::zeros());
+        let mut history: Vec<(Vec3, Vec3)> = Vec::new();
+        for _ in 0..8 {
+            plain = g_of(&plain);
+            let g = g_of(&mixed);
+            if history.len() > AA_DEPTH {
+                history.remove(0);
+            }
+            history.push((g, g - mixed));
+            mixed = anderson(&history).unwrap_or(g);
+        }
+        let (e_plain, e_mixed) = ((plain - fixed).norm(), (mixed - fixed).norm());
+        assert!(e_plain > 0.05, "plain iteration is slow here: {e_plain}");
+        assert!(
+            e_mixed < 1e-3 * e_plain,
+            "mixed {e_mixed} (plain {e_plain})"
+        );
+        // Fewer than two rounds: nothing to mix.
+        assert_eq!(anderson(&history[..1]), None);
+    }
+
+    #[test]
+    fn parameter_vector_round_trip_unwraps_the_angle() {
+        let t = Iso2::new(crate::math::Vec2::new(1.0, -2.0), 3.1);
+        let v = aa_vector(&t, -3.1 * AA_LENGTH);
+        assert!((v.z / AA_LENGTH - (3.1 - std::f64::consts::TAU)).abs() < 1e-12);
+        let back = aa_pose(&v);
+        assert!((back.translation.vector - t.translation.vector).norm() < 1e-12);
+        assert!(crate::math::wrap_angle(back.rotation.angle() - 3.1).abs() < 1e-12);
+    }
 }

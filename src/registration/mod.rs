@@ -376,6 +376,9 @@ pub struct RegistrationDetail {
     pub t_ransac: Iso2,
     /// RANSAC draws.
     pub ransac_iterations: usize,
+    /// `None` when the dense stage did not run; else whether its last round moved the pose less than
+    /// its stopping step.
+    pub dense_settled: Option<bool>,
 }
 
 /// DC-Loc registration of the current submap (`source`) against a previous one (`target`).
@@ -615,7 +618,8 @@ fn ransac_and_refine(
         }
     }
     match best {
-        Some(mut d) => {
+        Some(d) => {
+            let mut d = polish(source, target, dense_sets, &candidates, d, cfg);
             let win = d.result.t_target_source;
             d.result.runner_up_overlap = refined
                 .iter()
@@ -657,7 +661,7 @@ fn refine_hypothesis(
             })
             .collect()
     };
-    let mut pairs = pairs_of(&inliers);
+    let pairs = pairs_of(&inliers);
     check_inliers(source, &pairs, cfg)?;
     let mut lm = lm::refine_pose(source, target, &pairs, &t_ransac, &cfg.lm)?;
     let mut iterations = lm.iterations;
@@ -671,14 +675,13 @@ fn refine_hypothesis(
         lm = lm::refine_pose(source, target, &new_pairs, &lm.t_target_source, &cfg.lm)?;
         iterations += lm.iterations;
         inliers = sel;
-        pairs = new_pairs;
     }
     // The covariance comes from the descriptor pairs (evaluated at the final pose): they are distinct
     // physical matches whose scatter the sandwich estimator measures. Nearest-neighbour pairs share
     // target points and their residuals are not independent, so their information overstates the
     // certainty (pipeline NEES about 20 instead of 3); `dense.covariance_scale` accounts for the dense
     // pose being more accurate than that.
-    let mut dense_refined = false;
+    let mut dense_settled = None;
     if cfg.dense.enabled {
         if let Some(d) =
             dense::refine_dense(src, tgt, tree, &lm.t_target_source, &cfg.dense, &cfg.lm)?
@@ -687,27 +690,73 @@ fn refine_hypothesis(
             lm.converged = d.converged;
             lm.cost = d.cost;
             iterations += d.iterations;
-            dense_refined = true;
+            dense_settled = Some(d.settled);
         }
     }
-    let overlap = dense::associate(src, tgt, tree, &lm.t_target_source, &cfg.dense).len() as f64
+    let fit = Fit {
+        t_target_source: lm.t_target_source,
+        converged: lm.converged,
+        cost: lm.cost,
+        iterations,
+        dense_settled,
+    };
+    conclude(
+        source,
+        target,
+        (src, tgt, tree),
+        candidates,
+        inliers,
+        t_ransac,
+        fit,
+        cfg,
+    )
+}
+
+/// Where a hypothesis's refinement ended.
+struct Fit {
+    t_target_source: Iso2,
+    converged: bool,
+    cost: f64,
+    iterations: usize,
+    /// `None` when the dense stage did not run; else whether its rounds had settled.
+    dense_settled: Option<bool>,
+}
+
+/// Overlap and covariance at a refined pose: the detail of one hypothesis.
+#[allow(clippy::too_many_arguments)]
+fn conclude(
+    source: &PointSet2,
+    target: &PointSet2,
+    (src, tgt, tree): (&PointSet2, &PointSet2, &dense::TargetTree),
+    candidates: &[ransac::Correspondence],
+    inliers: Vec<usize>,
+    t_ransac: Iso2,
+    fit: Fit,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationDetail, RegistrationError> {
+    // The descriptor pairs of the inliers.
+    let pairs: Vec<(usize, usize)> = inliers
+        .iter()
+        .map(|&k| (candidates[k].source as usize, candidates[k].target as usize))
+        .collect();
+    let overlap = dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense).len() as f64
         / src.len().max(1) as f64;
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
-    let covariance = lm::covariance_at(&lm.t_target_source, source, target, &pairs, &cfg.lm)?;
-    let scale = if dense_refined {
+    let covariance = lm::covariance_at(&fit.t_target_source, source, target, &pairs, &cfg.lm)?;
+    let scale = if fit.dense_settled.is_some() {
         cfg.covariance_scale * cfg.dense.covariance_scale
     } else {
         cfg.covariance_scale
     };
     let covariance_se2 = covariance * scale;
     let result = RegistrationResult {
-        t_target_source: lm.t_target_source,
+        t_target_source: fit.t_target_source,
         covariance: covariance_ros_from_se2(&covariance_se2),
-        converged: lm.converged,
-        iterations,
+        converged: fit.converged,
+        iterations: fit.iterations,
         inliers: pairs.len(),
         candidates: candidates.len(),
-        cost: lm.cost,
+        cost: fit.cost,
         overlap,
         runner_up_overlap: 0.0,
     };
@@ -718,7 +767,63 @@ fn refine_hypothesis(
         inliers,
         t_ransac,
         ransac_iterations: 0,
+        dense_settled: fit.dense_settled,
     })
+}
+
+/// The winning hypothesis's dense rounds continued, accelerated ([`dense::polish_dense`]), when they
+/// had not settled; its overlap and covariance at the polished pose. Kept as it was when polishing
+/// fails (too few pairs, a numerical failure).
+fn polish(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: (&PointSet2, &PointSet2, &dense::TargetTree),
+    candidates: &[ransac::Correspondence],
+    best: RegistrationDetail,
+    cfg: &RegistrationConfig,
+) -> RegistrationDetail {
+    if best.dense_settled != Some(false) || cfg.dense.polish_rounds == 0 {
+        return best;
+    }
+    match polished(source, target, sets, candidates, &best, cfg) {
+        Ok(Some(d)) => d,
+        _ => best,
+    }
+}
+
+fn polished(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: (&PointSet2, &PointSet2, &dense::TargetTree),
+    candidates: &[ransac::Correspondence],
+    best: &RegistrationDetail,
+    cfg: &RegistrationConfig,
+) -> Result<Option<RegistrationDetail>, RegistrationError> {
+    let (src, tgt, tree) = sets;
+    let r = &best.result;
+    let Some(d) = dense::polish_dense(src, tgt, tree, &r.t_target_source, &cfg.dense, &cfg.lm)?
+    else {
+        return Ok(None);
+    };
+    let fit = Fit {
+        t_target_source: d.t_target_source,
+        converged: d.converged,
+        cost: d.cost,
+        iterations: r.iterations + d.iterations,
+        dense_settled: Some(d.settled),
+    };
+    let mut out = conclude(
+        source,
+        target,
+        sets,
+        candidates,
+        best.inliers.clone(),
+        best.t_ransac,
+        fit,
+        cfg,
+    )?;
+    out.ransac_iterations = best.ransac_iterations;
+    Ok(Some(out))
 }
 
 /// Enough inliers, not all on a line.

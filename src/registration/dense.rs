@@ -12,7 +12,7 @@
 
 use super::lm::{self, LmConfig};
 use super::{PointSet2, RegistrationError};
-use crate::math::{Iso2, Mat2, Vec3};
+use crate::math::{Iso2, Mat2, Vec2, Vec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
@@ -197,24 +197,78 @@ pub fn associate(
     t: &Iso2,
     cfg: &DenseConfig,
 ) -> Vec<(usize, usize)> {
+    associate_with(source, target, tree, t, cfg, None)
+}
+
+/// What the rounds remember of each source point's nearest neighbours: the nearest target point, the
+/// distance of the second nearest, and where the source point was when they were found. A later round
+/// that has moved the point by `delta` keeps the nearest without a tree query when the nearest is
+/// still closer than `second - delta`: no other target point can have come that close (triangle
+/// inequality), so the pairs are exactly those of a fresh query. The rounds move points by
+/// millimetres, so most of a round's queries are saved.
+#[derive(Default)]
+struct NearestMemory {
+    /// Per source point: (nearest target index, second-nearest distance, position at the query).
+    entries: Vec<Option<(u32, f64, Vec2)>>,
+}
+
+/// [`associate`], remembering nearest neighbours across calls in `memory` (see [`NearestMemory`]).
+fn associate_with(
+    source: &PointSet2,
+    target: &PointSet2,
+    tree: &TargetTree,
+    t: &Iso2,
+    cfg: &DenseConfig,
+    mut memory: Option<&mut NearestMemory>,
+) -> Vec<(usize, usize)> {
     let r = t.rotation.to_rotation_matrix().into_inner();
     let max_sq = cfg.max_distance * cfg.max_distance;
     let gate_sq = cfg.gate * cfg.gate;
+    let two = std::num::NonZeroUsize::MIN.saturating_add(1);
+    if let Some(m) = memory.as_deref_mut() {
+        m.entries.resize(source.len(), None);
+    }
     let mut pairs = Vec::with_capacity(source.len());
     for (i, (x, cx)) in source.points.iter().zip(&source.covs).enumerate() {
-        let q = t * nalgebra::Point2::from(*x);
-        let nn = tree
-            .query(&[q.x, q.y])
-            .nearest_one::<SquaredEuclidean<f64>>()
-            .execute();
-        if nn.distance > max_sq {
+        let q = (t * nalgebra::Point2::from(*x)).coords;
+        let (j, dist_sq) = match memory.as_deref_mut() {
+            None => {
+                let nn = tree
+                    .query(&[q.x, q.y])
+                    .nearest_one::<SquaredEuclidean<f64>>()
+                    .execute();
+                (nn.item as usize, nn.distance)
+            }
+            Some(m) => {
+                let kept = m.entries[i].and_then(|(j, second, at)| {
+                    let y = target.points.get(j as usize)?;
+                    let d = (y - q).norm();
+                    (d < second - (q - at).norm()).then_some((j as usize, d * d))
+                });
+                match kept {
+                    Some(k) => k,
+                    None => {
+                        let nn = tree
+                            .query(&[q.x, q.y])
+                            .nearest_n::<SquaredEuclidean<f64>>(two)
+                            .execute();
+                        let Some(first) = nn.first() else {
+                            continue;
+                        };
+                        let second = nn.get(1).map_or(f64::INFINITY, |n| n.distance.sqrt());
+                        m.entries[i] = Some((first.item, second, q));
+                        (first.item as usize, first.distance)
+                    }
+                }
+            }
+        };
+        if dist_sq > max_sq {
             continue;
         }
-        let j = nn.item as usize;
         let (Some(y), Some(cy)) = (target.points.get(j), target.covs.get(j)) else {
             continue;
         };
-        let d = y - q.coords;
+        let d = y - q;
         let s: Mat2 = cy + r * cx * r.transpose();
         let Some(s_inv) = s.try_inverse() else {
             continue;
@@ -360,8 +414,9 @@ fn dense_rounds(
     // The current pose; with acceleration also as the parameter vector of the mixing.
     let mut t = *initial;
     let mut history: Vec<(Vec3, Vec3)> = Vec::with_capacity(AA_DEPTH + 1);
+    let mut memory = NearestMemory::default();
     for _ in 0..rounds {
-        let pairs = associate(source, target, tree, &t, cfg);
+        let pairs = associate_with(source, target, tree, &t, cfg, Some(&mut memory));
         if pairs.len() < cfg.min_pairs {
             break;
         }
@@ -439,6 +494,44 @@ mod tests {
         );
         // Fewer than two rounds: nothing to mix.
         assert_eq!(anderson(&history[..1]), None);
+    }
+
+    /// Remembered nearest neighbours give exactly the pairs of fresh queries, pose after pose (small
+    /// moves, where most are kept, and a jump, where most are queried again).
+    #[test]
+    fn remembered_nearest_neighbours_give_the_pairs_of_fresh_queries() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let pts = |rng: &mut rand::rngs::StdRng, n: usize| -> Vec<crate::math::Vec2> {
+            (0..n)
+                .map(|_| {
+                    crate::math::Vec2::new(
+                        rng.random_range(-30.0..30.0),
+                        rng.random_range(-30.0..30.0),
+                    )
+                })
+                .collect()
+        };
+        let source = PointSet2::isotropic(pts(&mut rng, 800), 0.2);
+        let target = PointSet2::isotropic(pts(&mut rng, 900), 0.2);
+        let tree = target_tree(&target).expect("tree");
+        let cfg = DenseConfig::default();
+        let mut memory = NearestMemory::default();
+        let mut t = Iso2::new(crate::math::Vec2::new(0.3, -0.2), 0.01);
+        for step in 0..30 {
+            let jump = if step == 15 { 0.8 } else { 0.004 };
+            t = t * Iso2::new(
+                crate::math::Vec2::new(
+                    rng.random_range(-jump..jump),
+                    rng.random_range(-jump..jump),
+                ),
+                rng.random_range(-jump..jump) * 0.01,
+            );
+            let fresh = associate(&source, &target, &tree, &t, &cfg);
+            let kept = associate_with(&source, &target, &tree, &t, &cfg, Some(&mut memory));
+            assert_eq!(kept, fresh, "step {step}");
+            assert!(fresh.len() > 100, "step {step}: {} pairs", fresh.len());
+        }
     }
 
     #[test]

@@ -520,7 +520,7 @@ mod tests {
         let mut t = Iso2::new(crate::math::Vec2::new(0.3, -0.2), 0.01);
         for step in 0..30 {
             let jump = if step == 15 { 0.8 } else { 0.004 };
-            t = t * Iso2::new(
+            t *= Iso2::new(
                 crate::math::Vec2::new(
                     rng.random_range(-jump..jump),
                     rng.random_range(-jump..jump),

@@ -772,8 +772,8 @@ fn conclude(
 }
 
 /// The winning hypothesis's dense rounds continued, accelerated ([`dense::polish_dense`]), when they
-/// had not settled; its overlap and covariance at the polished pose. Kept as it was when polishing
-/// fails (too few pairs, a numerical failure).
+/// had not settled (`registration.dense.polish_rounds`, off by default: see there); its covariance at
+/// the polished pose. Kept as it was when polishing fails (too few pairs, a numerical failure).
 fn polish(
     source: &PointSet2,
     target: &PointSet2,
@@ -823,6 +823,9 @@ fn polished(
         cfg,
     )?;
     out.ransac_iterations = best.ransac_iterations;
+    // The overlap stays the one the hypotheses competed with (all refined alike), so that the
+    // ambiguity gate compares like with like; polishing changes the pose and its covariance only.
+    out.result.overlap = r.overlap;
     Ok(Some(out))
 }
 

@@ -127,6 +127,52 @@ fn pipeline_registers_independently_resampled_submaps() {
     );
 }
 
+/// The optional accelerated polish of the winning hypothesis (`registration.dense.polish_rounds`) on
+/// the same kind of pairs: against the known transforms, it registers as many and is no less accurate.
+#[test]
+fn polishing_the_winner_keeps_the_known_transforms() {
+    let mut rng = StdRng::seed_from_u64(29);
+    let plain = RegistrationConfig::default();
+    let mut polished = plain.clone();
+    polished.dense.polish_rounds = 3;
+    let view = View {
+        t_world_sensor: Iso2::identity(),
+        max_range: 100.0,
+        half_fov: std::f64::consts::PI,
+        p_detect: 0.5,
+        clutter_ratio: 0.2,
+        sweeps: 10,
+    };
+    let (mut errors_plain, mut errors_polished) = (Vec::new(), Vec::new());
+    for _ in 0..15 {
+        let scene = random_scene(&mut rng, 220, 115.0);
+        let t = random_motion(&mut rng, 10.0);
+        let pair = independent_pair(&mut rng, &scene, t, view, view, &Noise::default());
+        for (cfg, errors) in [
+            (&plain, &mut errors_plain),
+            (&polished, &mut errors_polished),
+        ] {
+            if let Ok(res) = register(&pair.source.set, &pair.target.set, cfg) {
+                let (te, re) = pose_error(&res.t_target_source, &t);
+                if te < 0.5 && re < 1f64.to_radians() {
+                    errors.push(te);
+                }
+            }
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    eprintln!(
+        "plain {} registered, mean {:.4} m; polished {} registered, mean {:.4} m",
+        errors_plain.len(),
+        mean(&errors_plain),
+        errors_polished.len(),
+        mean(&errors_polished)
+    );
+    assert!(errors_plain.len() >= 14, "{errors_plain:?}");
+    assert!(errors_polished.len() >= errors_plain.len());
+    assert!(mean(&errors_polished) <= 1.05 * mean(&errors_plain) + 0.002);
+}
+
 /// A dense pair (about 5000 points each) through the same pipeline.
 #[test]
 fn pipeline_registers_dense_submaps() {

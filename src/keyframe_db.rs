@@ -509,13 +509,19 @@ impl KeyframeDb {
         out
     }
 
-    /// The registration-ready form of keyframe `index`, from a small cache (built on a miss).
+    /// The registration-ready form of keyframe `index`, from a small cache (built on a miss, or when the
+    /// cached one was prepared under other settings than `cfg`).
     pub fn prepared(
         &mut self,
         index: usize,
         cfg: &RegistrationConfig,
     ) -> Result<Arc<PreparedSubmap>, RegistrationError> {
-        if let Some(pos) = self.cache.iter().position(|(i, _)| *i == index) {
+        // A cached submap prepared under other settings is prepared again.
+        if let Some(pos) = self
+            .cache
+            .iter()
+            .position(|(i, p)| *i == index && p.fits(cfg))
+        {
             if let Some(entry) = self.cache.remove(pos) {
                 let p = entry.1.clone();
                 self.cache.push_back(entry);
@@ -753,6 +759,21 @@ mod tests {
         // Degenerate input stays usable: a zero covariance becomes the smallest stored circle.
         let z = dequantise_cov(quantise_cov(&Mat2::zeros()));
         assert!(z.try_inverse().is_some());
+    }
+
+    /// The cache hands out a prepared submap only for the settings it was prepared with.
+    #[test]
+    fn the_prepared_cache_follows_the_registration_settings() {
+        let mut db = db_with(3);
+        let cfg = RegistrationConfig::default();
+        let a = db.prepared(1, &cfg).expect("prepared");
+        let again = db.prepared(1, &cfg).expect("cached");
+        assert!(Arc::ptr_eq(&a, &again), "same settings: the cached one");
+        let mut other = cfg.clone();
+        other.dense.surface_radius = 3.0;
+        let b = db.prepared(1, &other).expect("prepared anew");
+        assert!(!Arc::ptr_eq(&a, &b));
+        assert!(b.fits(&other) && !b.fits(&cfg));
     }
 
     #[test]

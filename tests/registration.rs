@@ -533,6 +533,17 @@ fn result_covariance_is_in_ros_order() {
     // Prepared once, matched twice: the same answer (deterministic).
     let d2 = register_detailed(&s, &g, &cfg).unwrap();
     assert_eq!(d.result, d2.result);
+    // Settings that preparation bakes in must match: other surface neighbours (dense stage) are refused
+    // by name; settings used only while registering (the dense rounds) are not.
+    let mut other = cfg.clone();
+    other.dense.surface_neighbours = 5;
+    assert!(!g.fits(&other));
+    let err = register_detailed(&s, &g, &other).unwrap_err().to_string();
+    assert!(err.contains("dense-stage"), "{err}");
+    let mut rounds = cfg.clone();
+    rounds.dense.iterations = 3;
+    assert!(g.fits(&rounds));
+    assert!(register_detailed(&s, &g, &rounds).is_ok());
 }
 
 #[test]

@@ -262,6 +262,11 @@ impl RegistrationConfig {
     }
 }
 
+/// The dense-stage settings a [`PreparedSubmap`] bakes in.
+fn dense_baked(d: &dense::DenseConfig) -> (usize, f64, usize) {
+    (d.surface_neighbours, d.surface_radius, d.max_source_points)
+}
+
 /// A submap ready for matching: its points, descriptors and descriptor index. Build it once per
 /// keyframe and reuse it for every registration against that keyframe.
 #[derive(Debug)]
@@ -272,6 +277,8 @@ pub struct PreparedSubmap {
     index: matching::DescriptorIndex,
     descriptor_config: descriptor::DescriptorConfig,
     backend: matching::MatchingBackend,
+    /// The dense settings baked in: surface neighbours, surface radius, most source points.
+    dense_baked: (usize, f64, usize),
     point_tree: dense::TargetTree,
     dense_points: PointSet2,
     /// The dense stage's source points when they are a subset of `dense_points`.
@@ -302,6 +309,7 @@ impl PreparedSubmap {
             index,
             descriptor_config: cfg.descriptor.clone(),
             backend: cfg.matching.backend,
+            dense_baked: dense_baked(&cfg.dense),
             point_tree,
             dense_points,
             dense_subset,
@@ -326,6 +334,14 @@ impl PreparedSubmap {
     /// The points (with surface covariances) the dense stage pairs when this submap is the source.
     fn dense_source(&self) -> &PointSet2 {
         self.dense_subset.as_ref().unwrap_or(&self.dense_points)
+    }
+    /// True when it was built with `cfg`'s descriptor, matching-backend and dense-stage preparation
+    /// settings (surface neighbours and radius, most source points), i.e. registering it under `cfg`
+    /// is the same as preparing it anew.
+    pub fn fits(&self, cfg: &RegistrationConfig) -> bool {
+        self.descriptor_config == cfg.descriptor
+            && self.backend == cfg.matching.backend
+            && self.dense_baked == dense_baked(&cfg.dense)
     }
     /// The descriptor settings it was built with.
     pub fn descriptor_config(&self) -> &descriptor::DescriptorConfig {
@@ -424,12 +440,10 @@ pub fn register_detailed(
 ) -> Result<RegistrationDetail, RegistrationError> {
     checked_config(cfg)?;
     check_sizes(source.points.len(), target.points.len(), cfg)?;
-    if source.descriptor_config != cfg.descriptor
-        || target.descriptor_config != cfg.descriptor
-        || target.backend != cfg.matching.backend
-    {
+    if !source.fits(cfg) || !target.fits(cfg) {
         return Err(RegistrationError::Numerical(
-            "submaps were prepared with other descriptor or matching settings than `cfg`".into(),
+            "submaps were prepared with other descriptor, matching or dense-stage settings than `cfg`"
+                .into(),
         ));
     }
     // 1. Coarse association: K nearest neighbours in descriptor space (RSD), for a bounded set of

@@ -8,7 +8,7 @@
 //! `Sigma_y + R Sigma_x R^T` (and a distance cap) are dropped, and eq. 10 is solved again, a few times
 //! (iterative closest point with the paper's residuals and loss, as in GICP). Beyond the paper.
 //!
-//! Entry points: [`DenseConfig`], [`target_tree`], [`refine_dense`].
+//! Entry points: [`DenseConfig`], [`target_tree`], [`refine_dense`] ([`Rounds`]).
 
 use super::lm::{self, LmConfig};
 use super::{PointSet2, RegistrationError};
@@ -42,7 +42,7 @@ pub struct DenseConfig {
     pub surface_neighbours: usize,
     /// Radius of that neighbourhood, m (default 2.0).
     pub surface_radius: f64,
-    /// Accelerated rounds ([`polish_dense`]) that continue the winning hypothesis's rounds when they
+    /// Accelerated rounds ([`Rounds::Accelerated`]) that continue the winning hypothesis's rounds when they
     /// have not settled (default 0 = off). Measured with `dc_loc eval` on the demo drive, DC-Loc mean /
     /// median translation error over the inliers: off 0.121 / 0.082 m, 2 rounds 0.111 / 0.078, 3:
     /// 0.103 / 0.077, 4: 0.107 / 0.080, 6: 0.111 / 0.084, 8: 0.104 / 0.079 (differences below about
@@ -340,13 +340,34 @@ fn anderson(history: &[(Vec3, Vec3)]) -> Option<Vec3> {
     next.iter().all(|v| v.is_finite()).then_some(next)
 }
 
-/// Re-associates and re-solves eq. 10 from `initial`, at most `cfg.iterations` rounds; `None` when too
-/// few pairs pass the gates (the caller keeps its estimate).
+/// Which rounds [`refine_dense`] runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rounds {
+    /// At most `iterations` plain rounds.
+    Plain,
+    /// At most `polish_rounds` Anderson-accelerated rounds, continuing plain ones that had not settled.
+    Accelerated,
+}
+
+/// Re-associates and re-solves eq. 10 from `initial`; `None` when too few pairs pass the gates (the
+/// caller keeps its estimate).
 ///
 /// A round pairs every source point with its nearest target point and solves eq. 10 over those pairs:
 /// a fixed-point iteration (ICP). It converges slowly along a facade, where the radar's long
 /// cross-range covariances leave the pose free to slide a little each round (on the demo drive the
-/// rounds' steps shrink by only 0.7-0.8 each); [`polish_dense`] continues it faster.
+/// rounds' steps shrink by only 0.7-0.8 each).
+///
+/// [`Rounds::Accelerated`] continues them with Anderson acceleration (AA-ICP, Pavlov et al., ICRA
+/// 2018): each next pose mixes the last rounds' outputs so as to cancel their residuals. The pairs are
+/// Euclidean nearest neighbours while eq. 10 is Mahalanobis, so no energy decreases from round to round
+/// that could safeguard the mixing (measured: the truncated robust energy rose while the rounds
+/// converged, and a safeguard on it refused useful mixes); the mixed pose is instead kept within ten
+/// round steps of the plain one. Registration polishes only the winning hypothesis with it:
+/// accelerating every hypothesis also slid wrong ones along a street to alignments fitting nearly as
+/// well, which the ambiguity gate then refused (revisit recall on the five-radar 1 % drive 96.0 ->
+/// 94.9 %). Measured with `dc_loc eval` on the demo drive, DC-Loc mean / median translation error over
+/// the inliers: 8 plain rounds 0.121 / 0.082 m, 20 plain rounds 0.096 / 0.079 m, every hypothesis's 8
+/// rounds accelerated 0.103 / 0.079 m, and the polishing rounds as [`DenseConfig::polish_rounds`] says.
 pub fn refine_dense(
     source: &PointSet2,
     target: &PointSet2,
@@ -354,64 +375,12 @@ pub fn refine_dense(
     initial: &Iso2,
     cfg: &DenseConfig,
     lm_cfg: &LmConfig,
+    mode: Rounds,
 ) -> Result<Option<DenseResult>, RegistrationError> {
-    dense_rounds(
-        source,
-        target,
-        tree,
-        initial,
-        cfg,
-        lm_cfg,
-        cfg.iterations,
-        false,
-    )
-}
-
-/// The rounds of [`refine_dense`] continued from `initial`, at most `cfg.polish_rounds`, with Anderson
-/// acceleration (AA-ICP, Pavlov
-/// et al., ICRA 2018): each next pose mixes the last rounds' outputs so as to cancel their residuals.
-/// The pairs are Euclidean nearest neighbours while eq. 10 is Mahalanobis, so no energy decreases from
-/// round to round that could safeguard the mixing (measured: the truncated robust energy rose while
-/// the rounds converged, and a safeguard on it refused useful mixes); the mixed pose is instead kept
-/// within ten round steps of the plain one.
-///
-/// Registration polishes only the winning hypothesis with it: accelerating every hypothesis also slid
-/// wrong ones along a street to alignments fitting nearly as well, which the ambiguity gate then
-/// refused (revisit recall on the five-radar 1 % drive 96.0 -> 94.9 %). Measured with `dc_loc eval` on
-/// the demo drive, DC-Loc mean / median translation error over the inliers: 8 plain rounds
-/// 0.121 / 0.082 m, 20 plain rounds 0.096 / 0.079 m, every hypothesis's 8 rounds accelerated
-/// 0.103 / 0.079 m, and the polishing rounds as [`DenseConfig::polish_rounds`] says.
-pub fn polish_dense(
-    source: &PointSet2,
-    target: &PointSet2,
-    tree: &TargetTree,
-    initial: &Iso2,
-    cfg: &DenseConfig,
-    lm_cfg: &LmConfig,
-) -> Result<Option<DenseResult>, RegistrationError> {
-    dense_rounds(
-        source,
-        target,
-        tree,
-        initial,
-        cfg,
-        lm_cfg,
-        cfg.polish_rounds,
-        true,
-    )
-}
-
-#[allow(clippy::too_many_arguments)]
-fn dense_rounds(
-    source: &PointSet2,
-    target: &PointSet2,
-    tree: &TargetTree,
-    initial: &Iso2,
-    cfg: &DenseConfig,
-    lm_cfg: &LmConfig,
-    rounds: usize,
-    accelerate: bool,
-) -> Result<Option<DenseResult>, RegistrationError> {
+    let (rounds, accelerate) = match mode {
+        Rounds::Plain => (cfg.iterations, false),
+        Rounds::Accelerated => (cfg.polish_rounds, true),
+    };
     let mut out: Option<DenseResult> = None;
     let mut iterations = 0;
     // The pairs change from round to round, so the rounds in between solve only to a tenth of the
@@ -538,10 +507,22 @@ mod tests {
                 ),
                 rng.random_range(-jump..jump) * 0.01,
             );
+            let before = memory.entries.clone();
             let fresh = associate(&source, &target, &tree, &t, &cfg);
             let kept = associate_with(&source, &target, &tree, &t, &cfg, Some(&mut memory));
             assert_eq!(kept, fresh, "step {step}");
             assert!(fresh.len() > 100, "step {step}: {} pairs", fresh.len());
+            // An entry left as it was is a query saved.
+            let saved = before
+                .iter()
+                .zip(&memory.entries)
+                .filter(|(a, b)| a.is_some() && a == b)
+                .count();
+            match step {
+                0 => assert_eq!(saved, 0, "nothing to remember yet"),
+                15 => assert!(saved < source.len() / 2, "the jump: {saved} saved"),
+                _ => assert!(saved > source.len() * 9 / 10, "step {step}: {saved} saved"),
+            }
         }
     }
 

@@ -491,6 +491,7 @@ pub fn overlap_near(
         initial,
         &cfg.dense,
         &cfg.lm,
+        dense::Rounds::Plain,
     )?;
     Ok(refined.map(|d| {
         let src = source.dense_source();
@@ -667,14 +668,7 @@ fn refine_hypothesis(
     t_ransac: Iso2,
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
-    let pairs_of = |sel: &[usize]| -> Vec<(usize, usize)> {
-        sel.iter()
-            .map(|&k| {
-                let c = &candidates[k];
-                (c.source as usize, c.target as usize)
-            })
-            .collect()
-    };
+    let pairs_of = |sel: &[usize]| descriptor_pairs(candidates, sel);
     let pairs = pairs_of(&inliers);
     check_inliers(source, &pairs, cfg)?;
     let mut lm = lm::refine_pose(source, target, &pairs, &t_ransac, &cfg.lm)?;
@@ -697,9 +691,15 @@ fn refine_hypothesis(
     // pose being more accurate than that.
     let mut dense_settled = None;
     if cfg.dense.enabled {
-        if let Some(d) =
-            dense::refine_dense(src, tgt, tree, &lm.t_target_source, &cfg.dense, &cfg.lm)?
-        {
+        if let Some(d) = dense::refine_dense(
+            src,
+            tgt,
+            tree,
+            &lm.t_target_source,
+            &cfg.dense,
+            &cfg.lm,
+            dense::Rounds::Plain,
+        )? {
             lm.t_target_source = d.t_target_source;
             lm.converged = d.converged;
             lm.cost = d.cost;
@@ -713,6 +713,7 @@ fn refine_hypothesis(
         cost: lm.cost,
         iterations,
         dense_settled,
+        overlap: None,
     };
     conclude(
         source,
@@ -734,6 +735,15 @@ struct Fit {
     iterations: usize,
     /// `None` when the dense stage did not run; else whether its rounds had settled.
     dense_settled: Option<bool>,
+    /// The overlap to report when it is already known; else measured at the pose.
+    overlap: Option<f64>,
+}
+
+/// The (source, target) point indices of the candidates `sel` (indices into `candidates`).
+fn descriptor_pairs(candidates: &[ransac::Correspondence], sel: &[usize]) -> Vec<(usize, usize)> {
+    sel.iter()
+        .map(|&k| (candidates[k].source as usize, candidates[k].target as usize))
+        .collect()
 }
 
 /// Overlap and covariance at a refined pose: the detail of one hypothesis.
@@ -748,13 +758,11 @@ fn conclude(
     fit: Fit,
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
-    // The descriptor pairs of the inliers.
-    let pairs: Vec<(usize, usize)> = inliers
-        .iter()
-        .map(|&k| (candidates[k].source as usize, candidates[k].target as usize))
-        .collect();
-    let overlap = dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense).len() as f64
-        / src.len().max(1) as f64;
+    let pairs = descriptor_pairs(candidates, &inliers);
+    let overlap = fit.overlap.unwrap_or_else(|| {
+        dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense).len() as f64
+            / src.len().max(1) as f64
+    });
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
     let covariance = lm::covariance_at(&fit.t_target_source, source, target, &pairs, &cfg.lm)?;
     let scale = if fit.dense_settled.is_some() {
@@ -785,7 +793,7 @@ fn conclude(
     })
 }
 
-/// The winning hypothesis's dense rounds continued, accelerated ([`dense::polish_dense`]), when they
+/// The winning hypothesis's dense rounds continued, accelerated ([`dense::Rounds::Accelerated`]), when they
 /// had not settled (`registration.dense.polish_rounds`, off by default: see there); its covariance at
 /// the polished pose. Kept as it was when polishing fails (too few pairs, a numerical failure).
 fn polish(
@@ -799,25 +807,19 @@ fn polish(
     if best.dense_settled != Some(false) || cfg.dense.polish_rounds == 0 {
         return best;
     }
-    match polished(source, target, sets, candidates, &best, cfg) {
-        Ok(Some(d)) => d,
-        _ => best,
-    }
-}
-
-fn polished(
-    source: &PointSet2,
-    target: &PointSet2,
-    sets: (&PointSet2, &PointSet2, &dense::TargetTree),
-    candidates: &[ransac::Correspondence],
-    best: &RegistrationDetail,
-    cfg: &RegistrationConfig,
-) -> Result<Option<RegistrationDetail>, RegistrationError> {
     let (src, tgt, tree) = sets;
     let r = &best.result;
-    let Some(d) = dense::polish_dense(src, tgt, tree, &r.t_target_source, &cfg.dense, &cfg.lm)?
-    else {
-        return Ok(None);
+    let refined = dense::refine_dense(
+        src,
+        tgt,
+        tree,
+        &r.t_target_source,
+        &cfg.dense,
+        &cfg.lm,
+        dense::Rounds::Accelerated,
+    );
+    let Ok(Some(d)) = refined else {
+        return best;
     };
     let fit = Fit {
         t_target_source: d.t_target_source,
@@ -825,22 +827,27 @@ fn polished(
         cost: d.cost,
         iterations: r.iterations + d.iterations,
         dense_settled: Some(d.settled),
+        // The overlap stays the one the hypotheses competed with (all refined alike), so that the
+        // ambiguity gate compares like with like; polishing changes the pose and its covariance only.
+        overlap: Some(r.overlap),
     };
-    let mut out = conclude(
+    let inliers = best.inliers.clone();
+    match conclude(
         source,
         target,
         sets,
         candidates,
-        best.inliers.clone(),
+        inliers,
         best.t_ransac,
         fit,
         cfg,
-    )?;
-    out.ransac_iterations = best.ransac_iterations;
-    // The overlap stays the one the hypotheses competed with (all refined alike), so that the
-    // ambiguity gate compares like with like; polishing changes the pose and its covariance only.
-    out.result.overlap = r.overlap;
-    Ok(Some(out))
+    ) {
+        Ok(mut out) => {
+            out.ransac_iterations = best.ransac_iterations;
+            out
+        }
+        Err(_) => best,
+    }
 }
 
 /// Enough inliers, not all on a line.

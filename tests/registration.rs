@@ -136,12 +136,10 @@ fn polishing_the_winner_keeps_the_known_transforms() {
     let mut polished = plain.clone();
     polished.dense.polish_rounds = 3;
     let view = View {
-        t_world_sensor: Iso2::identity(),
-        max_range: 100.0,
-        half_fov: std::f64::consts::PI,
+        sweeps: 10,
         p_detect: 0.5,
         clutter_ratio: 0.2,
-        sweeps: 10,
+        ..View::all(Iso2::identity())
     };
     let (mut errors_plain, mut errors_polished) = (Vec::new(), Vec::new());
     for _ in 0..15 {

@@ -1,6 +1,7 @@
 //! RANSAC on a planar rigid motion (Fischler & Bolles 1981) over candidate correspondences.
 //!
-//! Entry points: [`RansacConfig`], [`ransac`] (RANSAC on given correspondences), [`RansacResult`],
+//! Entry points: [`RansacConfig`], [`ransac`] (RANSAC on given correspondences), [`ransac_hypotheses`]
+//! (the best distinct motions, [`Distinct`]), [`RansacResult`],
 //! [`fit_rigid`] (closed-form least-squares rigid fit, 2-D Procrustes / Umeyama 1991).
 //!
 //! Minimal sets are 2 correspondences. A drawn pair is rejected before any scoring when its two source
@@ -9,8 +10,12 @@
 //! can make both inliers). Those checks cost a few flops and throw away most wrong pairs, so rejected
 //! draws are cheap; they still count as iterations in the adaptive stopping rule
 //! `N = ln(1 - p) / ln(1 - w^2)` (w = best inlier share so far), which is what that rule assumes.
-//! Scoring stops early once a hypothesis can no longer beat the best one. The random generator is
-//! seeded from the configuration: the same input gives the same output.
+//! A motion's support is the number of source points with a candidate within the radius (not the
+//! number of pairs: with k > 1 candidates per point a facade slid along itself would collect several
+//! per point), as the final inliers are counted. Scoring stops early once a hypothesis can no longer
+//! enter the kept set. A motion that does is locally optimised (LO-RANSAC, Chum et al. 2003).
+//! [`ransac_hypotheses`] keeps the best distinct motions for the caller to judge geometrically. The
+//! random generator is seeded from the configuration: the same input gives the same output.
 
 use crate::math::{Iso2, Mat2, Vec2};
 use crate::registration::{PointSet2, RegistrationError};
@@ -164,7 +169,8 @@ fn lambda_max(c: &Mat2) -> f64 {
     0.5 * tr + (0.25 * tr * tr - det).max(0.0).sqrt()
 }
 
-/// RANSAC over `correspondences` between `source` and `target`.
+/// RANSAC over `correspondences` between `source` and `target`: the motion explaining the most source
+/// points.
 ///
 /// Errors: [`RegistrationError::TooFewInliers`] when there are fewer than 2 correspondences or no
 /// usable minimal set (e.g. all source points within `min_sample_separation` of each other);
@@ -175,6 +181,57 @@ pub fn ransac(
     correspondences: &[Correspondence],
     cfg: &RansacConfig,
 ) -> Result<RansacResult, RegistrationError> {
+    let mut all = ransac_hypotheses(source, target, correspondences, cfg, &Distinct::best_only())?;
+    all.truncate(1);
+    all.pop()
+        .ok_or(RegistrationError::TooFewInliers { have: 0, need: 2 })
+}
+
+/// Which hypotheses [`ransac_hypotheses`] keeps besides the best one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Distinct {
+    /// Most hypotheses kept.
+    pub keep: usize,
+    /// Two motions closer than this in translation, m, ...
+    pub translation: f64,
+    /// ... and in rotation, rad, are the same alignment (the better-supported one is kept).
+    pub rotation: f64,
+    /// Fewest source points a hypothesis must explain to be kept (the best one is always kept).
+    pub min_support: usize,
+}
+
+impl Distinct {
+    /// Only the best hypothesis.
+    pub fn best_only() -> Self {
+        Distinct {
+            keep: 1,
+            translation: f64::INFINITY,
+            rotation: f64::INFINITY,
+            min_support: 0,
+        }
+    }
+    fn same(&self, a: &Iso2, b: &Iso2) -> bool {
+        let rel = a.inverse() * b;
+        rel.translation.vector.norm() <= self.translation
+            && rel.rotation.angle().abs() <= self.rotation
+    }
+}
+
+/// RANSAC keeping up to `distinct.keep` different motions, best supported first: the best one and the
+/// best other local maxima of the support (source points explained). Scene aliasing (a facade slid
+/// by a window spacing, a repeated block) can give a wrong motion more descriptor support than the
+/// true one; the caller then judges the kept motions by their geometric overlap.
+///
+/// The stopping rule follows the best support; each kept motion is locally optimised (LO-RANSAC,
+/// Chum et al. 2003: refit on its inliers and rescore while the support grows) and finally refitted
+/// as [`ransac`] describes. Errors as [`ransac`].
+pub fn ransac_hypotheses(
+    source: &PointSet2,
+    target: &PointSet2,
+    correspondences: &[Correspondence],
+    cfg: &RansacConfig,
+    distinct: &Distinct,
+) -> Result<Vec<RansacResult>, RegistrationError> {
     let n = correspondences.len();
     if n < 2 {
         return Err(RegistrationError::TooFewInliers { have: n, need: 2 });
@@ -211,12 +268,32 @@ pub fn ransac(
             cfg.inlier_threshold * cfg.inlier_threshold
         });
     }
+    // Source slot of each pair (dense ids): a motion is scored by the source points it explains, not
+    // by its pairs, as the final inliers are counted (one per source point).
+    let mut slot_of: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
+    let slots: Vec<u32> = correspondences
+        .iter()
+        .map(|c| {
+            let next = slot_of.len() as u32;
+            *slot_of.entry(c.source).or_insert(next)
+        })
+        .collect();
+    let mut score = Scorer {
+        xs: &xs,
+        ys: &ys,
+        thr2: &thr2,
+        slots: &slots,
+        seen: vec![0; slot_of.len()],
+        stamp: 0,
+    };
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
     let min_sep2 = cfg.min_sample_separation * cfg.min_sample_separation;
     let log_fail = (1.0 - cfg.confidence).ln();
     let mut needed = cfg.max_iterations;
-    let (mut best_count, mut best_t) = (0usize, None::<Iso2>);
+    // Kept motions (support, motion), best first.
+    let mut kept: Vec<(usize, Iso2)> = Vec::with_capacity(distinct.keep + 1);
+    let keep = distinct.keep.max(1);
     let (mut iterations, mut hypotheses) = (0usize, 0usize);
     while iterations < needed {
         iterations += 1;
@@ -239,26 +316,37 @@ pub fn ransac(
         }
         hypotheses += 1;
         let rot = nalgebra::UnitComplex::new((u.x * v.y - u.y * v.x).atan2(u.dot(&v)));
-        let (c, s) = (rot.re, rot.im);
         let mid_x = 0.5 * (xs[a] + xs[b]);
         let mid_y = 0.5 * (ys[a] + ys[b]);
-        let tx = mid_y.x - (c * mid_x.x - s * mid_x.y);
-        let ty = mid_y.y - (s * mid_x.x + c * mid_x.y);
-        // Score with early exit once the best count is out of reach.
-        let mut count = 0usize;
-        for k in 0..n {
-            let x = &xs[k];
-            let dx = ys[k].x - (c * x.x - s * x.y + tx);
-            let dy = ys[k].y - (s * x.x + c * x.y + ty);
-            if dx * dx + dy * dy <= thr2[k] {
-                count += 1;
-            } else if count + (n - k - 1) <= best_count {
+        let t = Iso2::from_parts((mid_y - rot * mid_x).into(), rot);
+        // The support a motion needs to enter the kept list.
+        let bar = match kept.last() {
+            None => 0,
+            Some(_) if kept.len() < keep => distinct.min_support,
+            Some(last) => last.0,
+        };
+        let count = score.count(&t, bar);
+        if count == 0 || count <= bar {
+            continue;
+        }
+        // Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points,
+        // which cuts far inliers off; refit on the inliers and rescore while the support grows.
+        let (mut count, mut t) = (count, t);
+        for _ in 0..LOCAL_ROUNDS {
+            let ids = inliers_of(&xs, &ys, &thr2, &t);
+            let Some(t_fit) = fit_rigid(ids.iter().map(|&k| (xs[k], ys[k]))) else {
+                break;
+            };
+            let c_fit = score.count(&t_fit, 0);
+            if c_fit <= count {
                 break;
             }
+            count = c_fit;
+            t = t_fit;
         }
-        if count > best_count {
-            best_count = count;
-            best_t = Some(Iso2::from_parts(Vec2::new(tx, ty).into(), rot));
+        let best_before = kept.first().map_or(0, |k| k.0);
+        insert_distinct(&mut kept, (count, t), keep, distinct);
+        if count > best_before {
             let w = count as f64 / n as f64;
             let p_good = w * w;
             needed = if p_good >= 1.0 {
@@ -273,42 +361,113 @@ pub fn ransac(
             };
         }
     }
-    let Some(mut t) = best_t else {
+    if kept.is_empty() {
         return Err(RegistrationError::TooFewInliers { have: 0, need: 2 });
-    };
-
-    // Final least-squares refits: inliers of the current motion, then refit, until stable.
-    let mut inliers = classify(source, target, correspondences, &xs, &ys, &thr2, &t, cfg);
-    for _ in 0..cfg.refit_rounds {
-        let Some(t_new) = fit_rigid(inliers.iter().map(|&k| (xs[k], ys[k]))) else {
-            break;
-        };
-        let new_inliers = classify(
-            source,
-            target,
-            correspondences,
-            &xs,
-            &ys,
-            &thr2,
-            &t_new,
-            cfg,
-        );
-        if new_inliers.len() < inliers.len() {
-            break;
-        }
-        let same = new_inliers == inliers;
-        t = t_new;
-        inliers = new_inliers;
-        if same {
-            break;
-        }
     }
-    Ok(RansacResult {
-        t_target_source: t,
-        inliers,
-        iterations,
-        hypotheses,
-    })
+    // Final least-squares refits of each kept motion: inliers of the current motion, then refit,
+    // until stable.
+    let mut out = Vec::with_capacity(kept.len());
+    for (_, mut t) in kept {
+        let mut inliers = classify(source, target, correspondences, &xs, &ys, &thr2, &t, cfg);
+        for _ in 0..cfg.refit_rounds {
+            let Some(t_new) = fit_rigid(inliers.iter().map(|&k| (xs[k], ys[k]))) else {
+                break;
+            };
+            let new_inliers = classify(
+                source,
+                target,
+                correspondences,
+                &xs,
+                &ys,
+                &thr2,
+                &t_new,
+                cfg,
+            );
+            if new_inliers.len() < inliers.len() {
+                break;
+            }
+            let same = new_inliers == inliers;
+            t = t_new;
+            inliers = new_inliers;
+            if same {
+                break;
+            }
+        }
+        out.push(RansacResult {
+            t_target_source: t,
+            inliers,
+            iterations,
+            hypotheses,
+        });
+    }
+    Ok(out)
+}
+
+/// Inserts `h` into `kept` (best first, at most `keep`): it replaces a kept motion that is the same
+/// alignment when it is better supported, and is dropped when one such is at least as good.
+fn insert_distinct(kept: &mut Vec<(usize, Iso2)>, h: (usize, Iso2), keep: usize, d: &Distinct) {
+    if let Some(pos) = kept.iter().position(|k| d.same(&k.1, &h.1)) {
+        if kept[pos].0 >= h.0 {
+            return;
+        }
+        kept.remove(pos);
+    }
+    let at = kept.partition_point(|k| k.0 >= h.0);
+    kept.insert(at, h);
+    kept.truncate(keep);
+}
+
+/// Scores motions by the source points they explain.
+struct Scorer<'a> {
+    xs: &'a [Vec2],
+    ys: &'a [Vec2],
+    thr2: &'a [f64],
+    slots: &'a [u32],
+    /// Per source slot, the stamp of the last motion that counted it.
+    seen: Vec<u32>,
+    stamp: u32,
+}
+
+impl Scorer<'_> {
+    /// Source points with a pair within its radius under `t`; stops early (returning at most `bar`)
+    /// once `bar` cannot be beaten.
+    fn count(&mut self, t: &Iso2, bar: usize) -> usize {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.seen.iter_mut().for_each(|s| *s = u32::MAX);
+            self.stamp = 1;
+        }
+        let (c, s) = (t.rotation.re, t.rotation.im);
+        let (tx, ty) = (t.translation.x, t.translation.y);
+        let n = self.xs.len();
+        let mut count = 0usize;
+        for k in 0..n {
+            let x = &self.xs[k];
+            let dx = self.ys[k].x - (c * x.x - s * x.y + tx);
+            let dy = self.ys[k].y - (s * x.x + c * x.y + ty);
+            if dx * dx + dy * dy <= self.thr2[k] {
+                let slot = &mut self.seen[self.slots[k] as usize];
+                if *slot != self.stamp {
+                    *slot = self.stamp;
+                    count += 1;
+                }
+            } else if bar > 0 && count + (n - k - 1) <= bar {
+                break;
+            }
+        }
+        count
+    }
+}
+
+/// Local-optimisation rounds per new best hypothesis.
+const LOCAL_ROUNDS: usize = 4;
+
+/// Indices of the pairs within their radius under `t`.
+fn inliers_of(xs: &[Vec2], ys: &[Vec2], thr2: &[f64], t: &Iso2) -> Vec<usize> {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    (0..xs.len())
+        .filter(|&k| (ys[k] - (r * xs[k] + t.translation.vector)).norm_squared() <= thr2[k])
+        .collect()
 }
 
 /// Inliers of `t`, one per source point (smallest residual), ascending.
@@ -361,6 +520,99 @@ fn classify(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Correspondences for `n` source points under motion `t`: each source point has `per_point`
+    /// candidates, all within 0.3 m of its image (as k > 1 neighbours along a facade would be).
+    fn supported(
+        rng: &mut StdRng,
+        t: &Iso2,
+        n: usize,
+        per_point: usize,
+        source: &mut PointSet2,
+        target: &mut PointSet2,
+        out: &mut Vec<Correspondence>,
+    ) {
+        for _ in 0..n {
+            let x = Vec2::new(rng.random_range(-50.0..50.0), rng.random_range(-50.0..50.0));
+            let i = source.points.len();
+            source.points.push(x);
+            source.covs.push(Mat2::identity() * 0.01);
+            for _ in 0..per_point {
+                let y = (t * nalgebra::Point2::from(x)).coords
+                    + Vec2::new(rng.random_range(-0.2..0.2), rng.random_range(-0.2..0.2));
+                out.push(Correspondence::new(i, target.points.len()));
+                target.points.push(y);
+                target.covs.push(Mat2::identity() * 0.01);
+            }
+        }
+    }
+
+    fn near(a: &Iso2, b: &Iso2) -> bool {
+        let rel = a.inverse() * b;
+        rel.translation.vector.norm() < 0.5 && rel.rotation.angle().abs() < 0.01
+    }
+
+    /// A motion is scored by the source points it explains: 20 points with three candidates each
+    /// (60 pairs) lose to 30 points with one candidate each.
+    #[test]
+    fn support_counts_source_points_not_pairs() {
+        let mut rng = StdRng::seed_from_u64(11);
+        let (mut s, mut g, mut c) = (PointSet2::default(), PointSet2::default(), Vec::new());
+        let slid = Iso2::new(Vec2::new(8.0, 0.0), 0.0);
+        let truth = Iso2::new(Vec2::new(-3.0, 5.0), 0.4);
+        supported(&mut rng, &slid, 20, 3, &mut s, &mut g, &mut c);
+        supported(&mut rng, &truth, 30, 1, &mut s, &mut g, &mut c);
+        let r = ransac(&s, &g, &c, &RansacConfig::default()).expect("a motion");
+        assert!(near(&r.t_target_source, &truth), "{}", r.t_target_source);
+        // (A slid pair may land within the radius by chance.)
+        assert!((30..=32).contains(&r.inliers.len()), "{}", r.inliers.len());
+    }
+
+    /// Kept hypotheses: the distinct motions, best supported first, none of them twice; a motion
+    /// below `min_support` is not kept.
+    #[test]
+    fn distinct_motions_are_kept_best_first() {
+        let mut rng = StdRng::seed_from_u64(12);
+        let (mut s, mut g, mut c) = (PointSet2::default(), PointSet2::default(), Vec::new());
+        let motions = [
+            Iso2::new(Vec2::new(1.0, 2.0), 0.1),
+            Iso2::new(Vec2::new(-20.0, 4.0), 3.0),
+            Iso2::new(Vec2::new(6.0, -9.0), -1.2),
+        ];
+        for (m, n) in motions.iter().zip([45, 30, 6]) {
+            supported(&mut rng, m, n, 1, &mut s, &mut g, &mut c);
+        }
+        // Outliers: random pairs.
+        for _ in 0..150 {
+            let i = rng.random_range(0..s.len());
+            let j = rng.random_range(0..g.len());
+            c.push(Correspondence::new(i, j));
+        }
+        let distinct = Distinct {
+            keep: 8,
+            translation: 1.0,
+            rotation: 0.05,
+            min_support: 10,
+        };
+        let cfg = RansacConfig {
+            confidence: 0.99999,
+            ..RansacConfig::default()
+        };
+        let kept = ransac_hypotheses(&s, &g, &c, &cfg, &distinct).expect("motions");
+        assert!(near(&kept[0].t_target_source, &motions[0]));
+        assert!(kept[0].inliers.len() >= 45);
+        let second = kept
+            .iter()
+            .position(|h| near(&h.t_target_source, &motions[1]))
+            .expect("the second motion is kept");
+        assert!(kept[second].inliers.len() >= 30);
+        assert!(!kept.iter().any(|h| near(&h.t_target_source, &motions[2])));
+        for (a, h) in kept.iter().enumerate() {
+            for b in &kept[a + 1..] {
+                assert!(!distinct.same(&h.t_target_source, &b.t_target_source));
+            }
+        }
+    }
 
     #[test]
     fn fit_rigid_recovers_exact_motion() {

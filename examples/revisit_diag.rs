@@ -1,8 +1,9 @@
 //! Scratch: how well revisit candidates and registration do at true revisits of the default drive.
-use dc_loc::math::{iso2_from_iso3, iso3_from_iso2, wrap_angle};
+use dc_loc::eval::revisits::feed;
+use dc_loc::math::{iso2_from_iso3, wrap_angle};
 use dc_loc::pipeline::Pipeline;
 use dc_loc::registration::{PreparedSubmap, register_prepared};
-use dc_loc::sim::{SimConfig, SimEventRef, simulate};
+use dc_loc::sim::{SimConfig, simulate};
 
 fn main() {
     let cfg = SimConfig::default();
@@ -10,17 +11,7 @@ fn main() {
     let mut c = drive.to_config();
     c.r#loop.enabled = false;
     let mut p = Pipeline::new(c.clone()).unwrap();
-    for ev in drive.events() {
-        match ev {
-            SimEventRef::Odometry(o) => {
-                p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body));
-            }
-            SimEventRef::Scan(s) => {
-                p.push_scan(s.scan.clone());
-            }
-            SimEventRef::GroundTruth(_) => {}
-        };
-    }
+    feed(&drive, &mut p, |_| {});
     let recs: Vec<_> = p.db().records().cloned().collect();
     let gt: Vec<_> = recs
         .iter()

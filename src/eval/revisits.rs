@@ -222,17 +222,23 @@ pub fn evaluate_revisits(
             }
         }
     };
+    feed(drive, &mut p, &mut collect);
+    collect(p.finish());
+    Ok(judge(drive, &keyframes, &closures, &rejections, p.stats()))
+}
+
+/// Pushes a simulated drive's odometry and scans through `p` in time order, handing each step's
+/// events to `sink` (ground truth is not an input).
+pub fn feed(drive: &SimDrive, p: &mut Pipeline, mut sink: impl FnMut(Vec<Event>)) {
     for ev in drive.events() {
         match ev {
             SimEventRef::Odometry(o) => {
-                collect(p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)))
+                sink(p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)))
             }
-            SimEventRef::Scan(s) => collect(p.push_scan(s.scan.clone())),
+            SimEventRef::Scan(s) => sink(p.push_scan(s.scan.clone())),
             SimEventRef::GroundTruth(_) => {}
         }
     }
-    collect(p.finish());
-    Ok(judge(drive, &keyframes, &closures, &rejections, p.stats()))
 }
 
 struct KfTruth {

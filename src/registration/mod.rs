@@ -169,8 +169,8 @@ pub struct RegistrationConfig {
     /// (on the demo drive's failed pairs the wrong motions had 30-110 supporting points against the
     /// true motion's 10-70); geometry does. Measured with `dc_loc eval` on the demo drive, pairs
     /// inside 2 m: refining the best-supported motion and the best of what its inliers left (before)
-    /// 80.5 %, 16 motions ranked by
-    /// their dense-stage overlap instead of coverage 91.1 %, 32 motions by coverage 91.8 % (this).
+    /// 80.5 %, 16 motions ranked by their dense-stage overlap instead of coverage 91.1 %, 32 motions
+    /// ranked by coverage 91.8 % (this).
     pub screened_hypotheses: usize,
     /// A screened motion farther than this from the result, m, whose coverage comes near the
     /// result's is a runner-up alignment too (default 3.0): `runner_up_overlap` is at least the

@@ -1,9 +1,6 @@
 //! Scratch: the evaluation protocol on a simulated drive, in memory.
-use dc_loc::cloud::{CloudLayout, encode_detections};
 use dc_loc::eval::{Collector, EvalConfig, Method, evaluate, make_pairs, report};
-use dc_loc::math::iso3_from_iso2;
-use dc_loc::msgs::std_msgs::Header;
-use dc_loc::sim::{SimConfig, SimEventRef, simulate};
+use dc_loc::sim::{SimConfig, simulate};
 use std::time::Instant;
 
 fn main() {
@@ -41,25 +38,7 @@ fn main() {
     }
     let ecfg = EvalConfig::default();
     let mut col = Collector::new(&pcfg, &ecfg).unwrap();
-    let layout = CloudLayout::radar_f32();
-    for ev in drive.events() {
-        match ev {
-            SimEventRef::Odometry(o) => {
-                col.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body));
-            }
-            SimEventRef::Scan(s) => {
-                let header = Header {
-                    stamp: s.scan.stamp.into(),
-                    frame_id: String::new(),
-                };
-                let cloud = encode_detections(&s.scan.detections, &layout, header).unwrap();
-                col.push_cloud(s.scan.radar, &cloud);
-            }
-            SimEventRef::GroundTruth(g) => {
-                col.push_ground_truth(g.stamp, iso3_from_iso2(&g.t_map_body), g.speed)
-            }
-        }
-    }
+    col.push_sim_drive(&drive).unwrap();
     let (kfs, _) = col.finish();
     let pairs = make_pairs(&kfs, &ecfg);
     println!(

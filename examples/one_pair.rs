@@ -3,7 +3,7 @@
 use dc_loc::eval::revisits::{RevisitScenario, feed};
 use dc_loc::math::{Iso2, wrap_angle};
 use dc_loc::pipeline::Pipeline;
-use dc_loc::registration::{PreparedSubmap, dense, matching, ransac, register_detailed};
+use dc_loc::registration::{PreparedSubmap, dense, ransac, register_detailed};
 use dc_loc::sim::{NoiseModel, RadarPreset, simulate};
 
 fn main() {
@@ -47,28 +47,21 @@ fn main() {
             .max(d.covariance_se2[(1, 1)])
             .sqrt()
     );
-    let queries = matching::select_queries(
-        s.keypoints().len(),
-        rcfg.matching.max_queries,
-        rcfg.ransac.seed,
-    );
-    let cands: Vec<_> =
-        matching::match_descriptors(s.descriptors(), &queries, g.index(), &rcfg.matching)
-            .into_iter()
-            .map(|mut c| {
-                c.source = s.keypoints()[c.source as usize];
-                c.target = g.keypoints()[c.target as usize];
-                c
-            })
-            .collect();
+    // The RANSAC motions the registration screened, from its own descriptor candidates.
     let distinct = ransac::Distinct {
-        keep: 32,
-        translation: 1.0,
-        rotation: 0.05,
-        min_support: 30,
+        keep: rcfg.screened_hypotheses,
+        translation: rcfg.ambiguity_translation,
+        rotation: rcfg.ambiguity_rotation,
+        min_support: rcfg.min_inliers,
     };
-    let hs =
-        ransac::ransac_hypotheses(s.points(), g.points(), &cands, &rcfg.ransac, &distinct).unwrap();
+    let hs = ransac::ransac_hypotheses(
+        s.points(),
+        g.points(),
+        &d.candidates,
+        &rcfg.ransac,
+        &distinct,
+    )
+    .unwrap();
     let (src, _) = dense::prepare(s.points(), &rcfg.dense).unwrap();
     let (tgt, tt) = dense::prepare(g.points(), &rcfg.dense).unwrap();
     let cov = dense::Coverage::new(&tgt.points, 1.0);

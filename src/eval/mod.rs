@@ -243,6 +243,36 @@ impl Collector {
         })
     }
 
+    /// Feeds a whole simulated drive in time order, its scans encoded as the simulator's bags carry
+    /// them (float32 x y z v_r rcs PointCloud2), as a bag of it would be read.
+    pub fn push_sim_drive(&mut self, drive: &crate::sim::SimDrive) -> Result<(), String> {
+        use crate::sim::SimEventRef;
+        let layout = crate::cloud::CloudLayout::radar_f32();
+        for ev in drive.events() {
+            match ev {
+                SimEventRef::Odometry(o) => {
+                    self.push_odometry(o.stamp, crate::math::iso3_from_iso2(&o.t_odom_body));
+                }
+                SimEventRef::Scan(s) => {
+                    let header = crate::msgs::std_msgs::Header {
+                        stamp: s.scan.stamp.into(),
+                        frame_id: String::new(),
+                    };
+                    let cloud =
+                        crate::cloud::encode_detections(&s.scan.detections, &layout, header)
+                            .map_err(|e| e.to_string())?;
+                    self.push_cloud(s.scan.radar, &cloud);
+                }
+                SimEventRef::GroundTruth(g) => self.push_ground_truth(
+                    g.stamp,
+                    crate::math::iso3_from_iso2(&g.t_map_body),
+                    g.speed,
+                ),
+            }
+        }
+        Ok(())
+    }
+
     /// Feeds one input of the runner's stream (radar, odometry or ground truth).
     pub fn push(&mut self, input: &crate::runner::Input) -> Vec<Event> {
         use crate::runner::Input;

@@ -166,11 +166,12 @@ pub struct RegistrationConfig {
     /// scored by its coverage, the share of 256 source probes landing in target grid cells (1 m,
     /// widened by one cell), and the `hypotheses` with the largest coverage are refined. Descriptor
     /// support does not tell a street slid along itself, or another street, from the true alignment
-    /// (on the demo drive's failed pairs the wrong motions had 30-110 supporting points against the
-    /// true motion's 10-70); geometry does. Measured with `dc_loc eval` on the demo drive, pairs
-    /// inside 2 m: refining the best-supported motion and the best of what its inliers left (before)
-    /// 80.5 %, 16 motions ranked by their dense-stage overlap instead of coverage 91.1 %, 32 motions
-    /// ranked by coverage 91.8 % (this).
+    /// (on the demo drive's failed pairs the best RANSAC motion had 27-114 supporting points against
+    /// the true motion's 6-70, `examples/pair_floor.rs`); geometry does. Measured with `dc_loc eval`
+    /// on the demo drive, pairs inside 2 m: refining the best-supported motion and the best of what
+    /// its inliers left (before) 80.5 %, 16 motions ranked by their dense-stage overlap instead of
+    /// coverage (a slower variant not kept in the code) 91.1 %, 32 motions ranked by coverage 91.8 %
+    /// (this).
     pub screened_hypotheses: usize,
     /// A screened motion farther than this from the result, m, whose coverage comes near the
     /// result's is a runner-up alignment too (default 3.0): `runner_up_overlap` is at least the
@@ -583,7 +584,7 @@ pub fn overlap_near(
 ///    the mean NEES of the pipeline is too high). A re-selection that leaves fewer than `min_inliers`
 ///    (or collinear ones) is not taken: descriptor pairs join different samples of a surface, so the
 ///    noise model can refuse most of a true alignment's pairs; the RANSAC inliers stay (measured
-///    with the screening on the demo drive: 80.8 % of the pairs inside 2 m when such a re-selection
+///    with the screening on the demo drive, a variant not kept in the code: 80.8 % of the pairs inside 2 m when such a re-selection
 ///    failed the registration, 91.1 % when it is not taken).
 pub fn register_correspondences(
     source: &PointSet2,
@@ -634,7 +635,8 @@ fn ransac_and_refine(
     };
     // 2. RANSAC: the best-supported motions that differ by more than the ambiguity distances.
     let distinct = ransac::Distinct {
-        keep: cfg.screened_hypotheses.max(cfg.hypotheses).max(1),
+        // At least `hypotheses` (validated).
+        keep: cfg.screened_hypotheses,
         translation: cfg.ambiguity_translation,
         rotation: cfg.ambiguity_rotation,
         min_support: cfg.min_inliers,
@@ -666,16 +668,11 @@ fn ransac_and_refine(
         b.0.cmp(&a.0)
             .then(b.1.inliers.len().cmp(&a.1.inliers.len()))
     });
-    // (pose, coverage) of every screened motion, for the runner-up.
-    let screened_cov: Vec<(Iso2, usize)> = screened
-        .iter()
-        .map(|(c, h)| (h.t_target_source, *c))
-        .collect();
     let mut best: Option<RegistrationDetail> = None;
     // Every refined alignment (pose, overlap), for the runner-up.
     let mut refined: Vec<(Iso2, f64)> = Vec::new();
     let mut first_error = None;
-    for (_, rs) in screened.into_iter().take(cfg.hypotheses.max(1)) {
+    for (_, rs) in screened.iter().take(cfg.hypotheses.max(1)) {
         // A motion within the ambiguity distances of an alignment already refined is that alignment
         // again: refining it would repeat the work and cannot add a runner-up.
         let same_as = |t: &Iso2| {
@@ -691,7 +688,7 @@ fn ransac_and_refine(
             target,
             dense_sets,
             &candidates,
-            rs.inliers,
+            rs.inliers.clone(),
             rs.t_target_source,
             cfg,
         ) {
@@ -726,12 +723,16 @@ fn ransac_and_refine(
             // The screened motions that were not refined count too, by their coverage relative to
             // the winner's: a street slid along itself by metres covers the same cells.
             let win_cov = dense_sets.coverage.count(dense_sets.probes, &win).max(1);
-            let alt = screened_cov
+            let alt = screened
                 .iter()
-                .filter(|(t, _)| {
-                    (win.inverse() * t).translation.vector.norm() > cfg.screen_ambiguity_translation
+                .filter(|(_, h)| {
+                    (win.inverse() * h.t_target_source)
+                        .translation
+                        .vector
+                        .norm()
+                        > cfg.screen_ambiguity_translation
                 })
-                .map(|&(_, c)| c)
+                .map(|&(c, _)| c)
                 .max()
                 .unwrap_or(0);
             let scaled = d.result.overlap * (alt as f64 / win_cov as f64).min(1.0);

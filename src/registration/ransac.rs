@@ -181,9 +181,9 @@ pub fn ransac(
     correspondences: &[Correspondence],
     cfg: &RansacConfig,
 ) -> Result<RansacResult, RegistrationError> {
-    let mut all = ransac_hypotheses(source, target, correspondences, cfg, &Distinct::best_only())?;
-    all.truncate(1);
-    all.pop()
+    ransac_hypotheses(source, target, correspondences, cfg, &Distinct::best_only())?
+        .into_iter()
+        .next()
         .ok_or(RegistrationError::TooFewInliers { have: 0, need: 2 })
 }
 
@@ -432,9 +432,10 @@ impl Scorer<'_> {
     /// Source points with a pair within its radius under `t`; stops early (returning at most `bar`)
     /// once `bar` cannot be beaten.
     fn count(&mut self, t: &Iso2, bar: usize) -> usize {
+        // Stamps run from 1; `seen` starts at 0 and is cleared to 0 when they wrap.
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
-            self.seen.iter_mut().for_each(|s| *s = u32::MAX);
+            self.seen.iter_mut().for_each(|s| *s = 0);
             self.stamp = 1;
         }
         let (c, s) = (t.rotation.re, t.rotation.im);

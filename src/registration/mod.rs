@@ -586,11 +586,20 @@ pub fn slide_overlap(
     t: &Iso2,
     cfg: &RegistrationConfig,
 ) -> Result<f64, RegistrationError> {
+    use rayon::prelude::*;
     let along = t.rotation * Vec2::x();
+    // The shifts are independent: refined in parallel (the maximum does not depend on the order).
+    let ends: Vec<_> = SLIDE_SHIFTS
+        .par_iter()
+        .map(|shift| {
+            let start =
+                Iso2::from_parts((t.translation.vector + along * *shift).into(), t.rotation);
+            overlap_near(source, target, &start, cfg)
+        })
+        .collect();
     let mut best: f64 = 0.0;
-    for shift in SLIDE_SHIFTS {
-        let start = Iso2::from_parts((t.translation.vector + along * shift).into(), t.rotation);
-        if let Some((end, overlap)) = overlap_near(source, target, &start, cfg)? {
+    for end in ends {
+        if let Some((end, overlap)) = end? {
             if (end.translation.vector - t.translation.vector).norm() > 2.0 {
                 best = best.max(overlap);
             }

@@ -326,7 +326,7 @@ pub fn ransac_hypotheses(
             Some(last) => last.0,
         };
         let count = score.count(&t, bar);
-        if count == 0 || count <= bar {
+        if count <= bar {
             continue;
         }
         // Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points,

@@ -104,12 +104,23 @@ fn main() {
             .iter()
             .map(|&s| iso(s, true).0)
             .fold(0.0, f64::max);
-        let alt = slide_overlap(&s, &g, &t, &rcfg).unwrap();
+        let alt = slide_overlap(&s, &g, &t, &rcfg, f64::INFINITY).unwrap();
+        let hist = |pts: &[Vec2], yaw: f64| {
+            let mut h = [0.0f64; 12];
+            for x in pts {
+                let b = (x.y.atan2(x.x) + yaw).rem_euclid(std::f64::consts::TAU);
+                h[((b / std::f64::consts::TAU * 12.0) as usize).min(11)] += 1.0 / pts.len() as f64;
+            }
+            h
+        };
+        let (hs, ht) = (hist(&sp.points, t.rotation.angle()), hist(&tp.points, 0.0));
+        let view: f64 = hs.iter().zip(&ht).map(|(a, b)| a.min(*b)).sum();
         let cov = d.covariance_se2;
         let e = cov.fixed_view::<2, 2>(0, 0).symmetric_eigenvalues();
         println!(
-            "{} {q:4}->{m:4} err {err:7.2} ov {:.2} alt {alt:.2} ratio {:.2} ru {:.2} inl {:3} | iso {i0:.2} slide {slide:.2} | distinct {d0:.2} (n {nd:3}) slide {dslide:.2} | std {:.3} {:.3} n {} {}",
+            "{} {q:4}->{m:4} err {err:7.2} yaw {:5.2} view {view:.2} ov {:.2} alt {alt:.2} ratio {:.2} ru {:.2} inl {:3} | iso {i0:.2} slide {slide:.2} | distinct {d0:.2} (n {nd:3}) slide {dslide:.2} | std {:.3} {:.3} n {} {}",
             if bad { "FALSE" } else { "true " },
+            t.rotation.angle(),
             d.result.overlap,
             alt / d.result.overlap,
             d.result.runner_up_overlap,

@@ -18,8 +18,8 @@ use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
 use crate::registration::lm::se2_log;
 use crate::registration::{
-    PreparedSubmap, RegistrationError, RegistrationResult, overlap_near, register_prepared,
-    slide_overlap,
+    PreparedSubmap, RegistrationError, RegistrationResult, common_view, overlap_near,
+    register_prepared, slide_overlap,
 };
 use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
 use rayon::prelude::*;
@@ -113,6 +113,10 @@ pub struct LoopConfig {
     /// Largest ratio of the best *other* alignment's overlap to the result's (`runner_up_overlap /
     /// overlap`, 0..1): a street whose facades still fit when slid along itself gives two alignments of
     /// nearly equal support, and picking one of them is a guess (default 0.8; 1 disables the gate).
+    /// A fresh accepted alignment of the session (`trusted_prior_std`) tells them apart when the
+    /// result agrees with its prediction, every alternative that fits nearly as well contradicts it,
+    /// and the dense stage started at the prediction ends at the result (without this last condition
+    /// one radar at 1 % drift published two closures slid 2.4 and 3.1 m along their street).
     pub maximum_ambiguity: f64,
     /// A closure to a session without an accepted alignment (the first closures to it) is refused
     /// when the registration, slid along the query's heading by 3-24 m and refined there, fits with
@@ -128,6 +132,14 @@ pub struct LoopConfig {
     /// way, the 436 true closures had 0.11-0.95 (median 0.79) and the 4 false ones 0.88-1.05; hence
     /// the gate is kept to a session's first closures.
     pub maximum_slide_ratio: f64,
+    /// Smallest share of the two submaps' bearing histograms, turned by the result's yaw, that
+    /// coincide ([`common_view`]; default 0.25; 0 disables). A forward radar driving a street the other
+    /// way sees what lay behind it the first time, and a high overlap there is aliasing: one radar on
+    /// the simulated reverse laps (`dc_loc revisits --radars carla --direction reverse`, 1 % drift)
+    /// published 5 false closures and 7 true ones out of 404 opportunities, all with a common view of
+    /// 0.05-0.14; the five radars' reverse closures had 0.40-0.77 and a forward radar's same-way ones
+    /// 0.55-0.99 (`examples/closure_features.rs`).
+    pub minimum_common_view: f64,
     /// Consistency gate: largest squared Mahalanobis distance (3 dof) between a closure and what odometry
     /// and the earlier accepted closures predict, under the closure's covariance plus the drift model's
     /// (default 16.27, the 99.9 % chi-square quantile; 0 disables the check).
@@ -155,6 +167,13 @@ pub struct LoopConfig {
     /// path since the last closure) is at most this, m (default 2.0: about 60 m of path at 5 % drift);
     /// after longer gaps closures wait for confirmation like the first ones.
     pub trusted_prior_std: f64,
+    /// Keyframes searched again per new keyframe once closures to a session are confirmed (default
+    /// 1; 0 disables). The keyframes of the last `confirmation_horizon` metres of path that got no
+    /// closure while nothing vouched for their matches (a session's first closures wait for a
+    /// distinctive place and for confirmation) are searched again, newest first, around the
+    /// alignment the confirmation gave; what agrees with it is published then, late. One at a time
+    /// keeps the added latency to one more search per keyframe.
+    pub backfill_per_keyframe: usize,
 }
 
 impl Default for LoopConfig {
@@ -175,11 +194,13 @@ impl Default for LoopConfig {
             maximum_rotation_std: 0.02,
             maximum_ambiguity: 0.8,
             maximum_slide_ratio: 0.7,
+            minimum_common_view: 0.25,
             consistency_chi2: 16.27,
             confirmations: 2,
             confirmation_span: 30.0,
             confirmation_horizon: 150.0,
             trusted_prior_std: 2.0,
+            backfill_per_keyframe: 1,
         }
     }
 }
@@ -232,6 +253,12 @@ impl LoopConfig {
         if !(0.0..=1.0).contains(&self.place_maximum_distance) {
             return Err(ConfigError::new(
                 name("place_maximum_distance"),
+                "must be in [0, 1]",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.minimum_common_view) {
+            return Err(ConfigError::new(
+                name("minimum_common_view"),
                 "must be in [0, 1]",
             ));
         }
@@ -380,8 +407,11 @@ pub enum RejectReason {
     LowOverlap,
     /// The closure contradicts odometry and earlier closures (`loop.consistency_chi2`).
     Inconsistent,
-    /// Another alignment fits nearly as well (`loop.maximum_ambiguity`).
+    /// Another alignment fits nearly as well (`loop.maximum_ambiguity`, `loop.maximum_slide_ratio`).
     Ambiguous,
+    /// The two submaps look in directions too different to have seen the same things
+    /// (`loop.minimum_common_view`).
+    NoCommonView,
 }
 
 impl RejectReason {
@@ -395,6 +425,7 @@ impl RejectReason {
             RejectReason::LowOverlap => "low_overlap",
             RejectReason::Inconsistent => "inconsistent",
             RejectReason::Ambiguous => "ambiguous",
+            RejectReason::NoCommonView => "no_common_view",
         }
     }
 }
@@ -540,6 +571,11 @@ pub struct Pipeline {
     /// Per session without an alignment yet: closures waiting for confirmation, with the alignment each
     /// implies and the path length at which it was found.
     tentative: BTreeMap<u32, Vec<(LoopClosure, Iso2, f64)>>,
+    /// This session's keyframes of the last `loop.confirmation_horizon` metres without a published
+    /// closure (id, path length), and the ones queued to be searched again
+    /// (`loop.backfill_per_keyframe`), newest first.
+    unclosed: VecDeque<(u64, f64)>,
+    backfill: VecDeque<u64>,
     last_keyframe: Option<(Iso3, f64)>,
     path_distance: f64,
     last_odom: Option<Iso3>,
@@ -578,6 +614,8 @@ impl Pipeline {
             session,
             alignments: BTreeMap::new(),
             tentative: BTreeMap::new(),
+            unclosed: VecDeque::new(),
+            backfill: VecDeque::new(),
             last_keyframe: None,
             path_distance: 0.0,
             last_odom: None,
@@ -847,9 +885,12 @@ impl Pipeline {
         self.stats.pending_scans = self.pending.len();
     }
 
-    /// Drops the scans still waiting for odometry (end of input) and counts them.
+    /// End of input: searches the keyframes still queued to be searched again
+    /// (`loop.backfill_per_keyframe`), drops the scans still waiting for odometry and counts them.
     pub fn finish(&mut self) -> Vec<Event> {
         let mut out = Vec::new();
+        // The keyframes still queued to be searched again are searched now.
+        self.run_backfill(self.backfill.len(), &mut out);
         while let Some(s) = self.pending.pop_front() {
             self.drop(
                 DropReason::NoOdometry,
@@ -911,13 +952,34 @@ impl Pipeline {
             points: submap.len(),
             submap: Arc::new(submap),
         });
+        let path = rec.path_distance;
         if self.cfg.r#loop.enabled {
-            self.search_revisits(&rec, &prepared, out);
+            let horizon = self.cfg.r#loop.confirmation_horizon;
+            self.unclosed.retain(|&(_, p)| path - p <= horizon);
+            self.unclosed.push_back((id, path));
+            self.search_revisits(&rec, &prepared, false, out);
         }
         if self.db.insert(rec) {
             self.db.put_prepared(id as usize, prepared);
         } else {
             log::warn!("keyframe {id} could not be added to the database");
+        }
+        self.run_backfill(self.cfg.r#loop.backfill_per_keyframe, out);
+    }
+
+    /// Searches up to `n` queued keyframes again (`loop.backfill_per_keyframe`).
+    fn run_backfill(&mut self, n: usize, out: &mut Vec<Event>) {
+        for _ in 0..n {
+            let Some(id) = self.backfill.pop_front() else {
+                return;
+            };
+            let Some(rec) = self.db.get(id).cloned() else {
+                continue;
+            };
+            match self.db.prepared(id as usize, &self.cfg.registration) {
+                Ok(prepared) => self.search_revisits(&rec, &prepared, true, out),
+                Err(e) => log::debug!("keyframe {id} not searched again: {e}"),
+            }
         }
     }
 
@@ -925,6 +987,7 @@ impl Pipeline {
         &mut self,
         query: &KeyframeRecord,
         prepared: &PreparedSubmap,
+        again: bool,
         out: &mut Vec<Event>,
     ) {
         // Around the accepted alignment's prediction too, or, before there is one, the newest held
@@ -973,7 +1036,12 @@ impl Pipeline {
             }
         }
         if let Some((c, agrees)) = best {
-            self.accept(query, c, agrees, out);
+            if !again {
+                self.accept(query, c, agrees, out);
+            } else if agrees {
+                // Searched again once an alignment vouches: only what agrees with it is published.
+                self.publish(vec![c], out);
+            }
         }
     }
 
@@ -1032,6 +1100,13 @@ impl Pipeline {
                     "closures to session {session} confirmed by {} agreeing matches",
                     publish.len()
                 );
+                // The keyframes before the confirmation that got nothing are searched again.
+                let queued = self.unclosed.iter().rev().map(|&(id, _)| id);
+                let queued: Vec<u64> = queued
+                    .filter(|id| *id != query.id && publish.iter().all(|p| p.query_id != *id))
+                    .collect();
+                self.unclosed.clear();
+                self.backfill = queued.into();
             } else {
                 log::debug!(
                     "closure {} -> {} held until another closure to session {session} confirms it (alignment {:.2} {:.2} {:.3})",
@@ -1046,7 +1121,13 @@ impl Pipeline {
             }
         }
         self.alignments.insert(session, (a, query.path_distance));
+        self.publish(publish, out);
+    }
+
+    /// Publishes closures that passed every gate.
+    fn publish(&mut self, publish: Vec<LoopClosure>, out: &mut Vec<Event>) {
         for c in publish {
+            self.unclosed.retain(|&(id, _)| id != c.query_id);
             self.stats.closures += 1;
             log::info!(
                 "loop closure {} -> {} (session {}): {} inliers, overlap {:.2}",
@@ -1081,8 +1162,8 @@ impl Pipeline {
         });
     }
 
-    /// The gates, in order: registration, inliers, convergence, overlap, ambiguity, covariance,
-    /// consistency.
+    /// The gates, in order: registration, inliers, convergence, overlap, common view, ambiguity,
+    /// covariance, consistency, slide.
     fn gate(
         &self,
         query: &KeyframeRecord,
@@ -1108,14 +1189,67 @@ impl Pipeline {
                 format!("overlap {:.2}", r.overlap),
             ));
         }
+        if lc.minimum_common_view > 0.0 {
+            let view = common_view(source, target, &r.t_target_source);
+            if view < lc.minimum_common_view {
+                return Err((
+                    RejectReason::NoCommonView,
+                    format!(
+                        "common view {view:.2} at a relative yaw of {:.2} rad",
+                        r.t_target_source.rotation.angle()
+                    ),
+                ));
+            }
+        }
+        // Only a fresh alignment vouches for a single closure: long after the last closure its
+        // prediction is too loose to tell a slid or aliased match from the right one.
+        let trusted = self
+            .alignments
+            .get(&cand.session)
+            .is_some_and(|&(_, path_a)| {
+                alignment_sigmas(query.path_distance - path_a, lc).0 <= lc.trusted_prior_std
+            });
         if lc.maximum_ambiguity < 1.0 && r.runner_up_overlap > lc.maximum_ambiguity * r.overlap {
-            return Err((
-                RejectReason::Ambiguous,
-                format!(
-                    "another alignment has overlap {:.2} against {:.2}",
-                    r.runner_up_overlap, r.overlap
-                ),
-            ));
+            // The submaps cannot tell the alignments apart; a fresh accepted alignment can, when the
+            // result agrees with its prediction, every alternative that fits nearly as well
+            // contradicts it, and the dense stage started at the prediction ends at the result (the
+            // prediction's own error may be metres, a street slid by as much would agree with it).
+            let d2 = |t: &Iso2| self.inconsistency(query, cand, t, &r.covariance, true);
+            let chi2 = lc.consistency_chi2;
+            let resolved = trusted
+                && chi2 > 0.0
+                && d2(&r.t_target_source).is_some_and(|d| d <= chi2)
+                && r.alternatives
+                    .iter()
+                    .filter(|a| a.1 > lc.maximum_ambiguity * r.overlap)
+                    .all(|(t, _)| d2(t).is_some_and(|d| d > chi2))
+                && self.alignments.get(&cand.session).is_some_and(|&(a, _)| {
+                    let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
+                    let rc = &self.cfg.registration;
+                    overlap_near(source, target, &predicted, rc).is_ok_and(|near| {
+                        near.is_some_and(|(t, _)| {
+                            let rel = t.inverse() * r.t_target_source;
+                            rel.translation.vector.norm() <= rc.ambiguity_translation
+                                && rel.rotation.angle().abs() <= rc.ambiguity_rotation
+                        })
+                    })
+                });
+            if !resolved {
+                return Err((
+                    RejectReason::Ambiguous,
+                    format!(
+                        "another alignment has overlap {:.2} against {:.2}",
+                        r.runner_up_overlap, r.overlap
+                    ),
+                ));
+            }
+            log::debug!(
+                "revisit {} -> {}: another alignment has overlap {:.2} against {:.2}, but only this one agrees with the accepted alignment",
+                query.id,
+                cand.id,
+                r.runner_up_overlap,
+                r.overlap
+            );
         }
         let xy = r.covariance.fixed_view::<2, 2>(0, 0).into_owned();
         let t_std = xy.symmetric_eigenvalues().max().max(0.0).sqrt();
@@ -1129,16 +1263,10 @@ impl Pipeline {
         // Consistency: with the session's accepted alignment when there is one; a closure that
         // contradicts it but agrees with odometry alone (or, for another session, has nothing to
         // contradict) may still be right, and waits for confirmation.
-        // Only a fresh alignment vouches for a single closure: long after the last closure its
-        // prediction is too loose to tell a slid or aliased match from the right one.
-        let mut agrees = self
-            .alignments
-            .get(&cand.session)
-            .is_some_and(|&(_, path_a)| {
-                alignment_sigmas(query.path_distance - path_a, lc).0 <= lc.trusted_prior_std
-            });
+        let mut agrees = trusted;
         if lc.consistency_chi2 > 0.0 {
-            let aligned = self.inconsistency(query, cand, &r, true);
+            let t = &r.t_target_source;
+            let aligned = self.inconsistency(query, cand, t, &r.covariance, true);
             if aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
                 agrees = false;
                 // Does the accepted alignment's prediction fit the submaps nearly as well? Then the
@@ -1159,7 +1287,7 @@ impl Pipeline {
                         }
                     }
                 }
-                let odometry = self.inconsistency(query, cand, &r, false);
+                let odometry = self.inconsistency(query, cand, t, &r.covariance, false);
                 if let Some(d2) = odometry.filter(|&d2| d2 > lc.consistency_chi2) {
                     return Err((
                         RejectReason::Inconsistent,
@@ -1173,9 +1301,11 @@ impl Pipeline {
         }
         let first = !self.alignments.contains_key(&cand.session);
         if first && lc.maximum_slide_ratio < 1.0 {
-            let slid = slide_overlap(source, target, &r.t_target_source, &self.cfg.registration)
+            let limit = lc.maximum_slide_ratio * r.overlap;
+            let rc = &self.cfg.registration;
+            let slid = slide_overlap(source, target, &r.t_target_source, rc, limit)
                 .map_err(|e| (RejectReason::Registration, e.to_string()))?;
-            if slid > lc.maximum_slide_ratio * r.overlap {
+            if slid > limit {
                 return Err((
                     RejectReason::Ambiguous,
                     format!(
@@ -1201,7 +1331,8 @@ impl Pipeline {
         Ok((closure, agrees))
     }
 
-    /// Squared Mahalanobis distance between the registered `T_match_query` and its prediction from
+    /// Squared Mahalanobis distance between a registered `T_match_query` (`t`, covariance `cov` in ROS
+    /// order) and its prediction from
     /// the last accepted closure to the candidate's session (drift since that closure; only when
     /// `use_alignment`) or from odometry (same session: no correction, drift since the candidate);
     /// `None` when there is nothing to predict with (the first closure to a loaded map's session).
@@ -1209,7 +1340,8 @@ impl Pipeline {
         &self,
         query: &KeyframeRecord,
         cand: &KeyframeRecord,
-        r: &RegistrationResult,
+        t: &Iso2,
+        cov6: &Mat6,
         use_alignment: bool,
     ) -> Option<f64> {
         let lc = &self.cfg.r#loop;
@@ -1228,7 +1360,7 @@ impl Pipeline {
             None => return None,
         };
         let predicted = cand.t_odom_body.inverse() * alignment * query.t_odom_body;
-        let e = se2_log(&(r.t_target_source.inverse() * predicted));
+        let e = se2_log(&(t.inverse() * predicted));
         let (sigma_t, sigma_r) = if from_alignment {
             alignment_sigmas(path_gap, lc)
         } else {
@@ -1247,7 +1379,7 @@ impl Pipeline {
             (5, 5),
         ] {
             let (a, b) = (if i == 5 { 2 } else { i }, if j == 5 { 2 } else { j });
-            cov[(a, b)] = r.covariance[(i, j)];
+            cov[(a, b)] = cov6[(i, j)];
         }
         cov[(0, 0)] += sigma_t * sigma_t;
         cov[(1, 1)] += sigma_t * sigma_t;

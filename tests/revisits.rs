@@ -38,6 +38,33 @@ fn five_radars_same_direction_one_percent_drift_no_false_closure() {
     );
 }
 
+/// One forward radar driving the second lap the other way sees what lay behind it on the first: no
+/// closure may be published there (before `loop.minimum_common_view`, 5 of 12 were false).
+#[test]
+fn one_forward_radar_reverse_lap_no_false_closure() {
+    let scenario = RevisitScenario {
+        radars: RadarPreset::Carla,
+        noise: NoiseModel::Gaussian,
+        drift: 0.01,
+        reverse: true,
+        seed: 1,
+    };
+    let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
+    eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.reverse, r.rejected);
+    assert!(r.reverse.opportunities > 300, "{:?}", r.reverse);
+    let wrong: Vec<_> = r
+        .closures
+        .iter()
+        .filter(|c| c.translation_error > 2.0)
+        .collect();
+    assert!(wrong.is_empty(), "false closures: {wrong:?}");
+    assert!(
+        r.rejected.get("no_common_view").copied().unwrap_or(0) > 0,
+        "{:?}",
+        r.rejected
+    );
+}
+
 #[test]
 fn the_revisits_command_rejects_bad_arguments() {
     let out = Command::new(env!("CARGO_BIN_EXE_dc_loc"))

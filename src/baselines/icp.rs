@@ -199,6 +199,7 @@ pub fn register_icp(
         overlap: pairs.len() as f64 / source.len() as f64,
         cost: mse,
         runner_up_overlap: 0.0,
+        alternatives: Vec::new(),
     })
 }
 

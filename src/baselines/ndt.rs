@@ -514,6 +514,7 @@ pub fn register_ndt(
         overlap: obj.inliers as f64 / source.len() as f64,
         cost: obj.value,
         runner_up_overlap: 0.0,
+        alternatives: Vec::new(),
     })
 }
 

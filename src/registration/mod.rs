@@ -81,6 +81,11 @@ pub struct RegistrationResult {
     /// `overlap` means the scene aliases (a street sliding along itself) and the result may be the
     /// wrong one of two. Only DC-Loc registration fills it; the baselines report 0.
     pub runner_up_overlap: f64,
+    /// The other alignments behind `runner_up_overlap`, each with the overlap it counts with (a refined
+    /// hypothesis: its own; a screened motion: the result's overlap scaled by its coverage ratio):
+    /// a prior (an accepted alignment of the session) can tell them from the result where the
+    /// submaps alone cannot. Empty for the baselines.
+    pub alternatives: Vec<(Iso2, f64)>,
 }
 
 /// Why a registration produced no result.
@@ -573,39 +578,75 @@ pub fn overlap_near(
 }
 
 /// Shifts along the source's x axis (a vehicle's heading) tried by [`slide_overlap`], m.
-pub const SLIDE_SHIFTS: [f64; 10] = [-24.0, -16.0, -10.0, -6.0, -3.0, 3.0, 6.0, 10.0, 16.0, 24.0];
+pub const SLIDE_SHIFTS: [f64; 10] = [-3.0, 3.0, -6.0, 6.0, -10.0, 10.0, -16.0, 16.0, -24.0, 24.0];
 
 /// How well the alignment `t` slid along the source's x axis fits: the best overlap (as
 /// [`overlap_near`]) of the local optima reached from `t` shifted by each of [`SLIDE_SHIFTS`] that end
 /// more than 2 m from `t` (0 when none does). Along a straight street the facades fit at any shift,
 /// and only poles, building edges and gaps tell the shifts apart; a result whose slid alternatives fit
-/// nearly as well is a guess along the street.
+/// nearly as well is a guess along the street. The shifts still to be refined are skipped once one
+/// ends above `stop_above` (`f64::INFINITY` refines all): the answer is then some overlap above it,
+/// not necessarily the largest (whether it exceeds `stop_above` does not depend on the order).
 pub fn slide_overlap(
     source: &PreparedSubmap,
     target: &PreparedSubmap,
     t: &Iso2,
     cfg: &RegistrationConfig,
+    stop_above: f64,
 ) -> Result<f64, RegistrationError> {
     use rayon::prelude::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
     let along = t.rotation * Vec2::x();
-    // The shifts are independent: refined in parallel (the maximum does not depend on the order).
+    let done = AtomicBool::new(false);
+    // The shifts are independent: refined in parallel, nearest first.
     let ends: Vec<_> = SLIDE_SHIFTS
         .par_iter()
         .map(|shift| {
+            if done.load(Ordering::Relaxed) {
+                return Ok(0.0);
+            }
             let start =
                 Iso2::from_parts((t.translation.vector + along * *shift).into(), t.rotation);
-            overlap_near(source, target, &start, cfg)
+            let o = match overlap_near(source, target, &start, cfg)? {
+                Some((end, o)) if (end.translation.vector - t.translation.vector).norm() > 2.0 => o,
+                _ => 0.0,
+            };
+            if o > stop_above {
+                done.store(true, Ordering::Relaxed);
+            }
+            Ok(o)
         })
         .collect();
-    let mut best: f64 = 0.0;
-    for end in ends {
-        if let Some((end, overlap)) = end? {
-            if (end.translation.vector - t.translation.vector).norm() > 2.0 {
-                best = best.max(overlap);
-            }
+    ends.into_iter()
+        .try_fold(0.0f64, |best, o: Result<f64, RegistrationError>| {
+            Ok(best.max(o?))
+        })
+}
+
+/// Sectors of [`common_view`] (30 degrees each).
+const VIEW_SECTORS: usize = 12;
+
+/// How much two submaps can have seen in common, whatever their points: the intersection (0..1) of
+/// their points' bearing histograms (12 sectors of 30 degrees, each histogram summing to 1) seen from
+/// their anchors, with the source's turned by the yaw of `t`. Matched submaps lie metres apart, so the
+/// bearings from either anchor are close enough. One forward radar revisiting a street the other way
+/// sees what lies behind the first pass (0.05-0.14 for the closures of the simulated reverse laps,
+/// true and false), five radars with overlapping fields of view see all around (0.40-0.77), a forward
+/// radar the same way 0.55-0.99.
+pub fn common_view(source: &PreparedSubmap, target: &PreparedSubmap, t: &Iso2) -> f64 {
+    let hist = |pts: &[Vec2], yaw: f64| {
+        let mut h = [0.0f64; VIEW_SECTORS];
+        let w = 1.0 / pts.len().max(1) as f64;
+        for x in pts {
+            let b = (x.y.atan2(x.x) + yaw).rem_euclid(std::f64::consts::TAU);
+            let k = (b / std::f64::consts::TAU * VIEW_SECTORS as f64) as usize;
+            h[k.min(VIEW_SECTORS - 1)] += w;
         }
-    }
-    Ok(best)
+        h
+    };
+    let hs = hist(&source.points.points, t.rotation.angle());
+    let ht = hist(&target.points.points, 0.0);
+    hs.iter().zip(&ht).map(|(a, b)| a.min(*b)).sum()
 }
 
 /// RANSAC + LM on given candidate correspondences (the part of the pipeline after association;
@@ -747,32 +788,34 @@ fn ransac_and_refine(
         Some(d) => {
             let mut d = polish(source, target, dense_sets, &candidates, d, cfg);
             let win = d.result.t_target_source;
-            d.result.runner_up_overlap = refined
-                .iter()
-                .filter(|(t, _)| {
-                    let rel = win.inverse() * t;
-                    rel.translation.vector.norm() > cfg.ambiguity_translation
-                        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
-                })
-                .map(|&(_, o)| o)
-                .fold(0.0, f64::max);
+            let far = |t: &Iso2| {
+                let rel = win.inverse() * t;
+                rel.translation.vector.norm() > cfg.ambiguity_translation
+                    || rel.rotation.angle().abs() > cfg.ambiguity_rotation
+            };
+            let mut alternatives: Vec<(Iso2, f64)> =
+                refined.iter().filter(|(t, _)| far(t)).copied().collect();
             // The screened motions that were not refined count too, by their coverage relative to
             // the winner's: a street slid along itself by metres covers the same cells.
             let win_cov = dense_sets.coverage.count(dense_sets.probes, &win).max(1);
-            let alt = screened
-                .iter()
-                .filter(|(_, h)| {
-                    (win.inverse() * h.t_target_source)
-                        .translation
-                        .vector
-                        .norm()
-                        > cfg.screen_ambiguity_translation
-                })
-                .map(|&(c, _)| c)
-                .max()
-                .unwrap_or(0);
-            let scaled = d.result.overlap * (alt as f64 / win_cov as f64).min(1.0);
-            d.result.runner_up_overlap = d.result.runner_up_overlap.max(scaled);
+            let overlap = d.result.overlap;
+            alternatives.extend(
+                screened
+                    .iter()
+                    .filter(|(_, h)| {
+                        (win.inverse() * h.t_target_source)
+                            .translation
+                            .vector
+                            .norm()
+                            > cfg.screen_ambiguity_translation
+                    })
+                    .map(|(c, h)| {
+                        let scaled = overlap * (*c as f64 / win_cov as f64).min(1.0);
+                        (h.t_target_source, scaled)
+                    }),
+            );
+            d.result.runner_up_overlap = alternatives.iter().map(|a| a.1).fold(0.0, f64::max);
+            d.result.alternatives = alternatives;
             d.candidates = candidates;
             d.result.candidates = d.candidates.len();
             Ok(d)
@@ -907,6 +950,7 @@ fn conclude(
         cost: fit.cost,
         overlap,
         runner_up_overlap: 0.0,
+        alternatives: Vec::new(),
     };
     Ok(RegistrationDetail {
         result,
@@ -1122,14 +1166,60 @@ mod tests {
             let (_, overlap) = overlap_near(&source, &target, &t, &cfg)
                 .expect("refined")
                 .expect("pairs");
-            let slid = slide_overlap(&source, &target, &t, &cfg).expect("slid");
+            let slid = slide_overlap(&source, &target, &t, &cfg, f64::INFINITY).expect("slid");
             let ratio = slid / overlap;
             if poles {
                 assert!(ratio < bound, "with poles: {slid:.2} / {overlap:.2}");
             } else {
                 assert!(ratio > bound, "bare: {slid:.2} / {overlap:.2}");
             }
+            // Stopping early gives the same verdict against any limit.
+            for limit in [0.3 * overlap, bound * overlap, 0.99 * slid, slid] {
+                let early = slide_overlap(&source, &target, &t, &cfg, limit).expect("slid");
+                assert_eq!(
+                    early > limit,
+                    slid > limit,
+                    "limit {limit:.3}: {early} vs {slid}"
+                );
+                assert!(early <= slid + 1e-12);
+            }
         }
+    }
+
+    /// A forward-looking cone of points turned half round shares no bearing with itself; turned
+    /// a little, most.
+    #[test]
+    fn common_view_of_forward_cones() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let cone: Vec<Vec2> = (0..400)
+            .map(|_| {
+                let (r, a) = (rng.random_range(5.0..60.0), rng.random_range(-1.3..1.3f64));
+                Vec2::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let all_round: Vec<Vec2> = (0..400)
+            .map(|_| {
+                let (r, a) = (
+                    rng.random_range(5.0..60.0),
+                    rng.random_range(-std::f64::consts::PI..std::f64::consts::PI),
+                );
+                Vec2::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let cfg = RegistrationConfig::default();
+        let prep = |p: &[Vec2]| {
+            PreparedSubmap::new(PointSet2::isotropic(p.to_vec(), 0.15), &cfg).expect("prepared")
+        };
+        let (c, a) = (prep(&cone), prep(&all_round));
+        let at = |yaw: f64| Iso2::new(Vec2::new(1.0, 0.5), yaw);
+        assert!(common_view(&c, &c, &at(0.0)) > 0.9);
+        assert!(common_view(&c, &c, &at(0.3)) > 0.6);
+        assert!(common_view(&c, &c, &at(std::f64::consts::PI)) < 0.05);
+        assert!(common_view(&c, &c, &at(-3.0)) < 0.1);
+        // All round: half turn or not, the cone's bearings are among the other's.
+        assert!(common_view(&a, &a, &at(std::f64::consts::PI)) > 0.85);
+        assert!(common_view(&c, &a, &at(std::f64::consts::PI)) > 0.3);
     }
 
     #[test]

@@ -74,6 +74,20 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // The paper's steps alone (descriptors, KNN, RANSAC, LM; no dense stage), 1000 points.
+    let mut paper = cfg.clone();
+    paper.dense.enabled = false;
+    let set = pairs(1000, 1000);
+    let mut k = 0usize;
+    c.bench_function("pair_1000_points_paper_steps", |b| {
+        b.iter(|| {
+            let p = &set[k % set.len()];
+            k += 1;
+            let s = PreparedSubmap::new(p.source.set.clone(), &paper).unwrap();
+            let t = PreparedSubmap::new(p.target.set.clone(), &paper).unwrap();
+            black_box(register_prepared(&s, &t, &paper).unwrap())
+        })
+    });
 }
 
 criterion_group!(benches, bench);

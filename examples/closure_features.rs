@@ -1,12 +1,12 @@
 //! Scratch: features of judged closures (from `dc_loc revisits --closures-out`), true against false:
-//! overlap, the slid alternatives' overlap and its ratio (`loop.maximum_slide_ratio`), runner-up,
+//! relative yaw, common view (`loop.minimum_common_view`), overlap, the slid alternatives' overlap and its ratio (`loop.maximum_slide_ratio`), runner-up,
 //! inliers, point overlap within 0.75 m at the result and slid by 5-20 m without refinement, and the
 //! translation standard deviations.
 //! `closure_features FILE "carla gaussian 3% same" [EVERY]` (every EVERY-th true closure, all false ones).
 use dc_loc::eval::revisits::{RevisitScenario, feed};
 use dc_loc::math::Vec2;
 use dc_loc::pipeline::Pipeline;
-use dc_loc::registration::{PreparedSubmap, register_detailed, slide_overlap};
+use dc_loc::registration::{PreparedSubmap, common_view, register_detailed, slide_overlap};
 use dc_loc::sim::{NoiseModel, RadarPreset, simulate};
 
 fn main() {
@@ -105,16 +105,7 @@ fn main() {
             .map(|&s| iso(s, true).0)
             .fold(0.0, f64::max);
         let alt = slide_overlap(&s, &g, &t, &rcfg, f64::INFINITY).unwrap();
-        let hist = |pts: &[Vec2], yaw: f64| {
-            let mut h = [0.0f64; 12];
-            for x in pts {
-                let b = (x.y.atan2(x.x) + yaw).rem_euclid(std::f64::consts::TAU);
-                h[((b / std::f64::consts::TAU * 12.0) as usize).min(11)] += 1.0 / pts.len() as f64;
-            }
-            h
-        };
-        let (hs, ht) = (hist(&sp.points, t.rotation.angle()), hist(&tp.points, 0.0));
-        let view: f64 = hs.iter().zip(&ht).map(|(a, b)| a.min(*b)).sum();
+        let view = common_view(&s, &g, &t);
         let cov = d.covariance_se2;
         let e = cov.fixed_view::<2, 2>(0, 0).symmetric_eigenvalues();
         println!(

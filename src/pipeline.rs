@@ -1028,20 +1028,32 @@ impl Pipeline {
             .par_iter()
             .map(|(_, target)| register_prepared(prepared, target, cfg))
             .collect();
+        let mut passed = Vec::new();
         for ((id, target), res) in targets.into_iter().zip(results) {
             let Some(rec) = self.db.get(id) else { continue };
             match self.gate(query, rec, res, prepared, &target) {
-                Ok(c) => {
-                    // Closures that agree with the accepted alignment first, then by score.
-                    let better = best
-                        .as_ref()
-                        .is_none_or(|b| (c.1, c.0.score) > (b.1, b.0.score));
-                    if better {
-                        best = Some(c);
-                    }
-                }
+                Ok(g) => passed.push((g, target)),
                 Err((reason, detail)) => self.reject(query.id, id, reason, detail, out),
             }
+        }
+        // The best closure: those that agree with the accepted alignment first, then by score, the
+        // earlier candidate among equals (a stable sort). The slide test, the costliest gate, runs
+        // in that order until one passes: the same closure as testing every one, with less work
+        // (the candidates after the winner are neither tested nor counted as rejected).
+        passed.sort_by(|(a, _), (b, _)| {
+            (b.agrees, b.closure.score)
+                .partial_cmp(&(a.agrees, a.closure.score))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        for (g, target) in passed {
+            if let Some(s) = &g.slide {
+                if let Err((reason, detail)) = self.slide_test(s, prepared, &target) {
+                    self.reject(query.id, g.closure.match_id, reason, detail, out);
+                    continue;
+                }
+            }
+            best = Some((g.closure, g.agrees));
+            break;
         }
         if let Some((c, agrees)) = best {
             if !again {
@@ -1179,7 +1191,7 @@ impl Pipeline {
         res: Result<RegistrationResult, RegistrationError>,
         source: &PreparedSubmap,
         target: &PreparedSubmap,
-    ) -> Result<(LoopClosure, bool), (RejectReason, String)> {
+    ) -> Result<Gated, (RejectReason, String)> {
         let lc = &self.cfg.r#loop;
         let r = res.map_err(|e| (RejectReason::Registration, e.to_string()))?;
         if r.inliers < lc.minimum_inliers {
@@ -1308,28 +1320,18 @@ impl Pipeline {
                 }
             }
         }
-        // The slide test: for a session's first closures against `maximum_slide_ratio`; for the
-        // other closures that wait for confirmation, a slid alignment must not fit better than the
-        // result (then the result is not the best alignment around, and agreeing closures along
-        // the same street cannot make it so).
+        // The slide test (run by the caller on the best closures only, see [`Pipeline::slide_test`]):
+        // for a session's first closures against `maximum_slide_ratio`; for the other closures that
+        // wait for confirmation, a slid alignment must not fit better than the result (then the
+        // result is not the best alignment around, and agreeing closures along the same street
+        // cannot make it so).
         let first = !self.alignments.contains_key(&cand.session);
-        let slide_ratio = if first { lc.maximum_slide_ratio } else { 1.0 };
-        if lc.maximum_slide_ratio < 1.0 && (first || !agrees) {
-            let limit = slide_ratio * r.overlap;
-            let rc = &self.cfg.registration;
-            let slid = slide_overlap(source, target, &r.t_target_source, rc, limit)
-                .map_err(|e| (RejectReason::Registration, e.to_string()))?;
-            if slid > limit {
-                return Err((
-                    RejectReason::Ambiguous,
-                    format!(
-                        "slid along the heading it fits {} (overlap {slid:.2} against {:.2}), and no fresh accepted alignment to its session vouches for it",
-                        if first { "too" } else { "better" },
-                        r.overlap
-                    ),
-                ));
-            }
-        }
+        let slide = (lc.maximum_slide_ratio < 1.0 && (first || !agrees)).then_some(Slide {
+            t: r.t_target_source,
+            overlap: r.overlap,
+            ratio: if first { lc.maximum_slide_ratio } else { 1.0 },
+            first,
+        });
         let closure = LoopClosure {
             query_id: query.id,
             match_id: cand.id,
@@ -1343,7 +1345,36 @@ impl Pipeline {
             score: r.overlap,
             match_session: cand.session,
         };
-        Ok((closure, agrees))
+        Ok(Gated {
+            closure,
+            agrees,
+            slide,
+        })
+    }
+
+    /// The slide test of a closure that passed the other gates ([`slide_overlap`], stopping at the
+    /// first shift above the limit).
+    fn slide_test(
+        &self,
+        s: &Slide,
+        source: &PreparedSubmap,
+        target: &PreparedSubmap,
+    ) -> Result<(), (RejectReason, String)> {
+        let limit = s.ratio * s.overlap;
+        let rc = &self.cfg.registration;
+        let slid = slide_overlap(source, target, &s.t, rc, limit)
+            .map_err(|e| (RejectReason::Registration, e.to_string()))?;
+        if slid > limit {
+            return Err((
+                RejectReason::Ambiguous,
+                format!(
+                    "slid along the heading it fits {} (overlap {slid:.2} against {:.2}), and no fresh accepted alignment to its session vouches for it",
+                    if s.first { "too" } else { "better" },
+                    s.overlap
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// Squared Mahalanobis distance between a registered `T_match_query` (`t`, covariance `cov` in ROS
@@ -1409,6 +1440,24 @@ impl Pipeline {
 fn translation_std(cov: &Mat6) -> f64 {
     let xy = cov.fixed_view::<2, 2>(0, 0).into_owned();
     xy.symmetric_eigenvalues().max().max(0.0).sqrt()
+}
+
+/// A closure that passed the gates before the slide test.
+struct Gated {
+    closure: LoopClosure,
+    /// It agrees with a fresh accepted alignment (published alone).
+    agrees: bool,
+    /// The slide test it still needs.
+    slide: Option<Slide>,
+}
+
+/// A pending slide test: the result, its overlap, the largest share of it a slid alignment may
+/// reach, and whether it is a session's first closure.
+struct Slide {
+    t: Iso2,
+    overlap: f64,
+    ratio: f64,
+    first: bool,
 }
 
 /// Standard deviations (m, rad) of the odometry drift over `path_gap` metres: the drift model's bounds

@@ -23,12 +23,7 @@ fn five_radars_same_direction_one_percent_drift_no_false_closure() {
     );
     assert!(r.measured_drift > 0.01, "drift {}", r.measured_drift);
     assert!(r.same.opportunities > 300, "{:?}", r.same);
-    let wrong: Vec<_> = r
-        .closures
-        .iter()
-        .filter(|c| c.translation_error > 2.0)
-        .collect();
-    assert!(wrong.is_empty(), "false closures: {wrong:?}");
+    assert_no_false_closure(&r);
     assert!(r.same.recall() >= 0.95, "recall {:?}", r.same);
     // Accuracy of what is published: the node issue's bar for nearly all.
     assert!(
@@ -55,12 +50,7 @@ fn searching_keyframes_again_after_a_confirmation_adds_true_closures() {
         .expect("scenario runs");
     eprintln!("with {:?}; without {:?}", with.same, without.same);
     for r in [&with, &without] {
-        let wrong: Vec<_> = r
-            .closures
-            .iter()
-            .filter(|c| c.translation_error > 2.0)
-            .collect();
-        assert!(wrong.is_empty(), "false closures: {wrong:?}");
+        assert_no_false_closure(r);
     }
     assert!(
         with.same.recall() > without.same.recall(),
@@ -84,12 +74,7 @@ fn one_forward_radar_reverse_lap_no_false_closure() {
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.reverse, r.rejected);
     assert!(r.reverse.opportunities > 300, "{:?}", r.reverse);
-    let wrong: Vec<_> = r
-        .closures
-        .iter()
-        .filter(|c| c.translation_error > 2.0)
-        .collect();
-    assert!(wrong.is_empty(), "false closures: {wrong:?}");
+    assert_no_false_closure(&r);
     assert!(
         r.rejected.get("no_common_view").copied().unwrap_or(0) > 0,
         "{:?}",
@@ -117,4 +102,14 @@ fn the_revisits_command_rejects_bad_arguments() {
         .expect("runs");
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("maximum_ambiguity"));
+}
+
+/// Every published closure lies within 2 m of the ground truth.
+fn assert_no_false_closure(r: &dc_loc::eval::revisits::RevisitReport) {
+    let wrong: Vec<_> = r
+        .closures
+        .iter()
+        .filter(|c| c.translation_error > 2.0)
+        .collect();
+    assert!(wrong.is_empty(), "false closures: {wrong:?}");
 }

@@ -198,6 +198,7 @@ pub struct PairTerms {
 ///
 /// `cov` = `Some((Sigma_x, Sigma_y))` weights by `(Sigma_y + R Sigma_x R^T)^-1`; `None` by
 /// `I / iso_var`. Returns `None` when the combined covariance is not positive definite.
+#[inline(always)]
 pub fn pair_terms(
     t: &Iso2,
     x: &Vec2,

@@ -230,6 +230,24 @@ impl Default for RegistrationConfig {
 }
 
 impl RegistrationConfig {
+    /// The paper's steps only, for speed: descriptors, KNN, RANSAC (its best motion alone, no
+    /// screening of 32), LM with re-selection, covariance; no dense stage and no surface covariances.
+    /// The same as the parameter overrides `registration.dense.enabled:=false`,
+    /// `registration.dense.surface_neighbours:=0`, `registration.hypotheses:=1`,
+    /// `registration.screened_hypotheses:=1`. Measured (README): about 2.5 times faster than the
+    /// default on 1000-point pairs, and on the demo drive 0.287 / 0.211 m mean / median translation
+    /// error with 85.8 % of the pairs inside 2 m, against the default's 0.086 / 0.073 m and 91.8 %.
+    pub fn paper_steps() -> Self {
+        let mut cfg = RegistrationConfig {
+            hypotheses: 1,
+            screened_hypotheses: 1,
+            ..RegistrationConfig::default()
+        };
+        cfg.dense.enabled = false;
+        cfg.dense.surface_neighbours = 0;
+        cfg
+    }
+
     /// Rejects values that cannot work; the error names the parameter (`registration.*`).
     pub fn validate(&self) -> Result<(), crate::config::ConfigError> {
         use crate::config::ConfigError;

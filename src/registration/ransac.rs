@@ -278,10 +278,10 @@ pub fn ransac_hypotheses(
             *slot_of.entry(c.source).or_insert(next)
         })
         .collect();
+    let cols = Columns::new(&xs, &ys, &thr2);
+    let mut ids = Vec::with_capacity(n);
     let mut score = Scorer {
-        xs: &xs,
-        ys: &ys,
-        thr2: &thr2,
+        cols: &cols,
         slots: &slots,
         seen: vec![0; slot_of.len()],
         stamp: 0,
@@ -333,8 +333,8 @@ pub fn ransac_hypotheses(
         // which cuts far inliers off; refit on the inliers and rescore while the support grows.
         let (mut count, mut t) = (count, t);
         for _ in 0..LOCAL_ROUNDS {
-            let ids = inliers_of(&xs, &ys, &thr2, &t);
-            let Some(t_fit) = fit_rigid(ids.iter().map(|&k| (xs[k], ys[k]))) else {
+            cols.inliers_into(&t, &mut ids);
+            let Some(t_fit) = cols.fit(&ids) else {
                 break;
             };
             let c_fit = score.count(&t_fit, 0);
@@ -417,11 +417,78 @@ fn insert_distinct(kept: &mut Vec<(usize, Iso2)>, h: (usize, Iso2), keep: usize,
     kept.truncate(keep);
 }
 
+/// Pairs per block of the inlier test.
+const BLOCK: usize = 64;
+
+/// The pairs as columns (source x, y, target x, y, squared radius): the inlier test runs branch-free
+/// over a block of pairs at a time (it vectorises), and only the pairs it marks are visited.
+struct Columns {
+    sx: Vec<f64>,
+    sy: Vec<f64>,
+    tx: Vec<f64>,
+    ty: Vec<f64>,
+    thr2: Vec<f64>,
+}
+
+impl Columns {
+    fn new(xs: &[Vec2], ys: &[Vec2], thr2: &[f64]) -> Self {
+        Columns {
+            sx: xs.iter().map(|p| p.x).collect(),
+            sy: xs.iter().map(|p| p.y).collect(),
+            tx: ys.iter().map(|p| p.x).collect(),
+            ty: ys.iter().map(|p| p.y).collect(),
+            thr2: thr2.to_vec(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.sx.len()
+    }
+
+    /// Marks (1) in `mask` the pairs `start..start + BLOCK` (fewer at the end) within their radius
+    /// under `t`; returns how many pairs the block holds.
+    fn block(&self, start: usize, t: &Iso2, mask: &mut [u8; BLOCK]) -> usize {
+        let (c, s) = (t.rotation.re, t.rotation.im);
+        let (px, py) = (t.translation.x, t.translation.y);
+        let end = (start + BLOCK).min(self.len());
+        let cols = self.sx[start..end]
+            .iter()
+            .zip(&self.sy[start..end])
+            .zip(&self.tx[start..end])
+            .zip(&self.ty[start..end])
+            .zip(&self.thr2[start..end]);
+        for (m, ((((ax, ay), bx), by), r2)) in mask.iter_mut().zip(cols) {
+            let dx = bx - (c * ax - s * ay + px);
+            let dy = by - (s * ax + c * ay + py);
+            *m = u8::from(dx * dx + dy * dy <= *r2);
+        }
+        end - start
+    }
+
+    /// Indices of the pairs within their radius under `t`, into `out` (cleared first).
+    fn inliers_into(&self, t: &Iso2, out: &mut Vec<usize>) {
+        out.clear();
+        let mut mask = [0u8; BLOCK];
+        for start in (0..self.len()).step_by(BLOCK) {
+            let len = self.block(start, t, &mut mask);
+            out.extend((0..len).filter(|&l| mask[l] != 0).map(|l| start + l));
+        }
+    }
+
+    /// The least-squares rigid motion ([`fit_rigid`]) of the pairs `ids`.
+    fn fit(&self, ids: &[usize]) -> Option<Iso2> {
+        fit_rigid(ids.iter().map(|&k| {
+            (
+                Vec2::new(self.sx[k], self.sy[k]),
+                Vec2::new(self.tx[k], self.ty[k]),
+            )
+        }))
+    }
+}
+
 /// Scores motions by the source points they explain.
 struct Scorer<'a> {
-    xs: &'a [Vec2],
-    ys: &'a [Vec2],
-    thr2: &'a [f64],
+    cols: &'a Columns,
     slots: &'a [u32],
     /// Per source slot, the stamp of the last motion that counted it.
     seen: Vec<u32>,
@@ -438,21 +505,19 @@ impl Scorer<'_> {
             self.seen.iter_mut().for_each(|s| *s = 0);
             self.stamp = 1;
         }
-        let (c, s) = (t.rotation.re, t.rotation.im);
-        let (tx, ty) = (t.translation.x, t.translation.y);
-        let n = self.xs.len();
+        let n = self.cols.len();
         let mut count = 0usize;
-        for k in 0..n {
-            let x = &self.xs[k];
-            let dx = self.ys[k].x - (c * x.x - s * x.y + tx);
-            let dy = self.ys[k].y - (s * x.x + c * x.y + ty);
-            if dx * dx + dy * dy <= self.thr2[k] {
-                let slot = &mut self.seen[self.slots[k] as usize];
+        let mut mask = [0u8; BLOCK];
+        for start in (0..n).step_by(BLOCK) {
+            let len = self.cols.block(start, t, &mut mask);
+            for (l, _) in mask[..len].iter().enumerate().filter(|(_, m)| **m != 0) {
+                let slot = &mut self.seen[self.slots[start + l] as usize];
                 if *slot != self.stamp {
                     *slot = self.stamp;
                     count += 1;
                 }
-            } else if bar > 0 && count + (n - k - 1) <= bar {
+            }
+            if bar > 0 && count + (n - start - len) <= bar {
                 break;
             }
         }
@@ -462,14 +527,6 @@ impl Scorer<'_> {
 
 /// Local-optimisation rounds per new best hypothesis.
 const LOCAL_ROUNDS: usize = 4;
-
-/// Indices of the pairs within their radius under `t`.
-fn inliers_of(xs: &[Vec2], ys: &[Vec2], thr2: &[f64], t: &Iso2) -> Vec<usize> {
-    let r = t.rotation.to_rotation_matrix().into_inner();
-    (0..xs.len())
-        .filter(|&k| (ys[k] - (r * xs[k] + t.translation.vector)).norm_squared() <= thr2[k])
-        .collect()
-}
 
 /// Inliers of `t`, one per source point (smallest residual), ascending.
 #[allow(clippy::too_many_arguments)]

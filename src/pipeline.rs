@@ -182,6 +182,14 @@ pub struct LoopConfig {
     /// alignment the confirmation gave; what agrees with it is published then, late. One at a time
     /// keeps the added latency to one more search per keyframe.
     pub backfill_per_keyframe: usize,
+    /// Let the registration of revisit candidates run its correlative search
+    /// (`registration.correlative`, default false). The search finds alignments the descriptors
+    /// missed; here most of what it finds has fewer descriptor inliers than `minimum_inliers` and
+    /// is refused anyway, and it runs on every candidate that does not fit (most of them).
+    /// Measured with `dc_loc revisits` at 3 % drift, Gaussian noise, same direction: five radars,
+    /// recall 97.9 -> 99.1 % and 3.7 times the run time; one radar, 92.3 -> 91.6 % and 1.6 times
+    /// the run time; no false closure either way.
+    pub correlative_search: bool,
 }
 
 impl Default for LoopConfig {
@@ -209,6 +217,7 @@ impl Default for LoopConfig {
             confirmation_horizon: 150.0,
             trusted_prior_std: 2.0,
             backfill_per_keyframe: 1,
+            correlative_search: false,
         }
     }
 }
@@ -1023,10 +1032,11 @@ impl Pipeline {
         // The registrations are independent: they run in parallel (rayon) and are gated in candidate
         // order, so the outcome is the same as one after another, sooner.
         self.stats.registrations += targets.len() as u64;
-        let cfg = &self.cfg.registration;
+        let mut cfg = self.cfg.registration.clone();
+        cfg.correlative.enabled &= self.cfg.r#loop.correlative_search;
         let results: Vec<_> = targets
             .par_iter()
-            .map(|(_, target)| register_prepared(prepared, target, cfg))
+            .map(|(_, target)| register_prepared(prepared, target, &cfg))
             .collect();
         let mut passed = Vec::new();
         for ((id, target), res) in targets.into_iter().zip(results) {

@@ -350,6 +350,42 @@ pub(crate) struct LmPose {
     pub(crate) converged: bool,
 }
 
+/// One Gauss-Newton step of eq. 10 from `t` over `pairs` (the robust-weighted normal equations,
+/// a trace of damping for safety), taken without checking the cost: what an ICP round needs when
+/// its pairs will change before the next step anyway. `cost` is the cost at `t`.
+pub(crate) fn gauss_newton_step(
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    t: &Iso2,
+    cfg: &LmConfig,
+) -> Result<LmPose, RegistrationError> {
+    if pairs.len() < 2 {
+        return Err(RegistrationError::TooFewInliers {
+            have: pairs.len(),
+            need: 2,
+        });
+    }
+    check_sets(source, target, pairs)?;
+    let cur = totals(t, source, target, pairs, cfg)?;
+    let mut a = cur.hessian;
+    for k in 0..3 {
+        a[(k, k)] += 1e-9 * cur.hessian[(k, k)].max(1e-12);
+    }
+    let delta = a
+        .cholesky()
+        .map(|c| -c.solve(&cur.gradient))
+        .filter(|d| d.iter().all(|v| v.is_finite()))
+        .ok_or_else(|| RegistrationError::Numerical("singular Gauss-Newton step".into()))?;
+    Ok(LmPose {
+        t_target_source: t * se2_exp(&delta),
+        information: cur.hessian,
+        cost: cur.cost,
+        iterations: 1,
+        converged: delta.norm() < cfg.step_tolerance,
+    })
+}
+
 /// The LM iterations of [`refine`] without the covariance (for intermediate solves).
 pub(crate) fn refine_pose(
     source: &PointSet2,
@@ -512,6 +548,71 @@ pub fn covariance_at(
     }
 }
 
+/// Cluster-robust sandwich covariance (Liang and Zeger 1986) of the estimate at `t`: `A^-1 B A^-1`
+/// with `A` the robust Hessian and `B = sum_c g_c g_c^T`, `g_c` the summed scores of the pairs of
+/// cluster `c`, scaled by `G / (G - 1)` for `G` clusters. Pairs whose errors are correlated (nearest
+/// neighbours that share target points or smoothed neighbourhoods, a facade sampled at other places
+/// by the two passes) belong to one cluster, so their common error counts once instead of as
+/// independent evidence. `clusters[k]` is the cluster of `pairs[k]` (any labels).
+pub fn covariance_clustered(
+    t: &Iso2,
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    clusters: &[u64],
+    cfg: &LmConfig,
+) -> Result<Mat3, RegistrationError> {
+    check_sets(source, target, pairs)?;
+    if clusters.len() != pairs.len() {
+        return Err(RegistrationError::Numerical(format!(
+            "{} cluster labels for {} pairs",
+            clusters.len(),
+            pairs.len()
+        )));
+    }
+    let iso_var = cfg.isotropic_sigma * cfg.isotropic_sigma;
+    let mut info_robust = Mat3::zeros();
+    let mut a = Mat3::zeros();
+    let mut scores: Vec<(u64, Vec3)> = Vec::with_capacity(pairs.len());
+    for (&(i, j), &c) in pairs.iter().zip(clusters) {
+        let cov = cfg
+            .use_uncertainty
+            .then(|| (&source.covs[i], &target.covs[j]));
+        let p = pair_terms(
+            t,
+            &source.points[i],
+            &target.points[j],
+            cov,
+            iso_var,
+            &cfg.robust,
+        )
+        .ok_or_else(|| RegistrationError::Numerical("covariance not positive definite".into()))?;
+        info_robust += p.hessian_gn;
+        a += p.hessian_gn + 2.0 * p.ddrho * p.jtwd * p.jtwd.transpose();
+        scores.push((c, p.drho * p.jtwd));
+    }
+    scores.sort_unstable_by_key(|e| e.0);
+    let mut b = Mat3::zeros();
+    let mut groups = 0usize;
+    for chunk in scores.chunk_by(|x, y| x.0 == y.0) {
+        let g: Vec3 = chunk.iter().map(|e| e.1).sum();
+        b += g * g.transpose();
+        groups += 1;
+    }
+    if groups <= 3 {
+        return Err(RegistrationError::TooFewInliers {
+            have: groups,
+            need: 4,
+        });
+    }
+    let a_inv = checked_inverse(&a, "robust Hessian")
+        .or_else(|_| checked_inverse(&info_robust, "information matrix"))?;
+    checked_inverse(&b, "score covariance")?;
+    let g = groups as f64;
+    let c = a_inv * b * a_inv * (g / (g - 1.0));
+    Ok((c + c.transpose()) * 0.5)
+}
+
 /// Asymptotic variance factor `E[rho'^2 s] / 2 / (E[rho' + rho'' s])^2` of the robust M-estimator for
 /// 2-D whitened residuals (`s ~ chi^2_2`, density `exp(-s/2)/2`); 1 for least squares.
 pub fn robust_variance_factor(robust: &RobustLoss) -> f64 {
@@ -666,5 +767,52 @@ mod tests {
                 "{mode:?}: {r:?}"
             );
         }
+    }
+
+    /// The cluster-robust sandwich with one pair per cluster is the empirical sandwich (up to its
+    /// small-sample factor); a pair entered twice in one cluster adds no information, where the
+    /// plain sandwich would take it as a second, independent measurement.
+    #[test]
+    fn clustered_covariance_counts_a_cluster_once() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let t = Iso2::new(Vec2::new(1.0, -2.0), 0.3);
+        let n = 60;
+        let xs: Vec<Vec2> = (0..n)
+            .map(|_| Vec2::new(rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)))
+            .collect();
+        let ys: Vec<Vec2> = xs
+            .iter()
+            .map(|x| {
+                (t * nalgebra::Point2::from(*x)).coords
+                    + Vec2::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3))
+            })
+            .collect();
+        let cfg = LmConfig {
+            covariance: CovarianceMode::Sandwich,
+            ..LmConfig::default()
+        };
+        let set = |pts: Vec<Vec2>| PointSet2::isotropic(pts, 0.2);
+        let (src, tgt) = (set(xs.clone()), set(ys.clone()));
+        let pairs: Vec<(usize, usize)> = (0..n).map(|i| (i, i)).collect();
+        let own: Vec<u64> = (0..n as u64).collect();
+        let clustered = covariance_clustered(&t, &src, &tgt, &pairs, &own, &cfg).unwrap();
+        let sandwich = covariance_at(&t, &src, &tgt, &pairs, &cfg).unwrap();
+        let (g, m) = (n as f64, n as f64);
+        let expected = sandwich * ((g / (g - 1.0)) / (m / (m - 3.0)));
+        assert!(
+            (clustered - expected).norm() < 1e-9 * expected.norm(),
+            "{clustered} {expected}"
+        );
+        // Every pair twice: the plain sandwich halves, the clustered one (pairs of a point in one
+        // cluster) stays.
+        let doubled: Vec<(usize, usize)> = pairs.iter().chain(&pairs).copied().collect();
+        let labels: Vec<u64> = own.iter().chain(&own).copied().collect();
+        let twice = covariance_clustered(&t, &src, &tgt, &doubled, &labels, &cfg).unwrap();
+        assert!((twice - clustered).norm() < 1e-9 * clustered.norm());
+        let plain_twice = covariance_at(&t, &src, &tgt, &doubled, &cfg).unwrap();
+        assert!(plain_twice.trace() < 0.6 * sandwich.trace());
+        // Labels must match the pairs.
+        assert!(covariance_clustered(&t, &src, &tgt, &pairs, &own[1..], &cfg).is_err());
     }
 }

@@ -14,8 +14,10 @@
 //! Pose covariances are over `delta = (x, y, theta)` with `T_true = T_est * Exp(delta)` (right
 //! perturbation in the source body frame, GTSAM `Pose2` convention) before the ROS reordering.
 
+pub mod correlative;
 pub mod dense;
 pub mod descriptor;
+pub mod grid;
 pub mod lm;
 pub mod matching;
 pub mod ransac;
@@ -196,6 +198,12 @@ pub struct RegistrationConfig {
     /// samples of the same surfaces, which leaves a bias of decimetres; re-associating every source point
     /// with its nearest target point under the current estimate and solving eq. 10 again removes it.
     pub dense: dense::DenseConfig,
+    /// Width of the fit score that picks the winner among the refined hypotheses, m (default 0.35; 0 =
+    /// the overlap instead): the mean over the source points of `exp(-d^2 / 2 sigma^2)`, `d` the
+    /// distance to the nearest target point at the hypothesis ([`dense::fit_score`]).
+    pub selection_sigma: f64,
+    /// Correlative search beyond a weak descriptor stage (see [`correlative`]).
+    pub correlative: correlative::CorrelativeConfig,
     /// Descriptors (RSD).
     pub descriptor: descriptor::DescriptorConfig,
     /// KNN matching in descriptor space (its query subset is drawn with `ransac.seed`).
@@ -221,6 +229,8 @@ impl Default for RegistrationConfig {
             ambiguity_translation: 1.0,
             ambiguity_rotation: 0.05,
             dense: dense::DenseConfig::default(),
+            selection_sigma: 0.35,
+            correlative: correlative::CorrelativeConfig::default(),
             descriptor: descriptor::DescriptorConfig::default(),
             matching: matching::MatchingConfig::default(),
             ransac: ransac::RansacConfig::default(),
@@ -234,7 +244,7 @@ impl RegistrationConfig {
     /// screening of 32), LM with re-selection, covariance; no dense stage and no surface covariances.
     /// The same as the parameter overrides `registration.dense.enabled:=false`,
     /// `registration.dense.surface_neighbours:=0`, `registration.hypotheses:=1`,
-    /// `registration.screened_hypotheses:=1`. Measured (README): about 2.5 times faster than the
+    /// `registration.screened_hypotheses:=1`, `registration.correlative.enabled:=false`. Measured (README): about 2.5 times faster than the
     /// default on 1000-point pairs, and on the demo drive 0.287 / 0.211 m mean / median translation
     /// error with 85.8 % of the pairs inside 2 m, against the default's 0.086 / 0.073 m and 91.8 %.
     pub fn paper_steps() -> Self {
@@ -245,6 +255,7 @@ impl RegistrationConfig {
         };
         cfg.dense.enabled = false;
         cfg.dense.surface_neighbours = 0;
+        cfg.correlative.enabled = false;
         cfg
     }
 
@@ -302,6 +313,12 @@ impl RegistrationConfig {
                 ));
             }
         }
+        if !(self.selection_sigma.is_finite() && self.selection_sigma >= 0.0) {
+            return Err(ConfigError::new(
+                "registration.selection_sigma",
+                format!("{} must be finite and >= 0 m", self.selection_sigma),
+            ));
+        }
         if self.screened_hypotheses < self.hypotheses.max(1) {
             return Err(ConfigError::new(
                 "registration.screened_hypotheses",
@@ -315,6 +332,7 @@ impl RegistrationConfig {
         self.matching.validate("registration.matching")?;
         self.ransac.validate("registration.ransac")?;
         self.lm.validate("registration.lm")?;
+        self.correlative.validate("registration.correlative")?;
         self.dense.validate("registration.dense")
     }
 }
@@ -332,6 +350,11 @@ struct DenseSets<'a> {
     /// Target points, likewise (all of them), and their tree.
     tgt: &'a PointSet2,
     tree: &'a dense::TargetTree,
+    /// The other way round, for the symmetric dense stage: the target's points as a source (at most
+    /// `max_source_points`), the source's points as a target (all of them) and their tree.
+    tgt_as_source: &'a PointSet2,
+    src_as_target: &'a PointSet2,
+    src_tree: &'a dense::TargetTree,
     /// Source probes and target coverage of the screening.
     probes: &'a [Vec2],
     coverage: &'a dense::Coverage,
@@ -481,6 +504,11 @@ pub struct RegistrationDetail {
     /// `None` when the dense stage did not run; else whether its last round moved the pose less than
     /// its stopping step.
     pub dense_settled: Option<bool>,
+    /// The fit score the hypotheses competed with ([`dense::fit_score`]).
+    pub score: f64,
+    /// The covariance came from the dense pairs (an alignment of the correlative search that too few
+    /// descriptor pairs agree with), not from the descriptor inliers.
+    pub dense_covariance: bool,
 }
 
 /// DC-Loc registration of the current submap (`source`) against a previous one (`target`).
@@ -554,6 +582,9 @@ pub fn register_detailed(
             src: source.dense_source(),
             tgt: &target.dense_points,
             tree: &target.point_tree,
+            tgt_as_source: target.dense_source(),
+            src_as_target: &source.dense_points,
+            src_tree: &source.point_tree,
             probes: &source.probes,
             coverage: &target.coverage,
         }),
@@ -708,23 +739,27 @@ fn ransac_and_refine(
     let dense_sets = match prepared_dense {
         Some(p) => p,
         None => {
-            let (src, _) = dense::prepare(source, &cfg.dense)?;
+            let (src, st) = dense::prepare(source, &cfg.dense)?;
             let (tgt, tt) = dense::prepare(target, &cfg.dense)?;
             let coverage = dense::Coverage::new(&tgt.points, SCREEN_CELL);
             let probes = dense::probes(&src, SCREEN_PROBES);
             built = (
-                dense::source_subset(&src, &cfg.dense).unwrap_or(src),
-                tgt,
-                tt,
+                dense::source_subset(&src, &cfg.dense),
+                dense::source_subset(&tgt, &cfg.dense),
+                (src, st),
+                (tgt, tt),
                 probes,
                 coverage,
             );
             DenseSets {
-                src: &built.0,
-                tgt: &built.1,
-                tree: &built.2,
-                probes: &built.3,
-                coverage: &built.4,
+                src: built.0.as_ref().unwrap_or(&built.2.0),
+                tgt: &built.3.0,
+                tree: &built.3.1,
+                tgt_as_source: built.1.as_ref().unwrap_or(&built.3.0),
+                src_as_target: &built.2.0,
+                src_tree: &built.2.1,
+                probes: &built.4,
+                coverage: &built.5,
             }
         }
     };
@@ -736,7 +771,17 @@ fn ransac_and_refine(
         rotation: cfg.ambiguity_rotation,
         min_support: cfg.min_inliers,
     };
-    let found = ransac::ransac_hypotheses(source, target, &candidates, &cfg.ransac, &distinct)?;
+    // A RANSAC failure (too few candidates) still leaves the correlative search.
+    let found = match ransac::ransac_hypotheses(source, target, &candidates, &cfg.ransac, &distinct)
+    {
+        Ok(f) => f,
+        Err(e) => {
+            if !correlative_applies(cfg) {
+                return Err(e);
+            }
+            Vec::new()
+        }
+    };
     let most = found.first().map_or(0, |h| h.inliers.len());
     // 3. Screening: descriptor support does not tell a street slid along itself (or a repeated block)
     //    from the true alignment, geometry does: the share of source points with a partner at the
@@ -753,7 +798,7 @@ fn ransac_and_refine(
             )
         })
         .collect();
-    if screened.is_empty() {
+    if screened.is_empty() && !correlative_applies(cfg) {
         return Err(RegistrationError::TooFewInliers {
             have: most,
             need: cfg.min_inliers,
@@ -767,15 +812,23 @@ fn ransac_and_refine(
     // Every refined alignment (pose, overlap), for the runner-up.
     let mut refined: Vec<(Iso2, f64)> = Vec::new();
     let mut first_error = None;
-    for (_, rs) in screened.iter().take(cfg.hypotheses.max(1)) {
-        // A motion within the ambiguity distances of an alignment already refined is that alignment
-        // again: refining it would repeat the work and cannot add a runner-up.
-        let same_as = |t: &Iso2| {
-            let rel = t.inverse() * rs.t_target_source;
+    // A motion within the ambiguity distances of an alignment already refined is that alignment
+    // again: refining it would repeat the work and cannot add a runner-up.
+    let already = |refined: &[(Iso2, f64)], t: &Iso2| {
+        refined.iter().any(|(r, _)| {
+            let rel = r.inverse() * t;
             rel.translation.vector.norm() <= cfg.ambiguity_translation
                 && rel.rotation.angle().abs() <= cfg.ambiguity_rotation
-        };
-        if refined.iter().any(|(t, _)| same_as(t)) {
+        })
+    };
+    let keep = |d: RegistrationDetail, best: &mut Option<RegistrationDetail>| {
+        let better = best.as_ref().is_none_or(|b| d.score > b.score);
+        if better {
+            *best = Some(d);
+        }
+    };
+    for (_, rs) in screened.iter().take(cfg.hypotheses.max(1)) {
+        if already(&refined, &rs.t_target_source) {
             continue;
         }
         match refine_hypothesis(
@@ -790,21 +843,60 @@ fn ransac_and_refine(
             Ok(mut d) => {
                 d.ransac_iterations = rs.iterations;
                 refined.push((d.result.t_target_source, d.result.overlap));
-                let better = best
-                    .as_ref()
-                    .is_none_or(|b| d.result.overlap > b.result.overlap);
-                if better {
-                    best = Some(d);
-                }
+                keep(d, &mut best);
             }
             Err(e) => {
                 first_error.get_or_insert(e);
             }
         }
     }
+    // 4. Correlative search when the descriptor stage found nothing or little overlap.
+    let weak = best
+        .as_ref()
+        .is_none_or(|b| b.score < cfg.correlative.below_score);
+    if correlative_applies(cfg) && weak {
+        let found = correlative::candidates(
+            dense_sets.src_as_target,
+            dense_sets.src_tree,
+            dense_sets.tgt,
+            dense_sets.tree,
+            &cfg.correlative,
+        );
+        // Scored where the votes put them (a cell and the histogram's resolution off), best first.
+        let mut scored: Vec<(f64, Iso2)> = found
+            .into_iter()
+            .map(|(_, t)| {
+                let sigma = cfg.selection_sigma.max(0.35);
+                let probes = PointSet2 {
+                    points: dense_sets.probes.to_vec(),
+                    covs: Vec::new(),
+                };
+                (
+                    dense::fit_score(&probes, dense_sets.tgt, dense_sets.tree, &t, 2.0 * sigma),
+                    t,
+                )
+            })
+            .collect();
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for (_, pose) in scored.into_iter().take(cfg.correlative.candidates) {
+            if already(&refined, &pose) {
+                continue;
+            }
+            match refine_from_pose(source, target, dense_sets, &candidates, pose, cfg) {
+                Ok(d) => {
+                    refined.push((d.result.t_target_source, d.result.overlap));
+                    keep(d, &mut best);
+                }
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                }
+            }
+        }
+    }
     match best {
         Some(d) => {
-            let mut d = polish(source, target, dense_sets, &candidates, d, cfg);
+            let d = polish(source, target, dense_sets, &candidates, d, cfg);
+            let mut d = symmetrise(source, target, dense_sets, &candidates, d, cfg);
             let win = d.result.t_target_source;
             let far = |t: &Iso2| {
                 let rel = win.inverse() * t;
@@ -907,10 +999,71 @@ fn refine_hypothesis(
         iterations,
         dense_settled,
         overlap: None,
+        score: None,
+        dense_covariance: false,
     };
     conclude(
         source, target, sets, candidates, inliers, t_ransac, fit, cfg,
     )
+}
+
+/// The correlative search runs: enabled, and the dense stage it refines with is on.
+fn correlative_applies(cfg: &RegistrationConfig) -> bool {
+    cfg.correlative.enabled && cfg.dense.enabled
+}
+
+/// A correlative candidate refined: the dense stage from `pose`, then the descriptor candidates
+/// within `reselect_gate` of where it ends (one per point; at least `correlative.min_inliers`, not on
+/// a line) give the covariance, as the descriptor inliers do for a RANSAC hypothesis.
+fn refine_from_pose(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: DenseSets<'_>,
+    candidates: &[ransac::Correspondence],
+    pose: Iso2,
+    cfg: &RegistrationConfig,
+) -> Result<RegistrationDetail, RegistrationError> {
+    let d = dense::refine_dense(
+        sets.src,
+        sets.tgt,
+        sets.tree,
+        &pose,
+        &cfg.dense,
+        &cfg.lm,
+        dense::Rounds::Plain,
+    )?
+    .ok_or(RegistrationError::TooFewInliers {
+        have: 0,
+        need: cfg.dense.min_pairs,
+    })?;
+    let inliers = reselect(source, target, candidates, &d.t_target_source, cfg);
+    let relaxed = RegistrationConfig {
+        min_inliers: cfg.correlative.min_inliers,
+        ..cfg.clone()
+    };
+    // Too few descriptor pairs agree (or they lie on a line): the covariance comes from the dense pairs.
+    let dense_covariance =
+        check_inliers(source, &descriptor_pairs(candidates, &inliers), &relaxed).is_err();
+    let fit = Fit {
+        t_target_source: d.t_target_source,
+        converged: d.converged,
+        cost: d.cost,
+        iterations: d.iterations,
+        dense_settled: Some(d.settled),
+        overlap: None,
+        score: None,
+        dense_covariance,
+    };
+    let have = inliers.len();
+    let d = conclude(source, target, sets, candidates, inliers, pose, fit, cfg)?;
+    // Without the descriptors' vote the geometry alone must speak clearly.
+    if d.dense_covariance && d.result.overlap < cfg.correlative.min_overlap {
+        return Err(RegistrationError::TooFewInliers {
+            have,
+            need: cfg.correlative.min_inliers,
+        });
+    }
+    Ok(d)
 }
 
 /// Where a hypothesis's refinement ended.
@@ -923,6 +1076,11 @@ struct Fit {
     dense_settled: Option<bool>,
     /// The overlap to report when it is already known; else measured at the pose.
     overlap: Option<f64>,
+    /// The fit score likewise.
+    score: Option<f64>,
+    /// The covariance comes from the dense pairs ([`correlative::CorrelativeConfig::covariance_scale`])
+    /// instead of the descriptor inliers.
+    dense_covariance: bool,
 }
 
 /// The (source, target) point indices of the candidates `sel` (indices into `candidates`).
@@ -950,14 +1108,35 @@ fn conclude(
         dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense).len() as f64
             / src.len().max(1) as f64
     });
+    let score = fit.score.unwrap_or_else(|| {
+        if cfg.selection_sigma > 0.0 {
+            dense::fit_score(src, tgt, tree, &fit.t_target_source, cfg.selection_sigma)
+        } else {
+            overlap
+        }
+    });
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
-    let covariance = lm::covariance_at(&fit.t_target_source, source, target, &pairs, &cfg.lm)?;
-    let scale = if fit.dense_settled.is_some() {
-        cfg.covariance_scale * cfg.dense.covariance_scale
+    let covariance_se2 = if fit.dense_covariance {
+        let dense_pairs = dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense);
+        let labels =
+            correlative::cluster_labels(src, &dense_pairs, cfg.correlative.covariance_cluster);
+        lm::covariance_clustered(
+            &fit.t_target_source,
+            src,
+            tgt,
+            &dense_pairs,
+            &labels,
+            &cfg.lm,
+        )? * cfg.correlative.covariance_scale
     } else {
-        cfg.covariance_scale
+        let covariance = lm::covariance_at(&fit.t_target_source, source, target, &pairs, &cfg.lm)?;
+        let scale = if fit.dense_settled.is_some() {
+            cfg.covariance_scale * cfg.dense.covariance_scale
+        } else {
+            cfg.covariance_scale
+        };
+        covariance * scale
     };
-    let covariance_se2 = covariance * scale;
     let result = RegistrationResult {
         t_target_source: fit.t_target_source,
         covariance: covariance_ros_from_se2(&covariance_se2),
@@ -978,6 +1157,8 @@ fn conclude(
         t_ransac,
         ransac_iterations: 0,
         dense_settled: fit.dense_settled,
+        score,
+        dense_covariance: fit.dense_covariance,
     })
 }
 
@@ -1018,6 +1199,8 @@ fn polish(
         // The overlap stays the one the hypotheses competed with (all refined alike), so that the
         // ambiguity gate compares like with like; polishing changes the pose and its covariance only.
         overlap: Some(r.overlap),
+        score: Some(best.score),
+        dense_covariance: best.dense_covariance,
     };
     let inliers = best.inliers.clone();
     match conclude(
@@ -1026,6 +1209,79 @@ fn polish(
         sets,
         candidates,
         inliers,
+        best.t_ransac,
+        fit,
+        cfg,
+    ) {
+        Ok(mut out) => {
+            out.ransac_iterations = best.ransac_iterations;
+            out
+        }
+        Err(_) => best,
+    }
+}
+
+/// The winner's pose averaged with the dense stage run the other way round (the target's points
+/// paired with their nearest source points, from the inverse of the winner's pose), when
+/// `registration.dense.symmetric` is on and the dense stage ran; its covariance at the averaged pose.
+/// Nearest-neighbour pairs join a point of one pass with the nearest sample of the other, so each
+/// direction carries its own association bias; the two directions' estimates differ by that and
+/// their mean halves what they do not share (see `DenseConfig::symmetric` for the measurements).
+/// Kept as it was when the reverse stage fails or ends farther apart than the ambiguity distances
+/// (then the two directions disagree about the alignment, not its last centimetres).
+fn symmetrise(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: DenseSets<'_>,
+    candidates: &[ransac::Correspondence],
+    best: RegistrationDetail,
+    cfg: &RegistrationConfig,
+) -> RegistrationDetail {
+    if !(cfg.dense.enabled && cfg.dense.symmetric) || best.dense_settled.is_none() {
+        return best;
+    }
+    let r = &best.result;
+    let forward = r.t_target_source;
+    let reverse = dense::refine_dense(
+        sets.tgt_as_source,
+        sets.src_as_target,
+        sets.src_tree,
+        &forward.inverse(),
+        &cfg.dense,
+        &cfg.lm,
+        dense::Rounds::Plain,
+    );
+    let Ok(Some(rev)) = reverse else {
+        return best;
+    };
+    let backward = rev.t_target_source.inverse();
+    let rel = forward.inverse() * backward;
+    if rel.translation.vector.norm() > cfg.ambiguity_translation
+        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
+    {
+        return best;
+    }
+    let mean = Iso2::new(
+        0.5 * (forward.translation.vector + backward.translation.vector),
+        forward.rotation.angle() + 0.5 * rel.rotation.angle(),
+    );
+    let fit = Fit {
+        t_target_source: mean,
+        converged: r.converged && rev.converged,
+        cost: r.cost,
+        iterations: r.iterations + rev.iterations,
+        dense_settled: best.dense_settled.map(|s| s && rev.settled),
+        // As in `polish`: the overlap the hypotheses competed with.
+        overlap: Some(r.overlap),
+        score: Some(best.score),
+        dense_covariance: best.dense_covariance,
+    };
+    match conclude(
+        source,
+        target,
+        sets,
+        candidates,
+        best.inliers.clone(),
         best.t_ransac,
         fit,
         cfg,

@@ -1,0 +1,526 @@
+//! Correlative search: alignments found by geometry alone, for registrations whose descriptor stage
+//! found nothing good.
+//!
+//! Descriptor matching fails where the two passes see a place differently (a submap at 72 km/h spans
+//! twice the street of one at 40 km/h, so the neighbourhoods a descriptor summarises differ): on the
+//! demo drive's 34 pairs that DC-Loc got wrong or could not register, only 6-30 source points had a
+//! descriptor candidate at the true alignment, below RANSAC's `min_inliers`, although the dense stage
+//! started there ends with more overlap than the alignment RANSAC found in 28 of them. This search
+//! looks for alignments without descriptors:
+//! 1. Rotation: each submap's histogram of local line directions (modulo pi; the principal axis of
+//!    each point's neighbourhood, weighted by how line-like it is) is correlated circularly with the
+//!    other's; the best `rotation_peaks` peaks, each with its half-turn, are the candidate rotations.
+//! 2. Translation, per rotation: every probe (a fixed subset of the source points) votes for the
+//!    translation that puts it onto each target point, in cells of `cell` metres; the cells with the
+//!    most votes (over 2 x 2 cells) are the places where most probes land near a target point (a
+//!    correlative scan match by voting).
+//!
+//! The caller refines the best candidates with the dense stage and keeps one only when it ends with
+//! more overlap than the descriptor stage's result and enough descriptor candidates agree with it for
+//! a covariance ([`CorrelativeConfig::min_inliers`]).
+//!
+//! Entry points: [`CorrelativeConfig`], [`candidates`].
+
+use super::PointSet2;
+use super::dense::TargetTree;
+use crate::math::{Iso2, Vec2};
+use serde::{Deserialize, Serialize};
+
+/// Settings of the correlative search.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CorrelativeConfig {
+    /// Run it (default true) when the descriptor stage gives no result or one whose overlap is below
+    /// `below_overlap`; it needs the dense stage (`registration.dense.enabled`).
+    pub enabled: bool,
+    /// Fit score (`registration.selection_sigma`) under which a descriptor-stage result is searched
+    /// beyond (default 0.45).
+    pub below_score: f64,
+    /// Peaks of the direction-histogram correlation tried, each with its half-turn (default 3).
+    pub rotation_peaks: usize,
+    /// Source points that vote (default 200).
+    pub probes: usize,
+    /// Vote cell, m (default 1.0).
+    pub cell: f64,
+    /// Rotations tried either side of each histogram peak (default 1), `rotation_step_deg` apart.
+    pub rotation_steps: usize,
+    /// Their spacing, degrees (default 1.0).
+    pub rotation_step_deg: f64,
+    /// Best translations kept per candidate rotation (default 8).
+    pub per_rotation: usize,
+    /// Candidates refined, best scored first (default 4).
+    pub candidates: usize,
+    /// Fewest descriptor candidates that must agree with a refined candidate (within
+    /// `registration.reselect_gate`, one per point, not on a line) for its covariance to come from
+    /// them as for a RANSAC hypothesis (default 10; the descriptor stage's own `min_inliers` is 30,
+    /// but here the geometry has already chosen the alignment and the pairs only measure its
+    /// uncertainty). With fewer, the covariance comes from the dense pairs (`covariance_cluster`,
+    /// `covariance_scale`).
+    pub min_inliers: usize,
+    /// Smallest overlap (as `RegistrationResult::overlap`) of an alignment whose covariance comes from
+    /// the dense pairs (default 0.4): without the descriptors' agreement the geometry alone must
+    /// speak clearly. On the demo drive such alignments had 0.52-0.77, true and false alike; two
+    /// unrelated synthetic scenes 0.14.
+    pub min_overlap: f64,
+    /// Cluster size of that dense-pair covariance, m (default 5.0): pairs whose source points share a
+    /// cell of this size count as one piece of evidence ([`super::lm::covariance_clustered`]).
+    pub covariance_cluster: f64,
+    /// Factor on that dense-pair covariance (default 5.0). Nearest-neighbour pairs of two passes
+    /// that sampled the surfaces at other places err together beyond what their residuals show.
+    pub covariance_scale: f64,
+}
+
+impl Default for CorrelativeConfig {
+    fn default() -> Self {
+        CorrelativeConfig {
+            enabled: true,
+            below_score: 0.45,
+            rotation_peaks: 3,
+            probes: 256,
+            cell: 0.5,
+            rotation_steps: 1,
+            rotation_step_deg: 1.0,
+            per_rotation: 8,
+            candidates: 4,
+            min_inliers: 10,
+            min_overlap: 0.4,
+            covariance_cluster: 5.0,
+            covariance_scale: 5.0,
+        }
+    }
+}
+
+impl CorrelativeConfig {
+    /// Rejects unusable values, naming the field under `prefix`.
+    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
+        use crate::config::ConfigError;
+        for (f, v) in [
+            ("below_score", self.below_score),
+            ("min_overlap", self.min_overlap),
+        ] {
+            if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+                return Err(ConfigError::new(
+                    format!("{prefix}.{f}"),
+                    format!("{v} must be in [0, 1]"),
+                ));
+            }
+        }
+        for (f, v) in [
+            ("covariance_cluster", self.covariance_cluster),
+            ("covariance_scale", self.covariance_scale),
+            ("rotation_step_deg", self.rotation_step_deg),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::new(
+                    format!("{prefix}.{f}"),
+                    format!("{v} must be finite and > 0"),
+                ));
+            }
+        }
+        if !(self.cell.is_finite() && self.cell >= 0.1) {
+            return Err(ConfigError::new(
+                format!("{prefix}.cell"),
+                format!("{} must be at least 0.1 m", self.cell),
+            ));
+        }
+        for (f, v, lo, hi) in [
+            ("rotation_peaks", self.rotation_peaks, 1, 16),
+            ("probes", self.probes, 10, 2000),
+            ("candidates", self.candidates, 1, 32),
+            ("per_rotation", self.per_rotation, 1, 64),
+            ("rotation_steps", self.rotation_steps, 0, 10),
+            ("min_inliers", self.min_inliers, 3, 10_000),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err(ConfigError::new(
+                    format!("{prefix}.{f}"),
+                    format!("{v} must be in {lo}..={hi}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Bins of the direction histograms (1 degree each over a half-turn).
+const BINS: usize = 180;
+/// Neighbours (and their radius, m) whose principal axis is a point's local direction.
+const NEIGHBOURS: usize = 24;
+const NEIGHBOUR_RADIUS: f64 = 8.0;
+/// Largest vote grid (cells); coarser cells beyond it.
+const MAX_CELLS: usize = 1 << 20;
+
+/// Histogram of the points' local line directions modulo pi (1-degree bins, linear interpolation
+/// between the two nearest, smoothed over 5 bins), each weighted by `(l1 - l2) / (l1 + l2)` of its
+/// neighbourhood's scatter (1 on a line, 0 in an isotropic blob).
+pub fn direction_histogram(points: &[Vec2], tree: &TargetTree) -> Vec<f64> {
+    let mut h = vec![0.0; BINS];
+    let mut nn = Vec::with_capacity(4 * NEIGHBOURS);
+    for p in points {
+        tree.nearest_k(p, NEIGHBOURS, NEIGHBOUR_RADIUS, &mut nn);
+        let near: Vec<Vec2> = nn
+            .iter()
+            .filter_map(|n| points.get(n.0 as usize).copied())
+            .collect();
+        if near.len() < 4 {
+            continue;
+        }
+        let mean = near.iter().fold(Vec2::zeros(), |a, q| a + q) / near.len() as f64;
+        let (mut sxx, mut syy, mut sxy) = (0.0f64, 0.0f64, 0.0f64);
+        for q in &near {
+            let d = q - mean;
+            sxx += d.x * d.x;
+            syy += d.y * d.y;
+            sxy += d.x * d.y;
+        }
+        let trace = sxx + syy;
+        if trace <= 1e-12 {
+            continue;
+        }
+        let linearity = (((sxx - syy).powi(2) + 4.0 * sxy * sxy).sqrt() / trace).powi(3);
+        let angle = (0.5 * (2.0 * sxy).atan2(sxx - syy)).rem_euclid(std::f64::consts::PI);
+        let f = angle / std::f64::consts::PI * BINS as f64;
+        let b = (f.floor() as usize) % BINS;
+        let w = f - f.floor();
+        h[b] += linearity * (1.0 - w);
+        h[(b + 1) % BINS] += linearity * w;
+    }
+    let kernel = [1.0, 2.0, 3.0, 2.0, 1.0];
+    (0..BINS)
+        .map(|b| {
+            kernel
+                .iter()
+                .enumerate()
+                .map(|(o, w)| w * h[(b + BINS + o - 2) % BINS])
+                .sum()
+        })
+        .collect()
+}
+
+/// Candidate rotations source -> target, rad: the `peaks` best local maxima (over +-5 bins) of the
+/// circular correlation of the two direction histograms, refined by a parabola through the peak and
+/// its neighbours, each with its half-turn (directions modulo pi cannot tell them apart).
+pub fn rotation_candidates(source_hist: &[f64], target_hist: &[f64], peaks: usize) -> Vec<f64> {
+    if source_hist.len() != BINS || target_hist.len() != BINS {
+        return Vec::new();
+    }
+    let corr: Vec<f64> = (0..BINS)
+        .map(|d| {
+            (0..BINS)
+                .map(|b| source_hist[b] * target_hist[(b + d) % BINS])
+                .sum()
+        })
+        .collect();
+    let mut maxima: Vec<usize> = (0..BINS)
+        .filter(|&d| {
+            corr[d] > 0.0
+                && (1..=5).all(|o| {
+                    corr[d] >= corr[(d + o) % BINS] && corr[d] >= corr[(d + BINS - o) % BINS]
+                })
+        })
+        .collect();
+    maxima.sort_by(|a, b| corr[*b].total_cmp(&corr[*a]).then(a.cmp(b)));
+    maxima.dedup_by(|a, b| (*a as i64 - *b as i64).abs() <= 5);
+    let mut out = Vec::with_capacity(2 * peaks);
+    for &d in maxima.iter().take(peaks) {
+        let (l, c, r) = (corr[(d + BINS - 1) % BINS], corr[d], corr[(d + 1) % BINS]);
+        let den = l - 2.0 * c + r;
+        let off = if den.abs() > 1e-12 {
+            (0.5 * (l - r) / den).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        };
+        let a = (d as f64 + off) * std::f64::consts::PI / BINS as f64;
+        out.push(a);
+        out.push(a + std::f64::consts::PI);
+    }
+    out
+}
+
+/// Cells of a target's occupancy for [`vote_translations`]: the cells (of `cell` metres) holding a
+/// target point, each widened by one cell, without repeats.
+pub struct Occupancy {
+    cell: f64,
+    /// Lower corner of cell (0, 0), m.
+    origin: Vec2,
+    /// Occupied cells (column, row), widened by one.
+    cells: Vec<(i32, i32)>,
+    /// Extent of the points, m.
+    lo: Vec2,
+    hi: Vec2,
+}
+
+impl Occupancy {
+    /// The occupancy of `target` (finite points) at `cell` metres.
+    pub fn new(target: &[Vec2], cell: f64) -> Option<Self> {
+        let pts: Vec<&Vec2> = target
+            .iter()
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .collect();
+        let (lo, hi) = bounds(pts.iter().copied())?;
+        let origin = lo - Vec2::repeat(cell);
+        let mut cells: Vec<(i32, i32)> = Vec::with_capacity(9 * pts.len());
+        for p in pts {
+            let c = (p - origin) / cell;
+            let (i, j) = (c.x as i32, c.y as i32);
+            for dj in -1..=1 {
+                for di in -1..=1 {
+                    cells.push((i + di, j + dj));
+                }
+            }
+        }
+        cells.sort_unstable();
+        cells.dedup();
+        Some(Occupancy {
+            cell,
+            origin,
+            cells,
+            lo,
+            hi,
+        })
+    }
+}
+
+fn bounds<'a>(pts: impl Iterator<Item = &'a Vec2>) -> Option<(Vec2, Vec2)> {
+    let (lo, hi) = pts.fold(
+        (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+    );
+    (lo.x <= hi.x && lo.y <= hi.y).then_some((lo, hi))
+}
+
+/// The best-voted translations for rotation `theta`: up to `top` (votes, motion), most votes first,
+/// no two within `separation` cells of each other. Each probe, turned by `theta`, votes once for
+/// every translation (in cells of the occupancy) that puts it into an occupied target cell: a cell's
+/// votes are the probes landing within about a cell of a target point there (an overlap count over
+/// every translation at once, a correlative scan match). A probe counts once per translation however
+/// many target points surround it, so dense facades outvote poles less than in a vote per point pair.
+pub fn vote_translations(
+    probes: &[Vec2],
+    occupancy: &Occupancy,
+    theta: f64,
+    top: usize,
+    separation: usize,
+) -> Vec<(u32, Iso2)> {
+    let rot = nalgebra::UnitComplex::new(theta);
+    let turned: Vec<Vec2> = probes
+        .iter()
+        .map(|x| rot * x)
+        .filter(|x| x.iter().all(|v| v.is_finite()))
+        .collect();
+    let Some((xlo, xhi)) = bounds(turned.iter()) else {
+        return Vec::new();
+    };
+    if top == 0 || occupancy.cells.is_empty() {
+        return Vec::new();
+    }
+    let cell = occupancy.cell;
+    // Translation t = (cell centre) - x; its grid index is the target cell's index plus a per-probe
+    // offset. Grid (0, 0) at `occupancy.origin - xhi`, one cell of margin each side.
+    let t_lo = occupancy.origin - xhi - Vec2::repeat(cell);
+    let span = (occupancy.hi - occupancy.lo) + (xhi - xlo) + Vec2::repeat(6.0 * cell);
+    let w = (span.x / cell) as usize + 2;
+    let h = (span.y / cell) as usize + 2;
+    if w.saturating_mul(h) > MAX_CELLS {
+        return Vec::new();
+    }
+    let mut grid = vec![0u16; w * h];
+    for x in &turned {
+        // Index of the translation that puts x at the centre of target cell (0, 0).
+        let t0 = (occupancy.origin + Vec2::repeat(0.5 * cell) - x - t_lo) / cell;
+        let (oi, oj) = (t0.x.floor() as i64, t0.y.floor() as i64);
+        for &(ci, cj) in &occupancy.cells {
+            let (i, j) = (ci as i64 + oi, cj as i64 + oj);
+            if i >= 0 && j >= 0 && (i as usize) < w && (j as usize) < h {
+                let c = &mut grid[j as usize * w + i as usize];
+                *c = c.saturating_add(1);
+            }
+        }
+    }
+    let mut best: Vec<(u32, usize, usize)> = Vec::with_capacity(top + 1);
+    for j in 0..h {
+        for i in 0..w {
+            let s = grid[j * w + i] as u32;
+            if s == 0 || (best.len() == top && best.last().is_some_and(|b| s <= b.0)) {
+                continue;
+            }
+            let near = |b: &(u32, usize, usize)| {
+                b.1.abs_diff(i) <= separation && b.2.abs_diff(j) <= separation
+            };
+            if best.iter().any(|b| near(b) && b.0 >= s) {
+                continue;
+            }
+            best.retain(|b| !near(b));
+            let at = best.partition_point(|b| b.0 >= s);
+            best.insert(at, (s, i, j));
+            best.truncate(top);
+        }
+    }
+    best.into_iter()
+        .map(|(s, i, j)| {
+            let t = t_lo + Vec2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+            (s, Iso2::from_parts(t.into(), rot))
+        })
+        .collect()
+}
+
+/// The search's candidate alignments (source -> target) with their votes, most votes first:
+/// [`rotation_candidates`] from the two sets' direction histograms (each set with its own tree), then
+/// the `cfg.per_rotation` best translations of each ([`vote_translations`], `cfg.probes` source
+/// points, cells of `cfg.cell`, at least 2 m apart).
+pub fn candidates(
+    source: &PointSet2,
+    source_tree: &TargetTree,
+    target: &PointSet2,
+    target_tree: &TargetTree,
+    cfg: &CorrelativeConfig,
+) -> Vec<(u32, Iso2)> {
+    if source.len() < 4 || target.len() < 4 {
+        return Vec::new();
+    }
+    let Some(occupancy) = Occupancy::new(&target.points, cfg.cell) else {
+        return Vec::new();
+    };
+    let hs = direction_histogram(&source.points, source_tree);
+    let ht = direction_histogram(&target.points, target_tree);
+    let probes: Vec<Vec2> = super::descriptor::subset_indices(source.len(), cfg.probes, PROBE_SEED)
+        .into_iter()
+        .filter_map(|i| source.points.get(i as usize).copied())
+        .collect();
+    let separation = (2.0 / cfg.cell).ceil() as usize;
+    let step = cfg.rotation_step_deg.to_radians();
+    let mut all: Vec<(u32, Iso2)> = rotation_candidates(&hs, &ht, cfg.rotation_peaks)
+        .into_iter()
+        .flat_map(|theta| {
+            (-(cfg.rotation_steps as i64)..=cfg.rotation_steps as i64)
+                .map(move |k| theta + k as f64 * step)
+        })
+        .flat_map(|theta| {
+            vote_translations(&probes, &occupancy, theta, cfg.per_rotation, separation)
+        })
+        .collect();
+    all.sort_by_key(|c| std::cmp::Reverse(c.0));
+    all
+}
+
+/// Cluster labels of `pairs` (source index, target index) for [`super::lm::covariance_clustered`]:
+/// the `cell`-metre grid cell of each pair's source point.
+pub fn cluster_labels(source: &PointSet2, pairs: &[(usize, usize)], cell: f64) -> Vec<u64> {
+    pairs
+        .iter()
+        .map(|&(i, _)| {
+            let p = source.points.get(i).map_or(Vec2::zeros(), |p| p / cell);
+            // Two's-complement cell indices packed into one label.
+            (u64::from(p.x.floor() as i32 as u32) << 32) | u64::from(p.y.floor() as i32 as u32)
+        })
+        .collect()
+}
+
+const PROBE_SEED: u64 = 0xC0_22E1_A7E5;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::registration::dense::target_tree;
+
+    /// An L-shaped street corner with a few poles, seen from two poses: the search's candidates
+    /// include the true motion (within a cell and a degree) although no descriptor is involved.
+    #[test]
+    fn finds_a_known_motion_by_geometry_alone() {
+        let mut pts = Vec::new();
+        for i in 0..120 {
+            let s = i as f64 * 0.5;
+            pts.push(Vec2::new(s - 20.0, 8.0)); // a facade along x
+            pts.push(Vec2::new(25.0, s - 30.0)); // a facade along y
+        }
+        for k in 0..6 {
+            pts.push(Vec2::new(-15.0 + 7.0 * k as f64, -4.0));
+        }
+        let truth = Iso2::new(Vec2::new(3.0, -1.5), 0.4);
+        // source = truth^-1 * target points (so truth maps source onto target)
+        let source: Vec<Vec2> = pts
+            .iter()
+            .map(|p| (truth.inverse() * nalgebra::Point2::from(*p)).coords)
+            .collect();
+        let s = PointSet2::isotropic(source, 0.1);
+        let t = PointSet2::isotropic(pts, 0.1);
+        let cands = candidates(
+            &s,
+            &target_tree(&s).unwrap(),
+            &t,
+            &target_tree(&t).unwrap(),
+            &CorrelativeConfig::default(),
+        );
+        // The corner pins the translation: the best-voted candidate is the true motion (within a
+        // cell and a rotation step).
+        let (_, best) = cands.first().copied().expect("candidates");
+        let rel = truth.inverse() * best;
+        assert!(
+            rel.translation.vector.norm() < 1.0 && rel.rotation.angle().abs() < 0.02,
+            "{cands:?}"
+        );
+        // The half-turn is a candidate rotation too.
+        let rots = rotation_candidates(
+            &direction_histogram(&s.points, &target_tree(&s).unwrap()),
+            &direction_histogram(&t.points, &target_tree(&t).unwrap()),
+            1,
+        );
+        assert_eq!(rots.len(), 2);
+        assert!((rots[1] - rots[0] - std::f64::consts::PI).abs() < 1e-12);
+    }
+
+    /// A probe counts once per translation however many target points surround it: one probe
+    /// against a dense facade of 40 points and a single pole gets at most one vote anywhere, and the
+    /// translations that put it on the pole and on the facade get one each.
+    #[test]
+    fn a_probe_votes_once_per_translation() {
+        let mut target: Vec<Vec2> = (0..40).map(|i| Vec2::new(i as f64 * 0.1, 0.0)).collect();
+        target.push(Vec2::new(20.0, 10.0));
+        let occ = Occupancy::new(&target, 0.5).unwrap();
+        let votes = vote_translations(&[Vec2::new(1.0, 1.0)], &occ, 0.0, 64, 0);
+        assert!(votes.iter().all(|v| v.0 == 1), "{votes:?}");
+        let near = |t: Vec2| {
+            votes
+                .iter()
+                .any(|(_, m)| (m.translation.vector - t).norm() <= 0.75)
+        };
+        assert!(near(Vec2::new(19.0, 9.0)), "pole");
+        assert!(near(Vec2::new(1.0, -1.0)), "facade");
+    }
+
+    /// Degenerate input gives no candidate instead of a panic.
+    #[test]
+    fn too_few_points_give_nothing() {
+        let s = PointSet2::isotropic(vec![Vec2::zeros(); 3], 0.1);
+        let tree = target_tree(&s).unwrap();
+        assert!(candidates(&s, &tree, &s, &tree, &CorrelativeConfig::default()).is_empty());
+        let occ = Occupancy::new(&[Vec2::zeros()], 1.0).unwrap();
+        assert!(vote_translations(&[], &occ, 0.0, 2, 2).is_empty());
+        assert!(Occupancy::new(&[], 1.0).is_none());
+        assert!(Occupancy::new(&[Vec2::new(f64::NAN, 0.0)], 1.0).is_none());
+        assert!(rotation_candidates(&[0.0; 3], &[0.0; 3], 2).is_empty());
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let mut c = CorrelativeConfig::default();
+        assert!(c.validate("r.c").is_ok());
+        c.cell = 0.0;
+        assert!(
+            c.validate("r.c")
+                .unwrap_err()
+                .to_string()
+                .contains("r.c.cell")
+        );
+        let c = CorrelativeConfig {
+            probes: 0,
+            ..CorrelativeConfig::default()
+        };
+        assert!(
+            c.validate("r.c")
+                .unwrap_err()
+                .to_string()
+                .contains("r.c.probes")
+        );
+    }
+}

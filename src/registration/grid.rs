@@ -1,0 +1,256 @@
+//! A uniform grid over a planar point set for fixed-radius neighbour queries.
+//!
+//! The dense stage asks, many times per registration, for the nearest target point within a metre or
+//! two of a moved source point, and the surface covariances for the few neighbours within two metres
+//! of every point. Radar submaps are sparse (hundreds to a few thousand points over a couple of
+//! hundred metres), so a grid whose cells are as large as the query radius answers from the 3 x 3
+//! cells around the query, with no tree to descend and no result collection to manage. Measured with
+//! callgrind on the 1000-point pairs of `benches/registration.rs`: the dense stage's nearest-pair
+//! queries took about 5 times fewer instructions than the k-d tree's bounded two-nearest query.
+//!
+//! Entry points: [`PointGrid::new`], [`PointGrid::nearest_two`], [`PointGrid::nearest_k`].
+
+use crate::math::Vec2;
+
+/// Most cells of a grid; a larger extent gets larger cells (queries stay exact, only slower).
+const MAX_CELLS: usize = 1 << 20;
+
+/// Points bucketed by cell (compressed rows: the points of cell `c` are
+/// `order[start[c]..start[c + 1]]`).
+#[derive(Debug, Clone)]
+pub struct PointGrid {
+    origin: Vec2,
+    cell: f64,
+    width: usize,
+    height: usize,
+    start: Vec<u32>,
+    /// Point indices, cell by cell.
+    order: Vec<u32>,
+    /// The points in that order (x, y), so that a cell's points are contiguous in memory.
+    coords: Vec<[f64; 2]>,
+}
+
+impl PointGrid {
+    /// The grid of `points` with cells of at least `cell` metres (larger when the points spread over
+    /// more than [`MAX_CELLS`] cells). Non-finite points are left out.
+    pub fn new(points: &[Vec2], cell: f64) -> Self {
+        let finite = |p: &&Vec2| p.x.is_finite() && p.y.is_finite();
+        let (mut lo, mut hi) = (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY));
+        for p in points.iter().filter(finite) {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let mut cell = if cell.is_finite() && cell > 0.0 {
+            cell
+        } else {
+            1.0
+        };
+        if lo.x > hi.x {
+            return PointGrid {
+                origin: Vec2::zeros(),
+                cell,
+                width: 0,
+                height: 0,
+                start: vec![0],
+                order: Vec::new(),
+                coords: Vec::new(),
+            };
+        }
+        let span = hi - lo;
+        while (span.x / cell + 1.0) * (span.y / cell + 1.0) > MAX_CELLS as f64 {
+            cell *= 2.0;
+        }
+        let width = (span.x / cell) as usize + 1;
+        let height = (span.y / cell) as usize + 1;
+        let index = |p: &Vec2| {
+            let c = (p - lo) / cell;
+            let (x, y) = (
+                (c.x as usize).min(width - 1),
+                (c.y as usize).min(height - 1),
+            );
+            y * width + x
+        };
+        let mut start = vec![0u32; width * height + 1];
+        for p in points.iter().filter(finite) {
+            start[index(p) + 1] += 1;
+        }
+        for c in 0..width * height {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let n = start[width * height] as usize;
+        let mut order = vec![0u32; n];
+        let mut coords = vec![[0.0; 2]; n];
+        for (i, p) in points.iter().enumerate().filter(|(_, p)| finite(p)) {
+            let c = index(p);
+            let at = fill[c] as usize;
+            fill[c] += 1;
+            order[at] = i as u32;
+            coords[at] = [p.x, p.y];
+        }
+        PointGrid {
+            origin: lo,
+            cell,
+            width,
+            height,
+            start,
+            order,
+            coords,
+        }
+    }
+
+    /// Points in the grid.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// True when the grid holds no point.
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
+    /// Calls `f(index, squared distance)` for every point whose cell lies within `radius` of `q`
+    /// (a superset of the points within `radius`).
+    #[inline]
+    fn visit(&self, q: &Vec2, radius: f64, mut f: impl FnMut(u32, f64)) {
+        if self.width == 0 || !(q.x.is_finite() && q.y.is_finite()) {
+            return;
+        }
+        let c = (q - self.origin) / self.cell;
+        let r = radius / self.cell;
+        let x0 = (c.x - r).floor().max(0.0);
+        let y0 = (c.y - r).floor().max(0.0);
+        let x1 = (c.x + r).floor().min(self.width as f64 - 1.0);
+        let y1 = (c.y + r).floor().min(self.height as f64 - 1.0);
+        if x0 > x1 || y0 > y1 {
+            return;
+        }
+        let (x0, x1, y0, y1) = (x0 as usize, x1 as usize, y0 as usize, y1 as usize);
+        for y in y0..=y1 {
+            let row = y * self.width;
+            let (a, b) = (
+                self.start[row + x0] as usize,
+                self.start[row + x1 + 1] as usize,
+            );
+            for k in a..b {
+                let p = self.coords[k];
+                let (dx, dy) = (p[0] - q.x, p[1] - q.y);
+                f(self.order[k], dx * dx + dy * dy);
+            }
+        }
+    }
+
+    /// The nearest point within `radius` of `q` (index, squared distance) and the squared distance
+    /// of the second nearest, capped at `radius^2`; `None` when no point lies within `radius`.
+    pub fn nearest_two(&self, q: &Vec2, radius: f64) -> Option<(u32, f64, f64)> {
+        let r2 = radius * radius;
+        let (mut best, mut d1, mut d2) = (u32::MAX, r2, r2);
+        self.visit(q, radius, |i, d| {
+            if d < d1 {
+                d2 = d1;
+                d1 = d;
+                best = i;
+            } else if d < d2 {
+                d2 = d;
+            }
+        });
+        (best != u32::MAX).then_some((best, d1, d2))
+    }
+
+    /// The `k` nearest points within `radius` of `q` (index, squared distance) into `out`, in no
+    /// particular order; ties at the `k`-th distance broken by the smaller index.
+    pub fn nearest_k(&self, q: &Vec2, k: usize, radius: f64, out: &mut Vec<(u32, f64)>) {
+        out.clear();
+        if k == 0 {
+            return;
+        }
+        let r2 = radius * radius;
+        self.visit(q, radius, |i, d| {
+            if d <= r2 {
+                out.push((i, d));
+            }
+        });
+        if out.len() > k {
+            out.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            out.truncate(k);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    fn brute(points: &[Vec2], q: &Vec2) -> Vec<(u32, f64)> {
+        let mut all: Vec<(u32, f64)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i as u32, (p - q).norm_squared()))
+            .collect();
+        all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all
+    }
+
+    /// Both queries agree with brute force on random clustered points, for radii below, at and
+    /// above the cell size.
+    #[test]
+    fn queries_match_brute_force() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let mut points: Vec<Vec2> = (0..600)
+            .map(|_| Vec2::new(rng.random_range(-80.0..80.0), rng.random_range(-50.0..50.0)))
+            .collect();
+        // A dense facade and duplicates.
+        points.extend((0..200).map(|i| Vec2::new(i as f64 * 0.05, 3.0)));
+        points.push(points[10]);
+        let grid = PointGrid::new(&points, 1.5);
+        assert_eq!(grid.len(), points.len());
+        let mut out = Vec::new();
+        for _ in 0..500 {
+            let q = Vec2::new(rng.random_range(-90.0..90.0), rng.random_range(-60.0..60.0));
+            let all = brute(&points, &q);
+            for radius in [0.7, 1.5, 4.0] {
+                let r2 = radius * radius;
+                let within: Vec<&(u32, f64)> = all.iter().filter(|e| e.1 <= r2).collect();
+                match grid.nearest_two(&q, radius) {
+                    None => assert!(within.first().is_none_or(|e| e.1 >= r2)),
+                    Some((i, d1, d2)) => {
+                        assert_eq!(d1, within[0].1);
+                        assert_eq!((points[i as usize] - q).norm_squared(), d1);
+                        let second = within.get(1).map_or(r2, |e| e.1.min(r2));
+                        assert_eq!(d2, second);
+                    }
+                }
+                grid.nearest_k(&q, 8, radius, &mut out);
+                let mut got: Vec<f64> = out.iter().map(|e| e.1).collect();
+                got.sort_by(f64::total_cmp);
+                let want: Vec<f64> = within.iter().take(8).map(|e| e.1).collect();
+                assert_eq!(got, want);
+            }
+        }
+    }
+
+    /// No points, non-finite points and a huge extent neither panic nor lose points.
+    #[test]
+    fn degenerate_sets() {
+        let empty = PointGrid::new(&[], 1.0);
+        assert!(empty.is_empty());
+        assert!(empty.nearest_two(&Vec2::zeros(), 5.0).is_none());
+        let pts = vec![
+            Vec2::new(f64::NAN, 0.0),
+            Vec2::new(0.0, 0.0),
+            Vec2::new(1e7, -1e7),
+        ];
+        let g = PointGrid::new(&pts, 0.5);
+        assert_eq!(g.len(), 2);
+        assert_eq!(
+            g.nearest_two(&Vec2::new(0.1, 0.0), 1.0).map(|n| n.0),
+            Some(1)
+        );
+        assert_eq!(
+            g.nearest_two(&Vec2::new(1e7, -1e7), 1.0).map(|n| n.0),
+            Some(2)
+        );
+        assert!(g.nearest_two(&Vec2::new(f64::NAN, 0.0), 1.0).is_none());
+    }
+}

@@ -156,12 +156,11 @@ const MAX_CELLS: usize = 1 << 20;
 pub fn direction_histogram(points: &[Vec2], tree: &TargetTree) -> Vec<f64> {
     let mut h = vec![0.0; BINS];
     let mut nn = Vec::with_capacity(4 * NEIGHBOURS);
+    let mut near: Vec<Vec2> = Vec::with_capacity(NEIGHBOURS);
     for p in points {
         tree.nearest_k(p, NEIGHBOURS, NEIGHBOUR_RADIUS, &mut nn);
-        let near: Vec<Vec2> = nn
-            .iter()
-            .filter_map(|n| points.get(n.0 as usize).copied())
-            .collect();
+        near.clear();
+        near.extend(nn.iter().filter_map(|n| points.get(n.0 as usize).copied()));
         if near.len() < 4 {
             continue;
         }

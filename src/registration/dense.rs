@@ -176,8 +176,14 @@ impl DenseConfig {
     }
 }
 
-/// Builds the target's neighbour index.
+/// Builds the target's neighbour index (items are `u32`: at most `u32::MAX` points).
 pub fn target_tree(target: &PointSet2) -> Result<TargetTree, RegistrationError> {
+    if u32::try_from(target.len()).is_err() {
+        return Err(RegistrationError::Numerical(format!(
+            "{} points do not fit the neighbour grid's u32 index",
+            target.len()
+        )));
+    }
     Ok(TargetTree::new(&target.points, GRID_CELL))
 }
 
@@ -209,7 +215,9 @@ pub fn with_surface_covariances(
     else {
         return out;
     };
+    // Scratch reused for every point.
     let mut nn = Vec::with_capacity(4 * k.get());
+    let mut near: Vec<&Vec2> = Vec::with_capacity(k.get());
     for ((p, c), moved) in set
         .points
         .iter()
@@ -217,10 +225,8 @@ pub fn with_surface_covariances(
         .zip(out.points.iter_mut())
     {
         tree.nearest_k(p, k.get(), cfg.surface_radius, &mut nn);
-        let near: Vec<_> = nn
-            .iter()
-            .filter_map(|n| set.points.get(n.0 as usize))
-            .collect();
+        near.clear();
+        near.extend(nn.iter().filter_map(|n| set.points.get(n.0 as usize)));
         if near.len() < 3 {
             continue;
         }

@@ -4,8 +4,9 @@
 //! Entry points: [`DescriptorConfig`], [`compute_descriptors`], [`keypoint_indices`],
 //! [`subset_indices`], [`Descriptor`], [`DESCRIPTOR_DIM`], [`AngularStatistic`], [`Normalisation`].
 //!
-//! What is built. For a point `p`, take its neighbours `q` within `radius` (kiddo radius query into
-//! a k-d tree over the support points, no per-point allocation) and form:
+//! What is built. For a point `p`, take its neighbours `q` within `radius` (a radius query into a
+//! uniform grid over the support points, [`super::grid::PointGrid`], no per-point allocation) and
+//! form:
 //! - a radial histogram: the neighbours' distances `|q - p|` in `radial_bins` equal rings over
 //!   `[0, radius]`, with linear (soft) assignment to the two nearest ring centres so that a distance
 //!   near a ring border does not flip the descriptor; invariant to rotation and translation;
@@ -50,9 +51,9 @@
 //! (R = 35 m: 66 / 65 / 61 / 55 %) at 1.5-2x the cost; a smaller support hurts (800 instead of
 //! 1500: 52 / 35 / 40 / 54 %).
 
+use super::grid::PointGrid;
 use crate::math::Vec2;
 use crate::registration::RegistrationError;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
 /// Length of every descriptor; unused trailing entries are 0. A compile-time constant because the
@@ -198,9 +199,6 @@ impl DescriptorConfig {
     }
 }
 
-/// A k-d tree over 2-D points (for neighbourhood queries); item = index into the support list.
-pub type PointTree = ImmutableKdTree<f64, 2>;
-
 /// A pseudo-random subset of `0..n` of size `max` (all of `0..n` when `n <= max`), ascending.
 /// Deterministic: the same `(n, max, seed)` always gives the same subset.
 pub fn subset_indices(n: usize, max: usize, seed: u64) -> Vec<u32> {
@@ -231,33 +229,33 @@ pub fn keypoint_indices(n: usize, cfg: &DescriptorConfig) -> Vec<u32> {
 /// Descriptors of the points `keypoints` (indices into `points`), in that order (see the module
 /// doc). Points must be finite; `cfg` must be valid.
 ///
-/// Errors only when the support does not fit the k-d tree's `u32` item index.
+/// Errors only when the support does not fit the grid's `u32` item index.
 pub fn compute_descriptors(
     points: &[Vec2],
     keypoints: &[u32],
     cfg: &DescriptorConfig,
 ) -> Result<Vec<Descriptor>, RegistrationError> {
+    if u32::try_from(points.len()).is_err() {
+        return Err(RegistrationError::Numerical(format!(
+            "{} points do not fit the neighbour grid's u32 index",
+            points.len()
+        )));
+    }
     let support = subset_indices(points.len(), cfg.max_support, SUPPORT_SEED);
-    let coords: Vec<[f64; 2]> = support
-        .iter()
-        .map(|&i| {
-            let p = points[i as usize];
-            [p.x, p.y]
-        })
-        .collect();
-    let tree = PointTree::new_from_slice(&coords)
-        .map_err(|e| RegistrationError::Numerical(format!("point k-d tree: {e}")))?;
-    Ok(compute_descriptors_with_tree(
-        points, keypoints, &support, &tree, cfg,
+    let coords: Vec<Vec2> = support.iter().map(|&i| points[i as usize]).collect();
+    // Cells of a third of the radius: a query visits at most 7 x 7 of them.
+    let grid = PointGrid::new(&coords, cfg.radius / 3.0);
+    Ok(compute_descriptors_with_grid(
+        points, keypoints, &support, &grid, cfg,
     ))
 }
 
-/// As [`compute_descriptors`], with a tree built over `points[support[k]]` (item `k`).
-pub fn compute_descriptors_with_tree(
+/// As [`compute_descriptors`], with a neighbour grid built over `points[support[k]]` (item `k`).
+pub fn compute_descriptors_with_grid(
     points: &[Vec2],
     keypoints: &[u32],
     support: &[u32],
-    tree: &PointTree,
+    grid: &PointGrid,
     cfg: &DescriptorConfig,
 ) -> Vec<Descriptor> {
     let nr = cfg.radial_bins.clamp(1, DESCRIPTOR_DIM);
@@ -265,7 +263,6 @@ pub fn compute_descriptors_with_tree(
         AngularStatistic::None => 0,
         _ => cfg.angular_bins.min(DESCRIPTOR_DIM - nr),
     };
-    let r2 = cfg.radius * cfg.radius;
     let inv_width = (nr as f64 / cfg.radius) as f32;
     let sector_scale = (na as f64 / std::f64::consts::TAU) as f32;
     let mut out = Vec::with_capacity(keypoints.len());
@@ -286,23 +283,20 @@ pub fn compute_descriptors_with_tree(
         dx.clear();
         dy.clear();
         rho.clear();
-        tree.query(&[p.x, p.y])
-            .within::<SquaredEuclidean<f64>>(r2)
-            .unsorted()
-            .visit(|res| {
-                if res.distance <= 0.0 {
-                    return;
-                }
-                let Some(q) = support
-                    .get(res.item as usize)
-                    .and_then(|&j| points.get(j as usize))
-                else {
-                    return;
-                };
-                dx.push((q.x - p.x) as f32);
-                dy.push((q.y - p.y) as f32);
-                rho.push(res.distance as f32);
-            });
+        grid.within(p, cfg.radius, |item, distance| {
+            if distance <= 0.0 {
+                return;
+            }
+            let Some(q) = support
+                .get(item as usize)
+                .and_then(|&j| points.get(j as usize))
+            else {
+                return;
+            };
+            dx.push((q.x - p.x) as f32);
+            dy.push((q.y - p.y) as f32);
+            rho.push(distance as f32);
+        });
         let count = rho.len() as f64;
         // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise.
         for r in rho.iter_mut() {
@@ -316,14 +310,18 @@ pub fn compute_descriptors_with_tree(
         }
         // Radial ring, soft assignment between the two nearest ring centres: neighbour q adds the
         // hat function max(0, 1 - |f_q - b|) to ring b, f_q its position in ring units (clamped
-        // to the first and last ring centres). Summed ring by ring so that it vectorises.
+        // to the first and last ring centres), i.e. 1 - w to ring floor(f_q) and w to the next,
+        // w = f_q - floor(f_q). One scatter per neighbour (a pass per ring costs the ring count).
         let last = (nr - 1) as f32;
-        for r in rho.iter_mut() {
-            *r = (*r * inv_width - 0.5).clamp(0.0, last);
-        }
-        for (b, v) in radial.iter_mut().enumerate().take(nr) {
-            let bf = b as f32;
-            *v = sum_lanes_map(&rho, |f| (1.0 - (f - bf).abs()).max(0.0));
+        for r in &rho {
+            let f = (*r * inv_width - 0.5).clamp(0.0, last);
+            // f >= 0: truncation is the floor.
+            let b0 = (f as usize).min(nr - 1);
+            let w = (f - b0 as f32) as f64;
+            radial[b0] += 1.0 - w;
+            if b0 + 1 < nr {
+                radial[b0 + 1] += w;
+            }
         }
         match cfg.angular {
             AngularStatistic::Spectrum if na > 0 => {

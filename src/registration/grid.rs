@@ -8,14 +8,15 @@
 //! callgrind on the 1000-point pairs of `benches/registration.rs`: the dense stage's nearest-pair
 //! queries took about 5 times fewer instructions than the k-d tree's bounded two-nearest query.
 //!
-//! Entry points: [`PointGrid::new`], [`PointGrid::nearest_two`], [`PointGrid::nearest_k`].
+//! Entry points: [`PointGrid::new`], [`PointGrid::nearest_two`], [`PointGrid::nearest_k`],
+//! [`PointGrid::within`].
 
 use crate::math::Vec2;
 
 /// Most cells of a grid; a larger extent gets larger cells (queries stay exact, only slower).
 const MAX_CELLS: usize = 1 << 20;
 
-/// Points bucketed by cell (compressed rows: the points of cell `c` are
+/// At most `u32::MAX` points (items are `u32`). Points bucketed by cell (compressed rows: the points of cell `c` are
 /// `order[start[c]..start[c + 1]]`).
 #[derive(Debug, Clone)]
 pub struct PointGrid {
@@ -118,10 +119,12 @@ impl PointGrid {
         }
         let c = (q - self.origin) / self.cell;
         let r = radius / self.cell;
-        let x0 = (c.x - r).floor().max(0.0);
-        let y0 = (c.y - r).floor().max(0.0);
-        let x1 = (c.x + r).floor().min(self.width as f64 - 1.0);
-        let y1 = (c.y + r).floor().min(self.height as f64 - 1.0);
+        // Cell ranges, clamped to the grid (the saturating float-to-int casts map anything left
+        // of or below the grid to 0 and beyond it to the last cell).
+        let x0 = floor(c.x - r).max(0);
+        let y0 = floor(c.y - r).max(0);
+        let x1 = floor(c.x + r).min(self.width as i64 - 1);
+        let y1 = floor(c.y + r).min(self.height as i64 - 1);
         if x0 > x1 || y0 > y1 {
             return;
         }
@@ -138,6 +141,18 @@ impl PointGrid {
                 f(self.order[k], dx * dx + dy * dy);
             }
         }
+    }
+
+    /// Calls `f(index, squared distance)` for every point within `radius` of `q`, in no particular
+    /// order.
+    #[inline]
+    pub fn within(&self, q: &Vec2, radius: f64, mut f: impl FnMut(u32, f64)) {
+        let r2 = radius * radius;
+        self.visit(q, radius, |i, d| {
+            if d <= r2 {
+                f(i, d)
+            }
+        });
     }
 
     /// The nearest point within `radius` of `q` (index, squared distance) and the squared distance
@@ -175,6 +190,14 @@ impl PointGrid {
             out.truncate(k);
         }
     }
+}
+
+/// `v.floor()` as an integer, inline: without SSE4.1 the float `floor` is a library call, and the
+/// grid takes four per query. Saturates for values beyond `i64`.
+#[inline(always)]
+fn floor(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v { t - 1 } else { t }
 }
 
 #[cfg(test)]
@@ -221,12 +244,24 @@ mod tests {
                         assert_eq!(d2, second);
                     }
                 }
+                let mut all_within = Vec::new();
+                grid.within(&q, radius, |i, d| all_within.push((i, d)));
+                all_within.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                let want_all: Vec<(u32, f64)> = within.iter().map(|e| **e).collect();
+                assert_eq!(all_within, want_all);
                 grid.nearest_k(&q, 8, radius, &mut out);
                 let mut got: Vec<f64> = out.iter().map(|e| e.1).collect();
                 got.sort_by(f64::total_cmp);
                 let want: Vec<f64> = within.iter().take(8).map(|e| e.1).collect();
                 assert_eq!(got, want);
             }
+        }
+    }
+
+    #[test]
+    fn floor_matches_the_float_floor() {
+        for v in [-2.5, -2.0, -0.1, -0.0, 0.0, 0.3, 1.0, 7.99, 1e12, -1e12] {
+            assert_eq!(floor(v), v.floor() as i64, "{v}");
         }
     }
 

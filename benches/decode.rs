@@ -1,6 +1,9 @@
 //! Decode speed: one 125-point radar cloud (FLOAT32 x, y, z, v_r, rcs; scalar velocity path) and a real
 //! nuScenes ARS408 scan wrapped as PointCloud2 (43-byte records; vx, vy projected on the ray).
-//! The scan-ingest budget (decode + compensate + covariance of a 125-point scan) is 20 us on one core.
+//! The scan-ingest budget (decode + compensate + covariance of a 125-point scan) is 20 us on one core:
+//! `ingest_125_*` times exactly that, decoding into a reused buffer and turning every detection into a
+//! body-frame point with its Doppler compensation (eq. 4), its covariance (eq. 7-8, compensated and
+//! raw) and the extrinsic (eq. 5) ([`RadarModel::to_body`]).
 //!
 //! Run: `cargo bench --bench decode`. The real-data bench reads `$DC_LOC_REAL_DATA` or
 //! `<manifest>/../shared/data/real` or `<manifest>/../../shared/data/real`, and is left out when none
@@ -15,6 +18,7 @@ use dc_loc::io::nuscenes_pcd::{nuscenes_fields_config, pcd_to_pointcloud2};
 use dc_loc::math::Vec3;
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::radar::Detection;
+use dc_loc::radar::doppler::{BodyPoint, RadarModel};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use std::hint::black_box;
@@ -63,14 +67,33 @@ fn bench_decode(c: &mut Criterion) {
         b.iter(|| decode_detections_into(black_box(&cloud), black_box(&fields), &mut out))
     });
 
+    // Decode, compensate, covariance and extrinsic: the whole per-scan ingest.
+    let model = RadarModel {
+        t_body_radar: dc_loc::math::iso3_from_xyz_rpy(3.4, 0.0, 0.6, 0.0, 0.0, 0.0),
+        beta: 0.04,
+        noise: dc_loc::radar::RadarNoise::default(),
+    };
+    let mut points: Vec<BodyPoint> = Vec::with_capacity(128);
+    let mut ingest = |b: &mut criterion::Bencher,
+                      cloud: &dc_loc::msgs::sensor_msgs::PointCloud2,
+                      fields: &FieldsConfig| {
+        b.iter(|| {
+            decode_detections_into(black_box(cloud), black_box(fields), &mut out).expect("decodes");
+            points.clear();
+            points.extend(out.detections.iter().filter_map(|d| model.to_body(d)));
+            black_box(points.len())
+        })
+    };
+    c.bench_function("ingest_125_f32_xyz_vr_rcs", |b| ingest(b, &cloud, &fields));
+
     if let Some(bytes) = real_pcd() {
         let cloud = pcd_to_pointcloud2(&bytes, Header::default()).expect("real PCD wraps");
         let fields = nuscenes_fields_config();
         c.bench_function("decode_nuscenes_pcd_125_vx_vy", |b| {
             b.iter(|| decode_detections(black_box(&cloud), black_box(&fields)))
         });
-        c.bench_function("decode_into_nuscenes_pcd_125_vx_vy", |b| {
-            b.iter(|| decode_detections_into(black_box(&cloud), black_box(&fields), &mut out))
+        c.bench_function("ingest_nuscenes_pcd_125_vx_vy", |b| {
+            ingest(b, &cloud, &fields)
         });
     }
 }

@@ -23,6 +23,7 @@
 
 use super::PointSet2;
 use super::dense::TargetTree;
+use super::grid::finite_bounds;
 use crate::math::{Iso2, Vec2};
 use serde::{Deserialize, Serialize};
 
@@ -252,11 +253,11 @@ pub struct Occupancy {
 impl Occupancy {
     /// The occupancy of `target` (finite points) at `cell` metres.
     pub fn new(target: &[Vec2], cell: f64) -> Option<Self> {
+        let (lo, hi) = finite_bounds(target)?;
         let pts: Vec<&Vec2> = target
             .iter()
             .filter(|p| p.iter().all(|v| v.is_finite()))
             .collect();
-        let (lo, hi) = bounds(pts.iter().copied())?;
         let origin = lo - Vec2::repeat(cell);
         let mut cells: Vec<(i32, i32)> = Vec::with_capacity(9 * pts.len());
         for p in pts {
@@ -280,14 +281,6 @@ impl Occupancy {
     }
 }
 
-fn bounds<'a>(pts: impl Iterator<Item = &'a Vec2>) -> Option<(Vec2, Vec2)> {
-    let (lo, hi) = pts.fold(
-        (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY)),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    );
-    (lo.x <= hi.x && lo.y <= hi.y).then_some((lo, hi))
-}
-
 /// The best-voted translations for rotation `theta`: up to `top` (votes, motion), most votes first,
 /// no two within `separation` cells of each other. Each probe, turned by `theta`, votes once for
 /// every translation (in cells of the occupancy) that puts it into an occupied target cell: a cell's
@@ -307,7 +300,7 @@ pub fn vote_translations(
         .map(|x| rot * x)
         .filter(|x| x.iter().all(|v| v.is_finite()))
         .collect();
-    let Some((xlo, xhi)) = bounds(turned.iter()) else {
+    let Some((xlo, xhi)) = finite_bounds(&turned) else {
         return Vec::new();
     };
     if top == 0 || occupancy.cells.is_empty() {

@@ -288,12 +288,7 @@ impl Coverage {
     /// The cells of `points` (finite) and their eight neighbours, at `cell` metres (or coarser when the
     /// points spread too far for [`COVERAGE_MAX_CELLS`]).
     pub fn new(points: &[Vec2], cell: f64) -> Self {
-        let (mut lo, mut hi) = (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY));
-        for p in points.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        if lo.x > hi.x {
+        let Some((lo, hi)) = super::grid::finite_bounds(points) else {
             return Coverage {
                 origin: Vec2::zeros(),
                 cell,
@@ -301,7 +296,7 @@ impl Coverage {
                 height: 0,
                 bits: Vec::new(),
             };
-        }
+        };
         let span = hi - lo;
         let mut cell = cell;
         while ((span.x / cell) as usize + 3) * ((span.y / cell) as usize + 3) > COVERAGE_MAX_CELLS {

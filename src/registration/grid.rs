@@ -36,17 +36,12 @@ impl PointGrid {
     /// more than [`MAX_CELLS`] cells). Non-finite points are left out.
     pub fn new(points: &[Vec2], cell: f64) -> Self {
         let finite = |p: &&Vec2| p.x.is_finite() && p.y.is_finite();
-        let (mut lo, mut hi) = (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY));
-        for p in points.iter().filter(finite) {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
         let mut cell = if cell.is_finite() && cell > 0.0 {
             cell
         } else {
             1.0
         };
-        if lo.x > hi.x {
+        let Some((lo, hi)) = finite_bounds(points) else {
             return PointGrid {
                 origin: Vec2::zeros(),
                 cell,
@@ -56,7 +51,7 @@ impl PointGrid {
                 order: Vec::new(),
                 coords: Vec::new(),
             };
-        }
+        };
         let span = hi - lo;
         while (span.x / cell + 1.0) * (span.y / cell + 1.0) > MAX_CELLS as f64 {
             cell *= 2.0;
@@ -190,6 +185,18 @@ impl PointGrid {
             out.truncate(k);
         }
     }
+}
+
+/// The lower and upper corners of the finite points of `points`; `None` when there is none.
+pub fn finite_bounds(points: &[Vec2]) -> Option<(Vec2, Vec2)> {
+    let (lo, hi) = points
+        .iter()
+        .filter(|p| p.x.is_finite() && p.y.is_finite())
+        .fold(
+            (Vec2::repeat(f64::INFINITY), Vec2::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+    (lo.x <= hi.x && lo.y <= hi.y).then_some((lo, hi))
 }
 
 /// `v.floor()` as an integer, inline: without SSE4.1 the float `floor` is a library call, and the

@@ -350,6 +350,24 @@ pub(crate) struct LmPose {
     pub(crate) converged: bool,
 }
 
+/// [`totals`] after checking that there are at least 2 pairs and that their indices are in range.
+fn checked_totals(
+    t: &Iso2,
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    cfg: &LmConfig,
+) -> Result<Totals, RegistrationError> {
+    if pairs.len() < 2 {
+        return Err(RegistrationError::TooFewInliers {
+            have: pairs.len(),
+            need: 2,
+        });
+    }
+    check_sets(source, target, pairs)?;
+    totals(t, source, target, pairs, cfg)
+}
+
 /// One Gauss-Newton step of eq. 10 from `t` over `pairs` (the robust-weighted normal equations,
 /// a trace of damping for safety), taken without checking the cost: what an ICP round needs when
 /// its pairs will change before the next step anyway. `cost` is the cost at `t`.
@@ -360,14 +378,7 @@ pub(crate) fn gauss_newton_step(
     t: &Iso2,
     cfg: &LmConfig,
 ) -> Result<LmPose, RegistrationError> {
-    if pairs.len() < 2 {
-        return Err(RegistrationError::TooFewInliers {
-            have: pairs.len(),
-            need: 2,
-        });
-    }
-    check_sets(source, target, pairs)?;
-    let cur = totals(t, source, target, pairs, cfg)?;
+    let cur = checked_totals(t, source, target, pairs, cfg)?;
     let mut a = cur.hessian;
     for k in 0..3 {
         a[(k, k)] += 1e-9 * cur.hessian[(k, k)].max(1e-12);
@@ -394,15 +405,8 @@ pub(crate) fn refine_pose(
     initial: &Iso2,
     cfg: &LmConfig,
 ) -> Result<LmPose, RegistrationError> {
-    if pairs.len() < 2 {
-        return Err(RegistrationError::TooFewInliers {
-            have: pairs.len(),
-            need: 2,
-        });
-    }
-    check_sets(source, target, pairs)?;
     let mut t = *initial;
-    let mut cur = totals(&t, source, target, pairs, cfg)?;
+    let mut cur = checked_totals(&t, source, target, pairs, cfg)?;
     let mut lambda = cfg.initial_lambda;
     let mut converged = false;
     let mut iterations = 0;
@@ -491,21 +495,18 @@ fn checked_inverse(m: &Mat3, what: &str) -> Result<Mat3, RegistrationError> {
         .ok_or_else(|| RegistrationError::Numerical(format!("{what} is not invertible")))
 }
 
-/// The covariance of the estimate at `t` (see [`CovarianceMode`]).
-pub fn covariance_at(
+/// Calls `f(k, terms)` with the terms of every pair `pairs[k]` at `t` (eq. 10 weights when
+/// `cfg.use_uncertainty`, else isotropic); indices must have been checked.
+fn for_each_pair_terms(
     t: &Iso2,
     source: &PointSet2,
     target: &PointSet2,
     pairs: &[(usize, usize)],
     cfg: &LmConfig,
-) -> Result<Mat3, RegistrationError> {
-    check_sets(source, target, pairs)?;
+    mut f: impl FnMut(usize, &PairTerms),
+) -> Result<(), RegistrationError> {
     let iso_var = cfg.isotropic_sigma * cfg.isotropic_sigma;
-    let mut info_robust = Mat3::zeros();
-    let mut info_plain = Mat3::zeros();
-    let mut a = Mat3::zeros();
-    let mut b = Mat3::zeros();
-    for &(i, j) in pairs {
+    for (k, &(i, j)) in pairs.iter().enumerate() {
         let cov = cfg
             .use_uncertainty
             .then(|| (&source.covs[i], &target.covs[j]));
@@ -518,12 +519,36 @@ pub fn covariance_at(
             &cfg.robust,
         )
         .ok_or_else(|| RegistrationError::Numerical("covariance not positive definite".into()))?;
+        f(k, &p);
+    }
+    Ok(())
+}
+
+/// Hessian of `1/2 rho(s)` of one pair in the Gauss-Newton sense, with the `rho''` curvature
+/// (Triggs et al. 2000): the `A` of the sandwich.
+fn robust_hessian(p: &PairTerms) -> Mat3 {
+    p.hessian_gn + 2.0 * p.ddrho * p.jtwd * p.jtwd.transpose()
+}
+
+/// The covariance of the estimate at `t` (see [`CovarianceMode`]).
+pub fn covariance_at(
+    t: &Iso2,
+    source: &PointSet2,
+    target: &PointSet2,
+    pairs: &[(usize, usize)],
+    cfg: &LmConfig,
+) -> Result<Mat3, RegistrationError> {
+    check_sets(source, target, pairs)?;
+    let mut info_robust = Mat3::zeros();
+    let mut info_plain = Mat3::zeros();
+    let mut a = Mat3::zeros();
+    let mut b = Mat3::zeros();
+    for_each_pair_terms(t, source, target, pairs, cfg, |_, p| {
         info_robust += p.hessian_gn;
         info_plain += p.jtwj;
-        // Hessian of 1/2 rho(s) in the Gauss-Newton sense, with the rho'' curvature (Triggs 2000).
-        a += p.hessian_gn + 2.0 * p.ddrho * p.jtwd * p.jtwd.transpose();
+        a += robust_hessian(p);
         b += (p.drho * p.drho) * p.jtwd * p.jtwd.transpose();
-    }
+    })?;
     match cfg.covariance {
         CovarianceMode::Information => checked_inverse(&info_robust, "information matrix"),
         CovarianceMode::Expected => Ok(robust_variance_factor(&cfg.robust)
@@ -570,27 +595,14 @@ pub fn covariance_clustered(
             pairs.len()
         )));
     }
-    let iso_var = cfg.isotropic_sigma * cfg.isotropic_sigma;
     let mut info_robust = Mat3::zeros();
     let mut a = Mat3::zeros();
     let mut scores: Vec<(u64, Vec3)> = Vec::with_capacity(pairs.len());
-    for (&(i, j), &c) in pairs.iter().zip(clusters) {
-        let cov = cfg
-            .use_uncertainty
-            .then(|| (&source.covs[i], &target.covs[j]));
-        let p = pair_terms(
-            t,
-            &source.points[i],
-            &target.points[j],
-            cov,
-            iso_var,
-            &cfg.robust,
-        )
-        .ok_or_else(|| RegistrationError::Numerical("covariance not positive definite".into()))?;
+    for_each_pair_terms(t, source, target, pairs, cfg, |k, p| {
         info_robust += p.hessian_gn;
-        a += p.hessian_gn + 2.0 * p.ddrho * p.jtwd * p.jtwd.transpose();
-        scores.push((c, p.drho * p.jtwd));
-    }
+        a += robust_hessian(p);
+        scores.push((clusters[k], p.drho * p.jtwd));
+    })?;
     scores.sort_unstable_by_key(|e| e.0);
     let mut b = Mat3::zeros();
     let mut groups = 0usize;

@@ -1202,6 +1202,20 @@ fn polish(
         score: Some(best.score),
         dense_covariance: best.dense_covariance,
     };
+    reconclude(source, target, sets, candidates, best, fit, cfg)
+}
+
+/// `best` with its pose replaced by `fit`'s and its covariance taken there (same inliers, RANSAC
+/// estimate and draws); `best` as it was when that fails.
+fn reconclude(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: DenseSets<'_>,
+    candidates: &[ransac::Correspondence],
+    best: RegistrationDetail,
+    fit: Fit,
+    cfg: &RegistrationConfig,
+) -> RegistrationDetail {
     let inliers = best.inliers.clone();
     match conclude(
         source,
@@ -1276,22 +1290,7 @@ fn symmetrise(
         score: Some(best.score),
         dense_covariance: best.dense_covariance,
     };
-    match conclude(
-        source,
-        target,
-        sets,
-        candidates,
-        best.inliers.clone(),
-        best.t_ransac,
-        fit,
-        cfg,
-    ) {
-        Ok(mut out) => {
-            out.ransac_iterations = best.ransac_iterations;
-            out
-        }
-        Err(_) => best,
-    }
+    reconclude(source, target, sets, candidates, best, fit, cfg)
 }
 
 /// Enough inliers, not all on a line.

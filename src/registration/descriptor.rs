@@ -245,16 +245,14 @@ pub fn compute_descriptors(
     let coords: Vec<Vec2> = support.iter().map(|&i| points[i as usize]).collect();
     // Cells of a third of the radius: a query visits at most 7 x 7 of them.
     let grid = PointGrid::new(&coords, cfg.radius / 3.0);
-    Ok(compute_descriptors_with_grid(
-        points, keypoints, &support, &grid, cfg,
-    ))
+    Ok(compute_descriptors_with_grid(points, keypoints, &grid, cfg))
 }
 
-/// As [`compute_descriptors`], with a neighbour grid built over `points[support[k]]` (item `k`).
+/// As [`compute_descriptors`], with a neighbour grid built over the support points (any subset of
+/// `points`; the neighbours of a keypoint are the grid's points within `cfg.radius`).
 pub fn compute_descriptors_with_grid(
     points: &[Vec2],
     keypoints: &[u32],
-    support: &[u32],
     grid: &PointGrid,
     cfg: &DescriptorConfig,
 ) -> Vec<Descriptor> {
@@ -283,19 +281,12 @@ pub fn compute_descriptors_with_grid(
         dx.clear();
         dy.clear();
         rho.clear();
-        grid.within(p, cfg.radius, |item, distance| {
-            if distance <= 0.0 {
-                return;
+        grid.within(p, cfg.radius, |_, distance, offset| {
+            if distance > 0.0 {
+                dx.push(offset.x as f32);
+                dy.push(offset.y as f32);
+                rho.push(distance as f32);
             }
-            let Some(q) = support
-                .get(item as usize)
-                .and_then(|&j| points.get(j as usize))
-            else {
-                return;
-            };
-            dx.push((q.x - p.x) as f32);
-            dy.push((q.y - p.y) as f32);
-            rho.push(distance as f32);
         });
         let count = rho.len() as f64;
         // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise.

@@ -279,7 +279,9 @@ struct Totals {
     hessian: Mat3,
 }
 
-fn totals(
+/// With `COST` false the cost is left at 0 and not computed (a Gauss-Newton step needs only the
+/// gradient and the Hessian; Cauchy's cost is a logarithm per pair).
+fn totals<const COST: bool>(
     t: &Iso2,
     source: &PointSet2,
     target: &PointSet2,
@@ -309,7 +311,9 @@ fn totals(
                 "point covariance of pair (source {i}, target {j}) is not positive definite"
             ))
         })?;
-        out.cost += p.cost;
+        if COST {
+            out.cost += p.cost;
+        }
         out.gradient += p.gradient;
         out.hessian += p.hessian_gn;
     }
@@ -351,7 +355,7 @@ pub(crate) struct LmPose {
 }
 
 /// [`totals`] after checking that there are at least 2 pairs and that their indices are in range.
-fn checked_totals(
+fn checked_totals<const COST: bool>(
     t: &Iso2,
     source: &PointSet2,
     target: &PointSet2,
@@ -365,12 +369,12 @@ fn checked_totals(
         });
     }
     check_sets(source, target, pairs)?;
-    totals(t, source, target, pairs, cfg)
+    totals::<COST>(t, source, target, pairs, cfg)
 }
 
 /// One Gauss-Newton step of eq. 10 from `t` over `pairs` (the robust-weighted normal equations,
 /// a trace of damping for safety), taken without checking the cost: what an ICP round needs when
-/// its pairs will change before the next step anyway. `cost` is the cost at `t`.
+/// its pairs will change before the next step anyway. The cost is not evaluated (`cost` is NaN).
 pub(crate) fn gauss_newton_step(
     source: &PointSet2,
     target: &PointSet2,
@@ -378,7 +382,7 @@ pub(crate) fn gauss_newton_step(
     t: &Iso2,
     cfg: &LmConfig,
 ) -> Result<LmPose, RegistrationError> {
-    let cur = checked_totals(t, source, target, pairs, cfg)?;
+    let cur = checked_totals::<false>(t, source, target, pairs, cfg)?;
     let mut a = cur.hessian;
     for k in 0..3 {
         a[(k, k)] += 1e-9 * cur.hessian[(k, k)].max(1e-12);
@@ -391,7 +395,7 @@ pub(crate) fn gauss_newton_step(
     Ok(LmPose {
         t_target_source: t * se2_exp(&delta),
         information: cur.hessian,
-        cost: cur.cost,
+        cost: f64::NAN,
         iterations: 1,
         converged: delta.norm() < cfg.step_tolerance,
     })
@@ -406,7 +410,7 @@ pub(crate) fn refine_pose(
     cfg: &LmConfig,
 ) -> Result<LmPose, RegistrationError> {
     let mut t = *initial;
-    let mut cur = checked_totals(&t, source, target, pairs, cfg)?;
+    let mut cur = checked_totals::<true>(&t, source, target, pairs, cfg)?;
     let mut lambda = cfg.initial_lambda;
     let mut converged = false;
     let mut iterations = 0;
@@ -427,7 +431,7 @@ pub(crate) fn refine_pose(
                 return Err(RegistrationError::Numerical("non-finite LM step".into()));
             }
             let t_new = t * se2_exp(&delta);
-            let new = totals(&t_new, source, target, pairs, cfg)?;
+            let new = totals::<true>(&t_new, source, target, pairs, cfg)?;
             if new.cost <= cur.cost {
                 let small_step = delta.norm() < cfg.step_tolerance;
                 let small_gain = cur.cost - new.cost <= cfg.cost_tolerance * cur.cost.max(1e-300);

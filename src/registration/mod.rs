@@ -896,7 +896,8 @@ fn ransac_and_refine(
     match best {
         Some(d) => {
             let d = polish(source, target, dense_sets, &candidates, d, cfg);
-            let mut d = symmetrise(source, target, dense_sets, &candidates, d, cfg);
+            let d = symmetrise(source, target, dense_sets, &candidates, d, cfg);
+            let mut d = soften(source, target, dense_sets, &candidates, d, cfg);
             let win = d.result.t_target_source;
             let far = |t: &Iso2| {
                 let rel = win.inverse() * t;
@@ -1233,6 +1234,52 @@ fn reconclude(
         }
         Err(_) => best,
     }
+}
+
+/// The winner's pose finished by the soft rounds (`registration.dense.soft_rounds`), when the dense
+/// stage ran; its covariance at the new pose. Kept as it was when they fail or end farther from it
+/// than the ambiguity distances (then they found another alignment, not the last centimetres).
+fn soften(
+    source: &PointSet2,
+    target: &PointSet2,
+    sets: DenseSets<'_>,
+    candidates: &[ransac::Correspondence],
+    best: RegistrationDetail,
+    cfg: &RegistrationConfig,
+) -> RegistrationDetail {
+    if !cfg.dense.enabled || cfg.dense.soft_rounds == 0 || best.dense_settled.is_none() {
+        return best;
+    }
+    let r = &best.result;
+    let soft = dense::soften(
+        sets.src,
+        sets.tgt,
+        sets.tree,
+        &r.t_target_source,
+        &cfg.dense,
+        &cfg.lm,
+    );
+    let Ok(Some(d)) = soft else {
+        return best;
+    };
+    let rel = r.t_target_source.inverse() * d.t_target_source;
+    if rel.translation.vector.norm() > cfg.ambiguity_translation
+        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
+    {
+        return best;
+    }
+    let fit = Fit {
+        t_target_source: d.t_target_source,
+        converged: d.converged,
+        cost: d.cost,
+        iterations: r.iterations + d.iterations,
+        dense_settled: best.dense_settled,
+        // As in `polish`: the overlap the hypotheses competed with.
+        overlap: Some(r.overlap),
+        score: Some(best.score),
+        dense_covariance: best.dense_covariance,
+    };
+    reconclude(source, target, sets, candidates, best, fit, cfg)
 }
 
 /// The winner's pose averaged with the dense stage run the other way round (the target's points

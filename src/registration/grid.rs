@@ -105,25 +105,44 @@ impl PointGrid {
         self.order.is_empty()
     }
 
-    /// Calls `f(index, squared distance)` for every point whose cell lies within `radius` of `q`
-    /// (a superset of the points within `radius`).
+    /// The cells within `radius` of `q` as `(x0, x1, y0, y1)`, inclusive, clamped to the grid (the
+    /// saturating float-to-int casts map anything left of or below the grid to 0 and beyond it to
+    /// the last cell); `None` when there is none or `q` is not finite.
     #[inline]
-    fn visit(&self, q: &Vec2, radius: f64, mut f: impl FnMut(u32, f64, f64, f64)) {
+    fn cell_range(&self, q: &Vec2, radius: f64) -> Option<(usize, usize, usize, usize)> {
         if self.width == 0 || !(q.x.is_finite() && q.y.is_finite()) {
-            return;
+            return None;
         }
         let c = (q - self.origin) / self.cell;
         let r = radius / self.cell;
-        // Cell ranges, clamped to the grid (the saturating float-to-int casts map anything left
-        // of or below the grid to 0 and beyond it to the last cell).
         let x0 = floor(c.x - r).max(0);
         let y0 = floor(c.y - r).max(0);
         let x1 = floor(c.x + r).min(self.width as i64 - 1);
         let y1 = floor(c.y + r).min(self.height as i64 - 1);
-        if x0 > x1 || y0 > y1 {
+        (x0 <= x1 && y0 <= y1).then_some((x0 as usize, x1 as usize, y0 as usize, y1 as usize))
+    }
+
+    /// How many points lie in the cells within `radius` of `q` (the cells [`Self::within`] visits;
+    /// a superset of the points within `radius`), from the cell counts alone.
+    pub fn count_near(&self, q: &Vec2, radius: f64) -> usize {
+        let Some((x0, x1, y0, y1)) = self.cell_range(q, radius) else {
+            return 0;
+        };
+        (y0..=y1)
+            .map(|y| {
+                let row = y * self.width;
+                (self.start[row + x1 + 1] - self.start[row + x0]) as usize
+            })
+            .sum()
+    }
+
+    /// Calls `f(index, squared distance)` for every point whose cell lies within `radius` of `q`
+    /// (a superset of the points within `radius`).
+    #[inline]
+    fn visit(&self, q: &Vec2, radius: f64, mut f: impl FnMut(u32, f64, f64, f64)) {
+        let Some((x0, x1, y0, y1)) = self.cell_range(q, radius) else {
             return;
-        }
-        let (x0, x1, y0, y1) = (x0 as usize, x1 as usize, y0 as usize, y1 as usize);
+        };
         for y in y0..=y1 {
             let row = y * self.width;
             let (a, b) = (
@@ -266,6 +285,16 @@ mod tests {
                 got.sort_by(f64::total_cmp);
                 let want: Vec<f64> = within.iter().take(8).map(|e| e.1).collect();
                 assert_eq!(got, want);
+                // The cell count: every point within the radius, none beyond the cells' square
+                // (the radius plus one cell on each side).
+                let count = grid.count_near(&q, radius);
+                let square = radius + grid.cell;
+                let in_square = points
+                    .iter()
+                    .filter(|p| (p.x - q.x).abs() <= square && (p.y - q.y).abs() <= square)
+                    .count();
+                assert!(count >= within.len(), "{count} < {}", within.len());
+                assert!(count <= in_square, "{count} > {in_square}");
             }
         }
     }

@@ -1259,11 +1259,7 @@ impl Pipeline {
                     let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
                     let rc = &self.cfg.registration;
                     overlap_near(source, target, &predicted, rc).is_ok_and(|near| {
-                        near.is_some_and(|(t, _)| {
-                            let rel = t.inverse() * r.t_target_source;
-                            rel.translation.vector.norm() <= rc.ambiguity_translation
-                                && rel.rotation.angle().abs() <= rc.ambiguity_rotation
-                        })
+                        near.is_some_and(|(t, _)| rc.same_alignment(&t, &r.t_target_source))
                     })
                 });
             if !resolved {

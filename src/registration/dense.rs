@@ -621,14 +621,7 @@ pub fn soften(
     cfg: &DenseConfig,
     lm_cfg: &LmConfig,
 ) -> Result<Option<DenseResult>, RegistrationError> {
-    let mut round_cfg = LmConfig {
-        step_tolerance: lm_cfg.step_tolerance.max(1e-4),
-        cost_tolerance: lm_cfg.cost_tolerance.max(1e-7),
-        ..lm_cfg.clone()
-    };
-    if cfg.robust_scale > 0.0 {
-        round_cfg.robust.scale = cfg.robust_scale;
-    }
+    let (_, fine_cfg, last_cfg) = round_configs(cfg, lm_cfg);
     let mut t = *initial;
     let mut last = None;
     let mut iterations = 0;
@@ -637,25 +630,19 @@ pub fn soften(
         if pairs.len() < cfg.min_pairs {
             break;
         }
-        let p = lm::gauss_newton_step(source, &virt, &pairs, &t, &round_cfg)?;
+        let p = lm::gauss_newton_step(source, &virt, &pairs, &t, &fine_cfg)?;
         iterations += 1;
         let step = t.inverse() * p.t_target_source;
         t = p.t_target_source;
         last = Some((virt, pairs));
-        if step.translation.vector.norm() < STOP_STEP
-            && step.rotation.angle().abs() < STOP_STEP / 100.0
-        {
+        if settled(&step) {
             break;
         }
     }
     let Some((virt, pairs)) = last else {
         return Ok(None);
     };
-    let final_cfg = LmConfig {
-        robust: round_cfg.robust,
-        ..lm_cfg.clone()
-    };
-    let p = lm::refine_pose(source, &virt, &pairs, &t, &final_cfg)?;
+    let p = lm::refine_pose(source, &virt, &pairs, &t, &last_cfg)?;
     Ok(Some(DenseResult {
         t_target_source: p.t_target_source,
         pairs: Vec::new(),
@@ -687,6 +674,33 @@ pub struct DenseResult {
 /// changed nothing on the demo drive or the five-radar revisit drive: their rounds rarely get that small
 /// within `iterations`; on the synthetic pairs of the benchmark the rounds hover around 1.3 mm.
 const STOP_STEP: f64 = 1e-3;
+
+/// A round's move `step` (the new pose relative to the old) is below the stopping step.
+fn settled(step: &Iso2) -> bool {
+    step.translation.vector.norm() < STOP_STEP && step.rotation.angle().abs() < STOP_STEP / 100.0
+}
+
+/// The LM settings of this stage, from `lm_cfg`: `(round, fine, last)`. The pairs change from round
+/// to round, so a round takes one Gauss-Newton step (`round`'s tolerances only mark it converged);
+/// the rounds after the coarse ones (`fine`) and the solve of the last pairs (`last`, `lm_cfg`'s
+/// tolerances) weigh residuals with their own robust scale (`DenseConfig::robust_scale`); the coarse
+/// rounds keep `lm_cfg`'s, wide enough to pull in.
+fn round_configs(cfg: &DenseConfig, lm_cfg: &LmConfig) -> (LmConfig, LmConfig, LmConfig) {
+    let round = LmConfig {
+        step_tolerance: lm_cfg.step_tolerance.max(1e-4),
+        cost_tolerance: lm_cfg.cost_tolerance.max(1e-7),
+        ..lm_cfg.clone()
+    };
+    let mut fine = round.clone();
+    if cfg.robust_scale > 0.0 {
+        fine.robust.scale = cfg.robust_scale;
+    }
+    let last = LmConfig {
+        robust: fine.robust,
+        ..lm_cfg.clone()
+    };
+    (round, fine, last)
+}
 
 /// Factor on `max_distance` and `gate` in the coarse rounds.
 const COARSE_FACTOR: f64 = 2.0;
@@ -767,19 +781,7 @@ pub fn refine_dense(
     };
     let mut out: Option<DenseResult> = None;
     let mut iterations = 0;
-    // The pairs change from round to round, so a round takes one Gauss-Newton step (its tolerance
-    // only marks it converged); the last pairs are then solved to `lm_cfg`'s tolerances.
-    let round_cfg = LmConfig {
-        step_tolerance: lm_cfg.step_tolerance.max(1e-4),
-        cost_tolerance: lm_cfg.cost_tolerance.max(1e-7),
-        ..lm_cfg.clone()
-    };
-    // The plain rounds and the final solve weigh residuals with their own robust scale
-    // (`DenseConfig::robust_scale`); the coarse rounds keep `lm_cfg`'s, wide enough to pull in.
-    let mut fine_cfg = round_cfg.clone();
-    if cfg.robust_scale > 0.0 {
-        fine_cfg.robust.scale = cfg.robust_scale;
-    }
+    let (round_cfg, fine_cfg, last_cfg) = round_configs(cfg, lm_cfg);
     // The current pose; with acceleration also as the parameter vector of the mixing.
     let mut t = *initial;
     let mut history: Vec<(Vec3, Vec3)> = Vec::with_capacity(AA_DEPTH + 1);
@@ -809,9 +811,7 @@ pub fn refine_dense(
             if coarse { &round_cfg } else { &fine_cfg },
         )?;
         iterations += p.iterations;
-        let step = t.inverse() * p.t_target_source;
-        let settled = step.translation.vector.norm() < STOP_STEP
-            && step.rotation.angle().abs() < STOP_STEP / 100.0;
+        let settled = settled(&(t.inverse() * p.t_target_source));
         out = Some(DenseResult {
             t_target_source: p.t_target_source,
             pairs,
@@ -843,11 +843,7 @@ pub fn refine_dense(
     // DC-Loc rows the same to the millimetre and saved 0.07 ms of the bench's 1000-point pair, but
     // the LM's convergence is what the loop-closure gates ask for: the rounds rarely settle to 1 mm.)
     if let Some(d) = out.as_mut() {
-        let final_cfg = LmConfig {
-            robust: fine_cfg.robust,
-            ..lm_cfg.clone()
-        };
-        let p = lm::refine_pose(source, target, &d.pairs, &d.t_target_source, &final_cfg)?;
+        let p = lm::refine_pose(source, target, &d.pairs, &d.t_target_source, &last_cfg)?;
         d.iterations += p.iterations;
         d.t_target_source = p.t_target_source;
         d.converged = p.converged;

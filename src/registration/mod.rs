@@ -268,6 +268,12 @@ impl Default for RegistrationConfig {
 }
 
 impl RegistrationConfig {
+    /// `a` and `b` are the same alignment: within `ambiguity_translation` and `ambiguity_rotation`
+    /// of each other.
+    pub fn same_alignment(&self, a: &Iso2, b: &Iso2) -> bool {
+        ransac::same_motion(a, b, self.ambiguity_translation, self.ambiguity_rotation)
+    }
+
     /// The paper's steps only, for speed: descriptors, KNN, RANSAC (its best motion alone, no
     /// screening of 32), LM with re-selection, covariance; no dense stage and no surface covariances.
     /// The same as the parameter overrides `registration.dense.enabled:=false`,
@@ -884,13 +890,8 @@ fn ransac_and_refine(
     let mut first_error = None;
     // A motion within the ambiguity distances of an alignment already refined is that alignment
     // again: refining it would repeat the work and cannot add a runner-up.
-    let already = |refined: &[(Iso2, f64)], t: &Iso2| {
-        refined.iter().any(|(r, _)| {
-            let rel = r.inverse() * t;
-            rel.translation.vector.norm() <= cfg.ambiguity_translation
-                && rel.rotation.angle().abs() <= cfg.ambiguity_rotation
-        })
-    };
+    let already =
+        |refined: &[(Iso2, f64)], t: &Iso2| refined.iter().any(|(r, _)| cfg.same_alignment(r, t));
     let keep = |d: RegistrationDetail, best: &mut Option<RegistrationDetail>| {
         let better = best.as_ref().is_none_or(|b| d.score > b.score);
         if better {
@@ -1002,11 +1003,7 @@ fn ransac_and_refine(
             let d = symmetrise(source, target, dense_sets, &candidates, d, cfg);
             let mut d = soften(source, target, dense_sets, &candidates, d, cfg);
             let win = d.result.t_target_source;
-            let far = |t: &Iso2| {
-                let rel = win.inverse() * t;
-                rel.translation.vector.norm() > cfg.ambiguity_translation
-                    || rel.rotation.angle().abs() > cfg.ambiguity_rotation
-            };
+            let far = |t: &Iso2| !cfg.same_alignment(&win, t);
             let mut alternatives: Vec<(Iso2, f64)> =
                 refined.iter().filter(|(t, _)| far(t)).copied().collect();
             // The screened motions that were not refined count too, by their coverage relative to
@@ -1193,6 +1190,32 @@ struct Fit {
     dense_covariance: bool,
 }
 
+impl Fit {
+    /// The winner `best` moved to `t` by a finishing step (polishing, the symmetric stage, the soft
+    /// rounds) that took `iterations` more. The overlap and fit scores stay those the hypotheses
+    /// competed with (all refined alike), so that the ambiguity gate compares like with like: a
+    /// finishing step changes the pose and its covariance only.
+    fn finishing(
+        best: &RegistrationDetail,
+        t: Iso2,
+        converged: bool,
+        cost: f64,
+        iterations: usize,
+        dense_settled: Option<bool>,
+    ) -> Fit {
+        Fit {
+            t_target_source: t,
+            converged,
+            cost,
+            iterations: best.result.iterations + iterations,
+            dense_settled,
+            overlap: Some(best.result.overlap),
+            score: Some((best.score, best.plain_score)),
+            dense_covariance: best.dense_covariance,
+        }
+    }
+}
+
 /// The (source, target) point indices of the candidates `sel` (indices into `candidates`).
 fn descriptor_pairs(candidates: &[ransac::Correspondence], sel: &[usize]) -> Vec<(usize, usize)> {
     sel.iter()
@@ -1320,18 +1343,14 @@ fn polish(
     let Ok(Some(d)) = refined else {
         return best;
     };
-    let fit = Fit {
-        t_target_source: d.t_target_source,
-        converged: d.converged,
-        cost: d.cost,
-        iterations: r.iterations + d.iterations,
-        dense_settled: Some(d.settled),
-        // The overlap stays the one the hypotheses competed with (all refined alike), so that the
-        // ambiguity gate compares like with like; polishing changes the pose and its covariance only.
-        overlap: Some(r.overlap),
-        score: Some((best.score, best.plain_score)),
-        dense_covariance: best.dense_covariance,
-    };
+    let fit = Fit::finishing(
+        &best,
+        d.t_target_source,
+        d.converged,
+        d.cost,
+        d.iterations,
+        Some(d.settled),
+    );
     reconclude(source, target, sets, candidates, best, fit, cfg)
 }
 
@@ -1391,23 +1410,17 @@ fn soften(
     let Ok(Some(d)) = soft else {
         return best;
     };
-    let rel = r.t_target_source.inverse() * d.t_target_source;
-    if rel.translation.vector.norm() > cfg.ambiguity_translation
-        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
-    {
+    if !cfg.same_alignment(&r.t_target_source, &d.t_target_source) {
         return best;
     }
-    let fit = Fit {
-        t_target_source: d.t_target_source,
-        converged: d.converged,
-        cost: d.cost,
-        iterations: r.iterations + d.iterations,
-        dense_settled: best.dense_settled,
-        // As in `polish`: the overlap the hypotheses competed with.
-        overlap: Some(r.overlap),
-        score: Some((best.score, best.plain_score)),
-        dense_covariance: best.dense_covariance,
-    };
+    let fit = Fit::finishing(
+        &best,
+        d.t_target_source,
+        d.converged,
+        d.cost,
+        d.iterations,
+        best.dense_settled,
+    );
     reconclude(source, target, sets, candidates, best, fit, cfg)
 }
 
@@ -1445,27 +1458,22 @@ fn symmetrise(
         return best;
     };
     let backward = rev.t_target_source.inverse();
-    let rel = forward.inverse() * backward;
-    if rel.translation.vector.norm() > cfg.ambiguity_translation
-        || rel.rotation.angle().abs() > cfg.ambiguity_rotation
-    {
+    if !cfg.same_alignment(&forward, &backward) {
         return best;
     }
+    let rel = forward.inverse() * backward;
     let mean = Iso2::new(
         0.5 * (forward.translation.vector + backward.translation.vector),
         forward.rotation.angle() + 0.5 * rel.rotation.angle(),
     );
-    let fit = Fit {
-        t_target_source: mean,
-        converged: r.converged && rev.converged,
-        cost: r.cost,
-        iterations: r.iterations + rev.iterations,
-        dense_settled: best.dense_settled.map(|s| s && rev.settled),
-        // As in `polish`: the overlap the hypotheses competed with.
-        overlap: Some(r.overlap),
-        score: Some((best.score, best.plain_score)),
-        dense_covariance: best.dense_covariance,
-    };
+    let fit = Fit::finishing(
+        &best,
+        mean,
+        r.converged && rev.converged,
+        r.cost,
+        rev.iterations,
+        best.dense_settled.map(|s| s && rev.settled),
+    );
     reconclude(source, target, sets, candidates, best, fit, cfg)
 }
 

@@ -187,6 +187,12 @@ pub fn ransac(
         .ok_or(RegistrationError::TooFewInliers { have: 0, need: 2 })
 }
 
+/// `a` and `b` are within `translation` (m) and `rotation` (rad) of each other.
+pub fn same_motion(a: &Iso2, b: &Iso2, translation: f64, rotation: f64) -> bool {
+    let rel = a.inverse() * b;
+    rel.translation.vector.norm() <= translation && rel.rotation.angle().abs() <= rotation
+}
+
 /// Which hypotheses [`ransac_hypotheses`] keeps besides the best one.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Distinct {
@@ -211,9 +217,7 @@ impl Distinct {
         }
     }
     fn same(&self, a: &Iso2, b: &Iso2) -> bool {
-        let rel = a.inverse() * b;
-        rel.translation.vector.norm() <= self.translation
-            && rel.rotation.angle().abs() <= self.rotation
+        same_motion(a, b, self.translation, self.rotation)
     }
 }
 

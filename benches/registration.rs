@@ -6,6 +6,10 @@
 //! <= 20 ms median on one core. `pair_1000_points_paper_steps` times the paper's steps alone
 //! ([`RegistrationConfig::paper_steps`]); the other cases the default pipeline with its stages
 //! beyond the paper (screening of 32 RANSAC motions, three refined, the dense stage).
+//!
+//! `DC_LOC_BENCH_PARAMS` times the default pipeline under parameter overrides instead (node
+//! parameters, `name:=value` separated by spaces), e.g.
+//! `DC_LOC_BENCH_PARAMS="registration.dense.soft_rounds:=3" cargo bench --bench registration`.
 
 #[path = "../tests/support/radar_scene.rs"]
 mod radar_scene;
@@ -41,8 +45,26 @@ fn pairs(n: usize, seed: u64) -> Vec<Pair> {
         .collect()
 }
 
+/// The default registration settings under the overrides of `DC_LOC_BENCH_PARAMS`, if set.
+fn config() -> RegistrationConfig {
+    let Ok(overrides) = std::env::var("DC_LOC_BENCH_PARAMS") else {
+        return RegistrationConfig::default();
+    };
+    let mut params = dc_loc::params::ParamSet::default();
+    for arg in overrides.split_whitespace() {
+        params
+            .set_override(arg)
+            .unwrap_or_else(|e| panic!("DC_LOC_BENCH_PARAMS: {e}"));
+    }
+    let cfg = dc_loc::params::apply(&params)
+        .unwrap_or_else(|e| panic!("DC_LOC_BENCH_PARAMS: {e}"))
+        .registration;
+    eprintln!("registration settings overridden by DC_LOC_BENCH_PARAMS=\"{overrides}\"");
+    cfg
+}
+
 fn bench(c: &mut Criterion) {
-    let cfg = RegistrationConfig::default();
+    let cfg = config();
     for (name, n) in [("pair_1000_points", 1000usize), ("pair_5000_points", 5000)] {
         let set = pairs(n, n as u64);
         let mean_pts = set

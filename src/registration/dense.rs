@@ -132,18 +132,17 @@ pub struct DenseConfig {
     /// other pass, which pulls the pose by the sampling offset where the passes sampled a surface
     /// at different places; the likelihood-weighted mean averages it out. Run for the winner only
     /// (as polishing is), and kept when it ends within the ambiguity distances of it. Measured with
-    /// `dc_loc eval` on the default Gaussian demo drive (DC-Loc mean / median translation error
-    /// over the inliers, mean rotation error, mean NEES before `covariance_floor`; pairs inside 2 m
-    /// unchanged at 96.4 %): off
-    /// 0.075 / 0.064 m, 0.0015 rad, 4.40; 1 round 0.071 / 0.062 m, 0.0014 rad, 3.79; 3 rounds 0.071
-    /// / 0.060 m, 3.80; 6 rounds 0.071 / 0.061 m, 3.87; 10 rounds 0.071 / 0.060 m, 3.95. The
-    /// 1000-point pair of the registration bench: 2.93 ms off, 3.21 ms at 1 round, about 3.4 ms at
-    /// 3 (above the 3 ms target), so off by default. The Student-t drive at 3 rounds: 0.077 / 0.063
-    /// -> 0.068 / 0.057 m; Gamma 0.046 / 0.031 -> 0.042 / 0.031 m. Soft rounds in place of every
-    /// plain round (all hypotheses) reached 0.070 / 0.060 m at 3.57 ms.
+    /// `dc_loc eval -p registration.dense.soft_rounds:=N` on the default Gaussian demo drive (DC-Loc
+    /// mean / median translation error over the inliers, mean NEES; pairs inside 2 m unchanged at
+    /// 412 of 416): off 0.075 / 0.065 m, 2.90; 1 round 0.070 / 0.062 m, 2.42; 3 rounds 0.069 /
+    /// 0.061 m, 2.36; 10 rounds 0.069 / 0.060 m, 2.36. The Student-t drive at 3 rounds 0.078 / 0.064
+    /// -> 0.069 / 0.058 m; Gamma 0.044 / 0.031 -> 0.041 / 0.031 m. The registration bench's
+    /// 1000-point pair (`DC_LOC_BENCH_PARAMS="registration.dense.soft_rounds:=N" cargo bench --bench
+    /// registration`): 2.96 ms off, 3.15 ms at 1 round, 3.44 ms at 3 (the target is 3 ms), so off by
+    /// default.
     pub soft_rounds: usize,
     /// Target points behind each virtual partner of the soft rounds, the likeliest (default 16; at 3
-    /// rounds on the Gaussian demo drive 8 gave 0.073 / 0.063 m, 32 gave 0.069 / 0.060 m).
+    /// rounds on the Gaussian demo drive 8 gave 0.072 / 0.065 m, 32 gave 0.068 / 0.061 m).
     pub soft_neighbours: usize,
 }
 

@@ -224,7 +224,7 @@ pub struct RegistrationConfig {
     /// than the truth, whose poles and corners fit but are few points. Measured on the default demo
     /// drive: choosing among each pair's refined alternatives plus the true alignment refined, the
     /// alignment inside 2 m was picked for 404 of 416 pairs counting points and 415 with weights
-    /// from a 3 m radius; the whole registration (with the correlative search and slides as
+    /// from a 3 m radius (a probe not kept in the repository); the whole registration (with the correlative search and slides as
     /// `correlative` says) puts 403 pairs inside 2 m at 0, 412 at 1.5, 411 at 2.0, 412 at 2.5, 411
     /// at 4.0. The weighted score only chooses: `correlative.below_score` compares the plain one.
     pub selection_object_radius: f64,

@@ -168,12 +168,12 @@ pub struct RegistrationConfig {
     /// pair model leaves out does not shrink with more pairs: two passes sample each surface at
     /// different places and parked cars change between them, so the last centimetres of a dense
     /// alignment carry an error of their own that the pairs' scatter cannot show. Measured with
-    /// `dc_loc eval` (mean NEES over the inliers, ideal 3; share above the 95 % chi-square bound
-    /// 7.81, ideal 0.05) on the Gaussian / Gamma / Student-t / seed-2 demo drives: off 4.40 / 19.8 /
-    /// 4.00 / 3.69 (0.10 / 0.47 / 0.13 / 0.12); [0.02, 0.0005] 3.26 / 5.21 / 3.06 / 2.83 (0.04 /
-    /// 0.06 / 0.08 / 0.08); [0.03, 0.0005] 2.75 / 3.93 / 2.58 / 2.42; [0.03, 0.001] 2.57 / 3.58 /
-    /// 2.42 / 2.23. The Gamma drive's errors are the smallest (0.046 m mean) but its NEES the largest:
-    /// a few pairs off by a few milliradians with covariances of a tenth of that.
+    /// `dc_loc eval -p "registration.covariance_floor:=[T,R]"` (mean NEES over the inliers, ideal 3)
+    /// on the Gaussian / Gamma / Student-t / seed-2 demo drives: off 3.97 / 15.16 / 3.95 / 3.59;
+    /// [0.02, 0.0005] 2.90 / 2.46 / 3.04 / 2.73; [0.03, 0.0005] 2.41 / 1.77 / 2.58 / 2.32; [0.03,
+    /// 0.001] 2.25 / 1.47 / 2.43 / 2.13. No pose changes. The Gamma drive's errors are the smallest
+    /// (0.044 m mean) but its NEES without the floor the largest: a few pairs off by a few
+    /// milliradians with covariances of a tenth of that.
     pub covariance_floor: [f64; 2],
     /// RANSAC motions refined per registration (LM on their descriptor inliers, re-selection, dense
     /// stage), the one with the largest overlap kept (default 3). They are the best of the
@@ -221,12 +221,11 @@ pub struct RegistrationConfig {
     /// facades, poles and corners again but not all its parked cars (the simulated city replaces or
     /// removes 45 % of them between laps, on a 6 m slot grid): counted by points, a street slid by a
     /// slot or two, which pairs the cars of one pass with other cars of the other, can fit better
-    /// than the truth, whose poles and corners fit but are few points. Measured on the default demo
-    /// drive: choosing among each pair's refined alternatives plus the true alignment refined, the
-    /// alignment inside 2 m was picked for 404 of 416 pairs counting points and 415 with weights
-    /// from a 3 m radius (a probe not kept in the repository); the whole registration (with the correlative search and slides as
-    /// `correlative` says) puts 403 pairs inside 2 m at 0, 412 at 1.5, 411 at 2.0, 412 at 2.5, 411
-    /// at 4.0. The weighted score only chooses: `correlative.below_score` compares the plain one.
+    /// than the truth, whose poles and corners fit but are few points. Measured with `dc_loc eval -p
+    /// registration.selection_object_radius:=R` on the default demo drive (the whole registration,
+    /// with the correlative search and slides as `correlative` says): 403 pairs of 416 inside 2 m
+    /// at 0, 412 at 1.5, 411 at 2.0, 412 at 2.5, 411 at 4.0. The weighted score only chooses:
+    /// `correlative.below_score` compares the plain one.
     pub selection_object_radius: f64,
     /// Correlative search beyond a weak descriptor stage (see [`correlative`]).
     pub correlative: correlative::CorrelativeConfig,

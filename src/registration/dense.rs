@@ -138,7 +138,7 @@ pub struct DenseConfig {
     /// 0.061 m, 2.36; 10 rounds 0.069 / 0.060 m, 2.36. The Student-t drive at 3 rounds 0.078 / 0.064
     /// -> 0.069 / 0.058 m; Gamma 0.044 / 0.031 -> 0.041 / 0.031 m. The registration bench's
     /// 1000-point pair (`DC_LOC_BENCH_PARAMS="registration.dense.soft_rounds:=N" cargo bench --bench
-    /// registration`): 2.96 ms off, 3.15 ms at 1 round, 3.44 ms at 3 (the target is 3 ms), so off by
+    /// registration`): 2.95 ms off, 3.18 ms at 1 round, 3.40 ms at 3 (the target is 3 ms), so off by
     /// default.
     pub soft_rounds: usize,
     /// Target points behind each virtual partner of the soft rounds, the likeliest (default 16; at 3
@@ -561,27 +561,36 @@ fn soft_partners(
         covs: Vec::with_capacity(source.len()),
     };
     let mut pairs = Vec::with_capacity(source.len());
+    let r2 = cfg.max_distance * cfg.max_distance;
+    let mut within: Vec<(u32, f64, Vec2)> = Vec::new();
     let mut near: Vec<(u32, f64)> = Vec::new();
     for (i, (x, cx)) in source.points.iter().zip(&source.covs).enumerate() {
         let q = (t * nalgebra::Point2::from(*x)).coords;
+        // One grid visit per point: the target points within reach, then the nearest of them
+        // (strictly inside the reach, the first of equals, as `PointGrid::nearest_two`).
+        within.clear();
+        tree.within(&q, cfg.max_distance, |j, d2, d| within.push((j, d2, d)));
+        let nearest =
+            within
+                .iter()
+                .filter(|w| w.1 < r2)
+                .fold(None, |best: Option<&(u32, f64, Vec2)>, w| match best {
+                    Some(b) if b.1 <= w.1 => Some(b),
+                    _ => Some(w),
+                });
         // One combined covariance per point, with the nearest partner's covariance: neighbours on
         // one surface carry nearly the same one, and a 2x2 inverse per neighbour doubled the cost.
-        let Some((j0, _, _)) = tree.nearest_two(&q, cfg.max_distance) else {
-            continue;
-        };
-        let Some(cy) = target.covs.get(j0 as usize) else {
+        let Some(cy) = nearest.and_then(|n| target.covs.get(n.0 as usize)) else {
             continue;
         };
         let Some(s_inv) = (cy + r * cx * r.transpose()).try_inverse() else {
             continue;
         };
         near.clear();
-        tree.within(&q, cfg.max_distance, |j, _, d| {
+        near.extend(within.iter().filter_map(|&(j, _, d)| {
             let m = d.dot(&(s_inv * d));
-            if m <= gate_sq {
-                near.push((j, m));
-            }
-        });
+            (m <= gate_sq).then_some((j, m))
+        }));
         if near.len() > cfg.soft_neighbours {
             near.select_nth_unstable_by(cfg.soft_neighbours - 1, |a, b| {
                 a.1.total_cmp(&b.1).then(a.0.cmp(&b.0))

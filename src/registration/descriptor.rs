@@ -281,15 +281,16 @@ pub fn compute_descriptors_with_grid(
         dx.clear();
         dy.clear();
         rho.clear();
-        grid.within(p, cfg.radius, |_, distance, offset| {
-            if distance > 0.0 {
+        grid.within(p, cfg.radius, |_, squared, offset| {
+            if squared > 0.0 {
                 dx.push(offset.x as f32);
                 dy.push(offset.y as f32);
-                rho.push(distance as f32);
+                rho.push(squared as f32);
             }
         });
         let count = rho.len() as f64;
-        // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise.
+        // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise
+        //    (`rho` holds squared distances until here).
         for r in rho.iter_mut() {
             *r = r.sqrt();
         }

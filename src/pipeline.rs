@@ -21,7 +21,7 @@ use crate::registration::{
     PreparedSubmap, RegistrationError, RegistrationResult, common_view, overlap_near,
     register_prepared, slide_overlap,
 };
-use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
+use crate::submap::{OdometryBuffer, OdometryError, SpeedScale, Submap, SubmapBuilder};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, VecDeque};
@@ -565,6 +565,13 @@ pub struct PipelineStats {
     pub closures: u64,
     /// Scans waiting for odometry now.
     pub pending_scans: usize,
+    /// The newest keyframe's correction of the odometry's distances by the Doppler speeds
+    /// (`submap.speed_scale_bound`; `None` before one was applied): about 1 / (1 + the odometry's
+    /// scale error).
+    pub speed_scale: Option<f64>,
+    /// Keyframes whose Doppler and odometry distances disagreed beyond `submap.speed_scale_bound`
+    /// (placed with the odometry as it is).
+    pub speed_scale_refused: u64,
 }
 
 /// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
@@ -936,6 +943,25 @@ impl Pipeline {
         };
         if submap.len() < self.cfg.keyframe.min_points {
             return;
+        }
+        match submap.speed_scale {
+            SpeedScale::Applied(k) => self.stats.speed_scale = Some(k),
+            SpeedScale::Refused(k) => {
+                self.stats.speed_scale_refused += 1;
+                // The first and every hundredth: a misconfigured radar would refuse every keyframe.
+                let level = if self.stats.speed_scale_refused % 100 == 1 {
+                    log::Level::Warn
+                } else {
+                    log::Level::Debug
+                };
+                log::log!(
+                    level,
+                    "the radars' Doppler speeds say the body covered {k:.3} times the distance the odometry says, beyond submap.speed_scale_bound {}: keyframe placed with the odometry as it is (check the odometry's speed and the radars' radial velocity fields; {} keyframes so far)",
+                    self.cfg.submap.speed_scale_bound,
+                    self.stats.speed_scale_refused
+                );
+            }
+            SpeedScale::Unavailable => {}
         }
         let id = self.db.next_id();
         let rec = KeyframeRecord::from_submap(

@@ -244,6 +244,16 @@ pub struct SubmapConfig {
     /// Scans older than the newest one by more than this are dropped, s (default 3.0): a submap never
     /// spans a long stop in the data.
     pub max_span: f64,
+    /// Largest correction of the odometry's distances by the radars' Doppler, as a share (default
+    /// 0.1; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
+    /// wheel radius or tyre wear; the submap's scans are placed with the odometry's poses scaled about
+    /// the anchor by the distance the Doppler speeds integrate to over the distance the odometry
+    /// moved ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift) stretches a
+    /// 72 km/h submap by 15 cm from end to end, and two laps at different speeds are stretched
+    /// differently. A ratio off 1 by more than this is refused (the odometry is then used as it is,
+    /// and the node counts it in its diagnostics): no odometry is that wrong, so the Doppler fit or
+    /// the radar's configuration is.
+    pub speed_scale_bound: f64,
 }
 
 impl Default for SubmapConfig {
@@ -251,6 +261,7 @@ impl Default for SubmapConfig {
         SubmapConfig {
             size: 10,
             max_span: 3.0,
+            speed_scale_bound: 0.1,
         }
     }
 }
@@ -270,7 +281,37 @@ impl SubmapConfig {
                 "must be > 0 s",
             ));
         }
+        if !(self.speed_scale_bound.is_finite() && (0.0..1.0).contains(&self.speed_scale_bound)) {
+            return Err(ConfigError::new(
+                format!("{prefix}.speed_scale_bound"),
+                "must be in [0, 1)",
+            ));
+        }
         Ok(())
+    }
+}
+
+/// How a submap's odometry distances were corrected by the radars' Doppler speeds
+/// (`submap.speed_scale_bound`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SpeedScale {
+    /// The scans were placed with the odometry's translations from the anchor times this factor: the
+    /// distance the Doppler speeds integrate to over the distance the odometry moved.
+    Applied(f64),
+    /// Not corrected: the correction is off, fewer than three scans have a Doppler fit, or the
+    /// odometry moved less than 1 m between them.
+    Unavailable,
+    /// Not corrected: the ratio (given) is off 1 by more than the bound.
+    Refused(f64),
+}
+
+impl SpeedScale {
+    /// The factor the translations were multiplied by.
+    pub fn factor(&self) -> f64 {
+        match self {
+            SpeedScale::Applied(k) => *k,
+            SpeedScale::Unavailable | SpeedScale::Refused(_) => 1.0,
+        }
     }
 }
 
@@ -319,6 +360,8 @@ pub struct Submap {
     pub points: Vec<SubmapPoint>,
     /// The scans, oldest first.
     pub scans: Vec<SubmapScan>,
+    /// The correction of the odometry's distances the scans were placed with.
+    pub speed_scale: SpeedScale,
 }
 
 impl Submap {
@@ -372,6 +415,8 @@ struct StackedScan {
     t_odom_body: Iso3,
     points: Vec<BodyPoint>,
     doppler_velocity: Option<Vec3>,
+    /// Body velocity (m/s) and yaw rate (rad/s) from odometry at the scan's stamp.
+    odom_velocity: Option<(Vec3, f64)>,
 }
 
 /// Rolling window of processed scans, per radar, from which submaps are built.
@@ -452,6 +497,7 @@ impl SubmapBuilder {
             t_odom_body,
             points,
             doppler_velocity: fit.map(|f| f.v_radar),
+            odom_velocity: velocity_prior,
         });
         self.trim();
         Some(report)
@@ -498,14 +544,17 @@ impl SubmapBuilder {
         let t_anchor_odom = anchor.t_odom_body.inverse();
         let mut order: Vec<&StackedScan> = self.scans.iter().collect();
         order.sort_by_key(|s| (s.stamp, s.radar));
+        let speed_scale = self.speed_scale(&order);
         let mut sub = Submap {
             anchor_stamp: anchor.stamp,
             t_odom_anchor: anchor.t_odom_body,
             points: Vec::with_capacity(order.iter().map(|s| s.points.len()).sum()),
             scans: Vec::with_capacity(order.len()),
+            speed_scale,
         };
         for (k, s) in order.iter().enumerate() {
-            let t_anchor_body = t_anchor_odom * s.t_odom_body;
+            let mut t_anchor_body = t_anchor_odom * s.t_odom_body;
+            t_anchor_body.translation.vector *= speed_scale.factor();
             let rot = t_anchor_body.rotation.to_rotation_matrix().into_inner();
             let to_anchor = |p: Vec3| (t_anchor_body * nalgebra::Point3::from(p)).coords;
             sub.scans.push(SubmapScan {
@@ -529,6 +578,51 @@ impl SubmapBuilder {
         }
         Some(sub)
     }
+
+    /// The distance the Doppler says the body covered between the oldest and newest scans with a fit
+    /// (their body speeds, trapezoids between consecutive ones) over the odometry's path between
+    /// the same scans (`scans` in time order).
+    fn speed_scale(&self, scans: &[&StackedScan]) -> SpeedScale {
+        if self.cfg.speed_scale_bound <= 0.0 {
+            return SpeedScale::Unavailable;
+        }
+        let samples: Vec<(Stamp, f64, Vec3)> = scans
+            .iter()
+            .filter_map(|s| {
+                let v_radar = s.doppler_velocity?;
+                let model = self.radars.get(s.radar)?;
+                // The radar moves with v + w x t; the yaw rate is the odometry's (its bias is
+                // negligible over a lever arm of metres).
+                let w = s.odom_velocity.map_or(0.0, |(_, w)| w);
+                let t = model.t_body_radar.translation.vector;
+                let v_body =
+                    model.t_body_radar.rotation * v_radar + Vec3::new(w * t.y, -w * t.x, 0.0);
+                Some((
+                    s.stamp,
+                    v_body.xy().norm(),
+                    s.t_odom_body.translation.vector,
+                ))
+            })
+            .collect();
+        if samples.len() < 3 {
+            return SpeedScale::Unavailable;
+        }
+        let (mut doppler, mut odom) = (0.0, 0.0);
+        for w in samples.windows(2) {
+            let ((t0, s0, p0), (t1, s1, p1)) = (w[0], w[1]);
+            doppler += 0.5 * (s0 + s1) * t1.secs_since(t0);
+            odom += (p1 - p0).xy().norm();
+        }
+        if !(odom >= 1.0 && doppler.is_finite()) {
+            return SpeedScale::Unavailable;
+        }
+        let k = doppler / odom;
+        if (k - 1.0).abs() > self.cfg.speed_scale_bound {
+            SpeedScale::Refused(k)
+        } else {
+            SpeedScale::Applied(k)
+        }
+    }
 }
 
 #[cfg(test)]
@@ -548,7 +642,12 @@ mod tests {
     }
 
     fn circle_pose(t: f64) -> Iso3 {
-        let (v, w) = (10.0, 0.2);
+        circle_pose_at(t, 10.0)
+    }
+
+    /// The pose at `t` on a circle driven at speed `v` and yaw rate 0.2 rad/s.
+    fn circle_pose_at(t: f64, v: f64) -> Iso3 {
+        let w = 0.2;
         let yaw = w * t;
         iso3_from_xyz_rpy(
             v / w * yaw.sin(),
@@ -622,28 +721,32 @@ mod tests {
         );
     }
 
-    /// A world of static points seen by a forward radar while driving the circle: every scan, placed with
-    /// interpolated odometry and compensated, lands its points on the true world points in the anchor frame.
-    #[test]
-    fn submap_stacks_compensated_scans_on_the_world() {
+    /// A world of static points around the circle.
+    fn circle_world() -> Vec<Vec3> {
+        (0..60)
+            .map(|i| {
+                let a = i as f64 * 0.37;
+                Vec3::new(40.0 + 30.0 * a.cos(), 25.0 + 30.0 * a.sin(), 0.5)
+            })
+            .collect()
+    }
+
+    /// Drives the circle (truly at 10 m/s) for 14 scans of a forward radar, with an odometry that
+    /// reports `odom_speed` on the same yaw rate, into a builder with `cfg`.
+    fn circle_submap(odom_speed: f64, cfg: SubmapConfig) -> Submap {
         let mut odom = OdometryBuffer::new(OdometryConfig::default());
-        odom_circle(&mut odom, 3.0, 50.0);
+        for i in 0..=150 {
+            let t = i as f64 / 50.0;
+            let p = circle_pose_at(t, odom_speed);
+            odom.push(Stamp::from_secs_f64(t), p).unwrap();
+        }
         let radar = RadarModel {
             t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
             beta: 0.04,
             noise: RadarNoise::default(),
         };
-        let world: Vec<Vec3> = (0..60)
-            .map(|i| {
-                let a = i as f64 * 0.37;
-                Vec3::new(40.0 + 30.0 * a.cos(), 25.0 + 30.0 * a.sin(), 0.5)
-            })
-            .collect();
-        let mut builder = SubmapBuilder::new(
-            SubmapConfig::default(),
-            EgoMotionConfig::default(),
-            vec![radar.clone()],
-        );
+        let world = circle_world();
+        let mut builder = SubmapBuilder::new(cfg, EgoMotionConfig::default(), vec![radar.clone()]);
         for k in 0..14 {
             let t = 1.0 + k as f64 / 13.0;
             let t_odom_body = circle_pose(t);
@@ -678,31 +781,48 @@ mod tests {
             assert!(rep.doppler_fit);
             assert_eq!(rep.dynamic, 0);
         }
-        let sub = builder.build().unwrap();
-        assert_eq!(sub.scans.len(), 10, "only the last N = 10 scans");
-        assert_eq!(sub.anchor_stamp, Stamp::from_secs_f64(1.0 + 13.0 / 13.0));
+        builder.build().unwrap()
+    }
+
+    /// The largest distance of a submap point (compensated or raw) from the nearest world point, in
+    /// the true anchor frame.
+    fn worst_error(sub: &Submap, raw: bool) -> f64 {
         let t_anchor_odom = circle_pose(2.0).inverse();
-        let truth: Vec<Vec3> = world
+        let truth: Vec<Vec3> = circle_world()
             .iter()
             .map(|q| (t_anchor_odom * nalgebra::Point3::from(*q)).coords)
             .collect();
-        let mut worst_raw: f64 = 0.0;
-        for p in &sub.points {
-            let err = truth
-                .iter()
-                .map(|t| (t - p.p).norm())
-                .fold(f64::MAX, f64::min);
-            assert!(err < 1e-3, "compensated point off the world by {err}");
-            let err_raw = truth
-                .iter()
-                .map(|t| (t - p.p_raw).norm())
-                .fold(f64::MAX, f64::min);
-            worst_raw = worst_raw.max(err_raw);
-        }
+        sub.points
+            .iter()
+            .map(|p| {
+                let p = if raw { p.p_raw } else { p.p };
+                truth
+                    .iter()
+                    .map(|t| (t - p).norm())
+                    .fold(f64::MAX, f64::min)
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// A world of static points seen by a forward radar while driving the circle: every scan, placed with
+    /// interpolated odometry and compensated, lands its points on the true world points in the anchor frame.
+    #[test]
+    fn submap_stacks_compensated_scans_on_the_world() {
+        let sub = circle_submap(10.0, SubmapConfig::default());
+        assert_eq!(sub.scans.len(), 10, "only the last N = 10 scans");
+        assert_eq!(sub.anchor_stamp, Stamp::from_secs_f64(1.0 + 13.0 / 13.0));
+        let err = worst_error(&sub, false);
+        assert!(err < 1e-3, "compensated point off the world by {err}");
+        let worst_raw = worst_error(&sub, true);
         assert!(
             worst_raw > 0.3,
             "the raw points do carry the Doppler distortion ({worst_raw})"
         );
+        // Odometry and Doppler agree: chord against arc between scans, 1e-5.
+        let SpeedScale::Applied(k) = sub.speed_scale else {
+            panic!("{:?}", sub.speed_scale);
+        };
+        assert_relative_eq!(k, 1.0, epsilon = 1e-4);
         let ps = sub.point_set(true);
         assert_eq!(ps.len(), sub.len());
         assert_eq!(
@@ -712,6 +832,45 @@ mod tests {
                 .norm(),
             0.0
         );
+    }
+
+    /// An odometry 4 % long (a larger circle on the same yaw rate): uncorrected, the oldest scan lands
+    /// 4 % of its 7 m from the anchor off; the Doppler speeds scale the distances back.
+    #[test]
+    fn the_doppler_speeds_correct_the_odometry_distances() {
+        let off = circle_submap(
+            10.4,
+            SubmapConfig {
+                speed_scale_bound: 0.0,
+                ..SubmapConfig::default()
+            },
+        );
+        assert_eq!(off.speed_scale, SpeedScale::Unavailable);
+        let err_off = worst_error(&off, false);
+        assert!(
+            err_off > 0.2,
+            "the odometry stretches the submap ({err_off})"
+        );
+        let on = circle_submap(10.4, SubmapConfig::default());
+        let SpeedScale::Applied(k) = on.speed_scale else {
+            panic!("{:?}", on.speed_scale);
+        };
+        assert_relative_eq!(k, 1.0 / 1.04, epsilon = 1e-4);
+        let err_on = worst_error(&on, false);
+        assert!(err_on < 2e-3, "corrected points off the world by {err_on}");
+        // Beyond the bound the odometry is used as it is, and the ratio is reported.
+        let refused = circle_submap(
+            10.4,
+            SubmapConfig {
+                speed_scale_bound: 0.03,
+                ..SubmapConfig::default()
+            },
+        );
+        let SpeedScale::Refused(k) = refused.speed_scale else {
+            panic!("{:?}", refused.speed_scale);
+        };
+        assert_relative_eq!(k, 1.0 / 1.04, epsilon = 1e-4);
+        assert_relative_eq!(worst_error(&refused, false), err_off, epsilon = 1e-12);
     }
 
     #[test]
@@ -730,7 +889,7 @@ mod tests {
         ];
         let cfg = SubmapConfig {
             size: 3,
-            max_span: 3.0,
+            ..SubmapConfig::default()
         };
         let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
         for k in 0..8 {

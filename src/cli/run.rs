@@ -279,5 +279,14 @@ fn print_summary(
     if s.time_resets > 0 {
         println!("time resets: {}", s.time_resets);
     }
+    if let Some(k) = s.speed_scale {
+        println!("odometry distances times {k:.4} by the radars' Doppler (newest keyframe)");
+    }
+    if s.speed_scale_refused > 0 {
+        println!(
+            "keyframes whose Doppler and odometry distances disagreed beyond submap.speed_scale_bound: {}",
+            s.speed_scale_refused
+        );
+    }
     println!("closures {closures} -> {}", args.out.display());
 }

@@ -296,6 +296,7 @@ mod tests {
                 t_odom_anchor: Iso3::identity(),
                 points: Vec::new(),
                 scans: Vec::new(),
+                speed_scale: crate::submap::SpeedScale::Unavailable,
             }),
             estimated_speeds: Vec::new(),
         }

@@ -49,14 +49,27 @@ pub struct CorrelativeConfig {
     /// eval` on the default demo drive, pairs inside 2 m: none 407 of 416, these 412 (up to 6 m
     /// only: 411).
     pub slide_shifts: Vec<f64>,
-    /// Descriptor inliers at and above which a result is not searched beyond, whatever its fit
-    /// score (default 100). A result with many descriptor inliers is the descriptors' clear answer:
-    /// the synthetic 1000-point pairs of the registration bench have 120-128 and plain scores of
-    /// 0.46-0.57 (their clutter fits nothing), and the correlative search would take 36 ms per pair
-    /// instead of 2.96 (`DC_LOC_BENCH_PARAMS="registration.correlative.below_inliers:=1000" cargo
-    /// bench --bench registration`). The demo drive's median is 72; 80 and 1000 gave the same 412 of
-    /// 416 inside 2 m.
+    /// Descriptor inliers at and above which a result is not searched beyond, unless its plain score
+    /// is below `rich_below_score` or its common view below `below_common_view` (default 100). Many
+    /// descriptor inliers are usually the descriptors' clear answer: the synthetic 1000-point pairs
+    /// of the registration bench have 120-128 and plain scores of 0.46-0.57 (their clutter fits
+    /// nothing), and the correlative search would take 36 ms per pair instead of 2.96
+    /// (`DC_LOC_BENCH_PARAMS="registration.correlative.below_inliers:=1000" cargo bench --bench
+    /// registration`). The demo drive's median is 72.
     pub below_inliers: usize,
+    /// Plain fit score under which a result is searched beyond however many descriptor inliers back
+    /// it (default 0.4). On the Gamma demo drive (`dc_loc sim --noise gamma`) a street slid 54 m
+    /// along itself had 102 descriptor inliers and a plain score of 0.32, the truth 0.81 of its
+    /// points partnered; `dc_loc eval`, pairs inside 2 m: 410 of 416 without this test (0), 411
+    /// with it.
+    pub rich_below_score: f64,
+    /// Common view ([`super::common_view`]) under which a result is searched beyond however many
+    /// descriptor inliers back it (default 0.25, as `loop.minimum_common_view`). Two sides of a
+    /// street look alike turned by half a turn: on the default demo drive one pair's descriptors
+    /// gave 103 inliers to the half-turn, 42 m off, which the node would refuse for its common view
+    /// anyway, and the truth (plain score 0.57 against 0.49) was not searched for. `dc_loc eval`,
+    /// pairs inside 2 m: 411 of 416 without this test (0), 412 with it.
+    pub below_common_view: f64,
     /// Peaks of the direction-histogram correlation tried, each with its half-turn (default 3).
     pub rotation_peaks: usize,
     /// Source points that vote (default 256).
@@ -98,6 +111,8 @@ impl Default for CorrelativeConfig {
             below_score: 0.6,
             slide_shifts: vec![-3.0, 3.0, -6.0, 6.0, -12.0, 12.0],
             below_inliers: 100,
+            rich_below_score: 0.4,
+            below_common_view: 0.25,
             rotation_peaks: 3,
             probes: 256,
             cell: 0.5,
@@ -131,6 +146,8 @@ impl CorrelativeConfig {
         for (f, v) in [
             ("below_score", self.below_score),
             ("min_overlap", self.min_overlap),
+            ("rich_below_score", self.rich_below_score),
+            ("below_common_view", self.below_common_view),
         ] {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                 return Err(ConfigError::new(

@@ -412,6 +412,8 @@ struct DenseSets<'a> {
     /// Source probes and target coverage of the screening.
     probes: &'a [Vec2],
     coverage: &'a dense::Coverage,
+    /// Bearings of the source's and the target's points ([`common_view`]).
+    bearings: (&'a Bearings, &'a Bearings),
 }
 
 /// The dense-stage settings a [`PreparedSubmap`] bakes in.
@@ -448,6 +450,8 @@ pub struct PreparedSubmap {
     /// Cells covered by `dense_points` (as a target) and the probes (as a source) of the screening.
     coverage: dense::Coverage,
     probes: Vec<Vec2>,
+    /// The points' bearings from the anchor ([`common_view`]).
+    bearings: Bearings,
 }
 
 impl PreparedSubmap {
@@ -472,6 +476,7 @@ impl PreparedSubmap {
         );
         let coverage = dense::Coverage::new(&dense_points.points, SCREEN_CELL);
         let probes = dense::probes(&dense_points, SCREEN_PROBES);
+        let bearings = Bearings::new(&points.points);
         Ok(PreparedSubmap {
             points,
             keypoints,
@@ -486,6 +491,7 @@ impl PreparedSubmap {
             fit_weights,
             coverage,
             probes,
+            bearings,
         })
     }
     /// The points and covariances.
@@ -655,6 +661,7 @@ pub fn register_detailed(
             src_tree: &source.point_tree,
             probes: &source.probes,
             coverage: &target.coverage,
+            bearings: (&source.bearings, &target.bearings),
         }),
         candidates,
         cfg,
@@ -743,27 +750,47 @@ pub fn slide_overlap(
 /// Sectors of [`common_view`] (30 degrees each).
 const VIEW_SECTORS: usize = 12;
 
+/// A point set's bearings from its anchor: the share of its points in each degree (0..360,
+/// counterclockwise from x).
+#[derive(Debug, Clone)]
+struct Bearings([f64; 360]);
+
+impl Bearings {
+    fn new(points: &[Vec2]) -> Self {
+        let mut h = [0.0f64; 360];
+        let w = 1.0 / points.len().max(1) as f64;
+        for x in points {
+            let deg = (x.y as f32).atan2(x.x as f32).to_degrees();
+            // rem_euclid can round up to exactly 360.
+            let k = (deg.rem_euclid(360.0) as usize).min(359);
+            h[k] += w;
+        }
+        Bearings(h)
+    }
+
+    /// The intersection of the two 30-degree histograms, `self`'s turned by `yaw` (rounded to the
+    /// degree).
+    fn common(&self, target: &Bearings, yaw: f64) -> f64 {
+        let shift = (yaw.to_degrees().round() as i64).rem_euclid(360) as usize;
+        let (mut hs, mut ht) = ([0.0f64; VIEW_SECTORS], [0.0f64; VIEW_SECTORS]);
+        let width = 360 / VIEW_SECTORS;
+        for k in 0..360 {
+            hs[((k + shift) % 360) / width] += self.0[k];
+            ht[k / width] += target.0[k];
+        }
+        hs.iter().zip(&ht).map(|(a, b)| a.min(*b)).sum()
+    }
+}
+
 /// How much two submaps can have seen in common, whatever their points: the intersection (0..1) of
 /// their points' bearing histograms (12 sectors of 30 degrees, each histogram summing to 1) seen from
-/// their anchors, with the source's turned by the yaw of `t`. Matched submaps lie metres apart, so the
-/// bearings from either anchor are close enough. One forward radar revisiting a street the other way
-/// sees what lies behind the first pass (0.05-0.14 for the closures of the simulated reverse laps,
-/// true and false), five radars with overlapping fields of view see all around (0.40-0.77), a forward
-/// radar the same way 0.55-0.99.
+/// their anchors, with the source's turned by the yaw of `t` (to the degree). Matched submaps lie
+/// metres apart, so the bearings from either anchor are close enough. One forward radar revisiting a
+/// street the other way sees what lies behind the first pass (0.05-0.14 for the closures of the
+/// simulated reverse laps, true and false), five radars with overlapping fields of view see all
+/// around (0.40-0.77), a forward radar the same way 0.55-0.99.
 pub fn common_view(source: &PreparedSubmap, target: &PreparedSubmap, t: &Iso2) -> f64 {
-    let hist = |pts: &[Vec2], yaw: f64| {
-        let mut h = [0.0f64; VIEW_SECTORS];
-        let w = 1.0 / pts.len().max(1) as f64;
-        for x in pts {
-            let b = (x.y.atan2(x.x) + yaw).rem_euclid(std::f64::consts::TAU);
-            let k = (b / std::f64::consts::TAU * VIEW_SECTORS as f64) as usize;
-            h[k.min(VIEW_SECTORS - 1)] += w;
-        }
-        h
-    };
-    let hs = hist(&source.points.points, t.rotation.angle());
-    let ht = hist(&target.points.points, 0.0);
-    hs.iter().zip(&ht).map(|(a, b)| a.min(*b)).sum()
+    source.bearings.common(&target.bearings, t.rotation.angle())
 }
 
 /// RANSAC + LM on given candidate correspondences (the part of the pipeline after association;
@@ -824,6 +851,7 @@ fn ransac_and_refine(
                 probes,
                 coverage,
                 weights,
+                (Bearings::new(&source.points), Bearings::new(&target.points)),
             );
             DenseSets {
                 src: built.0.as_ref().unwrap_or(&built.2.0),
@@ -835,6 +863,7 @@ fn ransac_and_refine(
                 src_tree: &built.2.1,
                 probes: &built.4,
                 coverage: &built.5,
+                bearings: (&built.7.0, &built.7.1),
             }
         }
     };
@@ -942,7 +971,9 @@ fn ransac_and_refine(
         }
     }
     // 4. Correlative search when the descriptor stage found nothing or little overlap.
-    let weak = best.as_ref().is_none_or(|b| weak_result(b, cfg));
+    let weak = best
+        .as_ref()
+        .is_none_or(|b| weak_result(b, &dense_sets, cfg));
     if correlative_applies(cfg) && weak {
         let found = correlative::candidates(
             dense_sets.src_as_target,
@@ -985,7 +1016,7 @@ fn ransac_and_refine(
     // 5. A weak winner's slides along its street (`correlative.slide_shifts`).
     let weak_winner = best
         .as_ref()
-        .filter(|b| weak_result(b, cfg))
+        .filter(|b| weak_result(b, &dense_sets, cfg))
         .map(|b| b.result.t_target_source);
     if let Some(win) = weak_winner.filter(|_| correlative_applies(cfg)) {
         let poses: Vec<Iso2> = cfg
@@ -1109,8 +1140,15 @@ fn refine_hypothesis(
 
 /// A result searched beyond (`registration.correlative`): its plain fit score below `below_score`
 /// and fewer than `below_inliers` descriptor inliers.
-fn weak_result(d: &RegistrationDetail, cfg: &RegistrationConfig) -> bool {
-    d.plain_score < cfg.correlative.below_score && d.result.inliers < cfg.correlative.below_inliers
+fn weak_result(d: &RegistrationDetail, sets: &DenseSets<'_>, cfg: &RegistrationConfig) -> bool {
+    d.plain_score < cfg.correlative.below_score
+        && (d.result.inliers < cfg.correlative.below_inliers
+            || d.plain_score < cfg.correlative.rich_below_score
+            || sets
+                .bearings
+                .0
+                .common(sets.bearings.1, d.result.t_target_source.rotation.angle())
+                < cfg.correlative.below_common_view)
 }
 
 /// The correlative search runs: enabled, and the dense stage it refines with is on.

@@ -1177,6 +1177,16 @@ impl Worker {
             kv("map_keyframes", self.pipeline.db().len().to_string()),
             kv("registrations", stats.registrations.to_string()),
             kv("closures", self.closures_published.to_string()),
+            kv(
+                "odometry_speed_scale",
+                stats
+                    .speed_scale
+                    .map_or_else(|| "-".to_string(), |k| format!("{k:.4}")),
+            ),
+            kv(
+                "odometry_speed_scale_refused",
+                stats.speed_scale_refused.to_string(),
+            ),
         ];
         for (r, n) in &stats.rejected {
             proc.push(kv(&format!("rejected.{}", r.name()), n.to_string()));

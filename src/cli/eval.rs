@@ -232,8 +232,9 @@ pub fn write_and_print(
     write_jsonl(&jsonl).map_err(|e| CliError::Runtime(format!("{}: {e}", jsonl.display())))?;
     println!("{intro}");
     println!(
-        "Methods (the paper's Table 1 layout):\n{}",
-        report::table_methods(summaries)
+        "Methods (the paper's Table 1 layout):\n{}{}",
+        report::table_methods(summaries),
+        report::nees_unambiguous_line(summaries, eval)
     );
     if methods.len() > 1 {
         println!(
@@ -267,6 +268,7 @@ fn write_pairs(path: &Path, kfs: &[EvalKeyframe], results: &[PairResult]) -> std
             "nees": r.nees,
             "overlap": r.overlap,
             "inliers": r.inliers,
+            "runner_up_overlap": r.runner_up_overlap,
             "failure": r.failure,
         });
         writeln!(out, "{v}")?;

@@ -53,6 +53,10 @@ pub struct EvalConfig {
     pub velocity_bin_width: f64,
     /// Evaluate every n-th pair only (default 1: all).
     pub pair_stride: usize,
+    /// A result whose runner-up alignment fits with more than this share of its overlap is
+    /// ambiguous (default 0.8, the node's `loop.maximum_ambiguity`); the mean NEES is also given
+    /// over the inliers that are not, the ones the node could publish.
+    pub ambiguity_ratio: f64,
     /// Baseline settings.
     pub baselines: BaselinesConfig,
 }
@@ -66,6 +70,7 @@ impl Default for EvalConfig {
             outlier_threshold: 2.0,
             velocity_bin_width: 2.0,
             pair_stride: 1,
+            ambiguity_ratio: 0.8,
             baselines: BaselinesConfig::default(),
         }
     }
@@ -79,6 +84,7 @@ impl EvalConfig {
             ("outlier_threshold", self.outlier_threshold),
             ("velocity_bin_width", self.velocity_bin_width),
             ("max_heading_difference", self.max_heading_difference),
+            ("ambiguity_ratio", self.ambiguity_ratio),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(ConfigError::new(
@@ -457,6 +463,9 @@ pub struct PairResult {
     pub overlap: f64,
     /// Descriptor-stage (RANSAC) inliers, 0 without a result.
     pub inliers: usize,
+    /// Overlap of the best other alignment (see `RegistrationResult::runner_up_overlap`), 0 without
+    /// a result.
+    pub runner_up_overlap: f64,
 }
 
 /// Points of a submap in the form a method registers: compensated, raw, or raw with the
@@ -522,6 +531,7 @@ fn score(
                 failure: None,
                 overlap: r.overlap,
                 inliers: r.inliers,
+                runner_up_overlap: r.runner_up_overlap,
             }
         }
         Err(f) => PairResult {
@@ -534,6 +544,7 @@ fn score(
             failure: Some(f),
             overlap: 0.0,
             inliers: 0,
+            runner_up_overlap: 0.0,
         },
     }
 }

@@ -24,6 +24,9 @@ pub struct MethodSummary {
     pub rotation: [f64; 3],
     /// Mean NEES (3 dof) over the inliers, for methods that report a covariance.
     pub nees: Option<f64>,
+    /// The same over the inliers that are not ambiguous (`EvalConfig::ambiguity_ratio`), with their
+    /// number.
+    pub nees_unambiguous: Option<(f64, usize)>,
     /// Per velocity-difference bin (lower edge, m/s): inliers, mean translation (m), mean rotation (rad).
     pub by_velocity: Vec<(f64, usize, f64, f64)>,
 }
@@ -70,6 +73,11 @@ pub fn summarize(
                 .filter(|r| r.translation_error <= cfg.outlier_threshold)
                 .collect();
             let nees: Vec<f64> = inl.iter().filter_map(|r| r.nees).collect();
+            let clear: Vec<f64> = inl
+                .iter()
+                .filter(|r| r.runner_up_overlap <= cfg.ambiguity_ratio * r.overlap)
+                .filter_map(|r| r.nees)
+                .collect();
             let max_bin = inl
                 .iter()
                 .map(|r| (r.velocity_difference / cfg.velocity_bin_width) as usize)
@@ -99,6 +107,8 @@ pub fn summarize(
                 translation: stats(inl.iter().map(|r| r.translation_error).collect()),
                 rotation: stats(inl.iter().map(|r| r.rotation_error).collect()),
                 nees: (!nees.is_empty()).then(|| nees.iter().sum::<f64>() / nees.len() as f64),
+                nees_unambiguous: (!clear.is_empty())
+                    .then(|| (clear.iter().sum::<f64>() / clear.len() as f64, clear.len())),
                 by_velocity,
             }
         })
@@ -123,6 +133,26 @@ fn row(out: &mut String, name: &str, s: &MethodSummary) {
 }
 
 const HEADER: &str = "| Translation (m) mean | max | median | Rotation (rad) mean | max | median | inliers (<= threshold) | mean NEES |";
+
+/// One line on the mean NEES over the unambiguous inliers of the methods that report a covariance
+/// (empty when none does).
+pub fn nees_unambiguous_line(summaries: &[MethodSummary], cfg: &EvalConfig) -> String {
+    let parts: Vec<String> = summaries
+        .iter()
+        .filter_map(|s| {
+            s.nees_unambiguous
+                .map(|(n, k)| format!("{} {n:.2} ({k}/{})", s.method.name(), s.inliers))
+        })
+        .collect();
+    if parts.is_empty() {
+        return String::new();
+    }
+    format!(
+        "Mean NEES over the inliers whose runner-up alignment fits with at most {} of their overlap (what the node's loop.maximum_ambiguity passes): {}\n",
+        cfg.ambiguity_ratio,
+        parts.join(", ")
+    )
+}
 
 /// Table 1 layout: the methods (ICP, NDT, MC-RANSAC-style, DC-Loc and its paper form).
 pub fn table_methods(summaries: &[MethodSummary]) -> String {
@@ -337,4 +367,59 @@ pub fn plot_svg(summaries: &[MethodSummary], cfg: &EvalConfig, path: &Path) -> R
         .map_err(e)?;
     root.present().map_err(e)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::Pair;
+
+    const DC_LOC: Method = Method::DcLoc {
+        ue: true,
+        dc: true,
+        dense: true,
+    };
+
+    fn result(error: f64, nees: f64, overlap: f64, runner_up: f64, dv: f64) -> PairResult {
+        PairResult {
+            pair: Pair {
+                query: 1,
+                target: 0,
+                distance: 1.0,
+            },
+            method: DC_LOC,
+            velocity_difference: dv,
+            translation_error: error,
+            rotation_error: 0.001,
+            nees: Some(nees),
+            failure: None,
+            overlap,
+            inliers: 50,
+            runner_up_overlap: runner_up,
+        }
+    }
+
+    /// Outliers leave the statistics; the ambiguous inlier (runner-up above 0.8 of its overlap)
+    /// leaves the unambiguous NEES only.
+    #[test]
+    fn summary_over_the_inliers_and_the_unambiguous_ones() {
+        let results = vec![
+            result(0.1, 2.0, 0.8, 0.2, 1.0),
+            result(0.3, 4.0, 0.6, 0.3, 9.0),
+            result(1.5, 300.0, 0.5, 0.5, 9.0),
+            result(7.0, 9000.0, 0.5, 0.1, 9.0),
+        ];
+        let cfg = EvalConfig::default();
+        let s = &summarize(&results, &[DC_LOC], &cfg)[0];
+        assert_eq!((s.pairs, s.inliers), (4, 3));
+        assert!((s.translation[0] - 1.9 / 3.0).abs() < 1e-12);
+        assert_eq!(s.translation[1], 1.5);
+        assert_eq!(s.translation[2], 0.3);
+        assert!((s.nees.unwrap() - 102.0).abs() < 1e-12);
+        assert_eq!(s.nees_unambiguous, Some((3.0, 2)));
+        assert_eq!(s.by_velocity.len(), 2);
+        assert_eq!(s.by_velocity[1].1, 2);
+        let line = nees_unambiguous_line(std::slice::from_ref(s), &cfg);
+        assert!(line.contains("3.00 (2/3)"), "{line}");
+    }
 }

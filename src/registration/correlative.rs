@@ -60,15 +60,16 @@ pub struct CorrelativeConfig {
     /// Plain fit score under which a result is searched beyond however many descriptor inliers back
     /// it (default 0.4). On the Gamma demo drive (`dc_loc sim --noise gamma`) a street slid 54 m
     /// along itself had 102 descriptor inliers and a plain score of 0.32, the truth 0.81 of its
-    /// points partnered; `dc_loc eval`, pairs inside 2 m: 410 of 416 without this test (0), 411
-    /// with it.
+    /// points partnered; `dc_loc eval`, pairs inside 2 m: 409 of 416 without this test (0), 410
+    /// with it (with `submap.speed_scale_bound:=0.1`: 410 and 411).
     pub rich_below_score: f64,
     /// Common view ([`super::common_view`]) under which a result is searched beyond however many
     /// descriptor inliers back it (default 0.25, as `loop.minimum_common_view`). Two sides of a
-    /// street look alike turned by half a turn: on the default demo drive one pair's descriptors
-    /// gave 103 inliers to the half-turn, 42 m off, which the node would refuse for its common view
-    /// anyway, and the truth (plain score 0.57 against 0.49) was not searched for. `dc_loc eval`,
-    /// pairs inside 2 m: 411 of 416 without this test (0), 412 with it.
+    /// street look alike turned by half a turn: on the demo drive with `submap.speed_scale_bound:=0.1`
+    /// one pair's descriptors gave 103 inliers to the half-turn, 42 m off, which the node would
+    /// refuse for its common view anyway, and the truth (plain score 0.57 against 0.49) was not
+    /// searched for; `dc_loc eval`, pairs inside 2 m: 411 of 416 without this test (0), 412 with
+    /// it. With the default settings no demo pair reaches it.
     pub below_common_view: f64,
     /// Peaks of the direction-histogram correlation tried, each with its half-turn (default 3).
     pub rotation_peaks: usize,

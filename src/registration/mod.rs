@@ -1138,8 +1138,9 @@ fn refine_hypothesis(
     )
 }
 
-/// A result searched beyond (`registration.correlative`): its plain fit score below `below_score`
-/// and fewer than `below_inliers` descriptor inliers.
+/// A result searched beyond (`registration.correlative`): its plain fit score below `below_score`,
+/// and fewer than `below_inliers` descriptor inliers unless its plain score is below
+/// `rich_below_score` or its common view ([`common_view`]) below `below_common_view`.
 fn weak_result(d: &RegistrationDetail, sets: &DenseSets<'_>, cfg: &RegistrationConfig) -> bool {
     d.plain_score < cfg.correlative.below_score
         && (d.result.inliers < cfg.correlative.below_inliers

@@ -244,19 +244,16 @@ pub struct SubmapConfig {
     /// Scans older than the newest one by more than this are dropped, s (default 3.0): a submap never
     /// spans a long stop in the data.
     pub max_span: f64,
-    /// Largest correction of the odometry's distances by the radars' Doppler, as a share (default 0 =
-    /// off; 0.1 is a sensible bound when on). Each scan's Doppler fit gives the body's speed over the
-    /// ground, independent of wheel radius or tyre wear; with the correction on, the submap's scans
-    /// are placed with the odometry's translations from the anchor scaled by the distance the
-    /// Doppler speeds integrate to over the distance the odometry moved ([`SpeedScale`]). A wheel
-    /// odometry 1 % long (the simulator's default drift) stretches a 72 km/h submap by 15 cm from end
-    /// to end, and two laps at different speeds are stretched differently: on the demo drive the
-    /// correction brings DC-Loc's median error from 0.065 to 0.058 m (README.md). It is off by
-    /// default because it moved the revisit gates: on `dc_loc revisits` it changed which first
-    /// closures get confirmed, with more false closures than without (README.md, Known gaps). A
-    /// ratio off 1 by more than the bound is refused (the odometry is then used as it is, and the
-    /// node counts it in its diagnostics): no odometry is that wrong, so the Doppler fit or the
-    /// radar's configuration is.
+    /// Largest correction of the odometry's distances by the radars' Doppler, as a share (default
+    /// 0.1; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
+    /// wheel radius or tyre wear; the submap's scans are placed with the odometry's translations
+    /// from the anchor scaled by the distance the Doppler speeds integrate to over the distance the
+    /// odometry moved ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift)
+    /// stretches a 72 km/h submap by 15 cm from end to end, and two laps at different speeds are
+    /// stretched differently: on the demo drive the correction brings DC-Loc's median error from
+    /// 0.065 to 0.058 m (README.md). A ratio off 1 by more than the bound is refused (the odometry
+    /// is then used as it is, and the node counts it in its diagnostics): no odometry is that
+    /// wrong, so the Doppler fit or the radar's configuration is.
     pub speed_scale_bound: f64,
 }
 
@@ -265,7 +262,7 @@ impl Default for SubmapConfig {
         SubmapConfig {
             size: 10,
             max_span: 3.0,
-            speed_scale_bound: 0.0,
+            speed_scale_bound: 0.1,
         }
     }
 }
@@ -849,7 +846,13 @@ mod tests {
     /// 4 % of its 7 m from the anchor off; the Doppler speeds scale the distances back.
     #[test]
     fn the_doppler_speeds_correct_the_odometry_distances() {
-        let off = circle_submap(10.4, SubmapConfig::default());
+        let off = circle_submap(
+            10.4,
+            SubmapConfig {
+                speed_scale_bound: 0.0,
+                ..ON
+            },
+        );
         assert_eq!(off.speed_scale, SpeedScale::Unavailable);
         let err_off = worst_error(&off, false);
         assert!(

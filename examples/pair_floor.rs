@@ -1,9 +1,10 @@
 //! Scratch: where DC-Loc's errors on the demo drive come from, pair by pair.
 //!
 //! `cargo run --release --example pair_floor [-- --nonoise] [--perfect-odom] [--persistent-cars]
-//! [--no-changing-cars]`: on the default drive (or without noise / with perfect odometry / with every
-//! changing parking slot's car made persistent, the same expected number of parked cars per lap /
-//! with the changing slots left empty), for every evaluation pair (`dc_loc eval`'s), the dense stage
+//! [--no-changing-cars] [--no-speed-scale]`: on the default drive (or without noise / with perfect
+//! odometry / with every changing parking slot's car made persistent, the same expected number of
+//! parked cars per lap / with the changing slots left empty / with the Doppler speed scale
+//! `submap.speed_scale_bound` off), for every evaluation pair (`dc_loc eval`'s), the dense stage
 //! started at the true pose (mean / median translation error: the estimator's own accuracy);
 //! DC-Loc's error over the pairs inside 2 m split along and across the query's heading, at the
 //! centroid of the query's points (a rotation error moves the origin by the centroid's lever arm) and
@@ -13,17 +14,21 @@
 //!
 //! Measured (mean / median; from the truth, then DC-Loc along / across the heading):
 //!
-//! | world                | from the truth  | along           | across          | inside 2 m |
-//! |----------------------|-----------------|-----------------|-----------------|-----------:|
-//! | default              | 0.071 / 0.062 m | 0.060 / 0.048 m | 0.032 / 0.027 m |    412/416 |
-//! | `--persistent-cars`  | 0.054 / 0.048 m | 0.042 / 0.036 m | 0.030 / 0.024 m |    416/416 |
-//! | `--no-changing-cars` | 0.055 / 0.048 m | 0.042 / 0.032 m | 0.030 / 0.025 m |    416/416 |
+//! | world                             | from the truth  | along           | across          | inside 2 m |
+//! |-----------------------------------|-----------------|-----------------|-----------------|-----------:|
+//! | default                           | 0.067 / 0.056 m | 0.056 / 0.040 m | 0.031 / 0.025 m |    412/416 |
+//! | `--perfect-odom`                  | 0.068 / 0.060 m | 0.061 / 0.042 m | 0.033 / 0.027 m |    410/416 |
+//! | `--persistent-cars`               | 0.048 / 0.045 m | 0.035 / 0.028 m | 0.030 / 0.025 m |    416/416 |
+//! | `--no-changing-cars`              | 0.050 / 0.045 m | 0.037 / 0.030 m | 0.029 / 0.024 m |    416/416 |
+//! | `--no-speed-scale`                | 0.071 / 0.062 m | 0.060 / 0.048 m | 0.032 / 0.027 m |    412/416 |
+//! | `--no-speed-scale --perfect-odom` | 0.068 / 0.059 m | 0.060 / 0.041 m | 0.033 / 0.027 m |    410/416 |
 //!
-//! On the default drive the error at the centroids (31 m out) is 0.072 / 0.061 m, the same as at the
-//! origin: the median is set by where along the street the submaps sit, not by the rotation's lever
-//! arm (0.0015 / 0.0012 rad). Cars that change between the laps cost about 14 mm of it, from the truth
-//! as much as from DC-Loc's own estimate, and fewer cars that stay do not: it is the changing ones,
-//! not the count.
+//! On the default drive the error at the centroids (31 m out) is 0.067 / 0.053 m, about the same as
+//! at the origin: the median is set by where along the street the submaps sit, not by the rotation's
+//! lever arm (0.0015 / 0.0012 rad). Cars that change between the laps cost about 11 mm of it, from
+//! the truth as much as from DC-Loc's own estimate, and fewer cars that stay do not: it is the
+//! changing ones, not the count. The odometry's 1 % scale error cost about 7 mm along the heading
+//! (0.048 against 0.041 m with perfect odometry); the Doppler speed scale takes it out (0.040 m).
 use dc_loc::eval::{Collector, EvalConfig, make_pairs};
 use dc_loc::registration::{PreparedSubmap, matching, overlap_near, ransac, register_detailed};
 use dc_loc::sim::{NoiseModel, SimConfig, config::OdometrySimConfig, simulate};
@@ -48,7 +53,10 @@ fn main() {
         cfg.world.parking.changing_fraction = 0.0;
     }
     let drive = simulate(&cfg).unwrap();
-    let pcfg = drive.to_config();
+    let mut pcfg = drive.to_config();
+    if args.iter().any(|a| a == "--no-speed-scale") {
+        pcfg.submap.speed_scale_bound = 0.0;
+    }
     let ecfg = EvalConfig::default();
     let mut col = Collector::new(&pcfg, &ecfg).unwrap();
     col.push_sim_drive(&drive).unwrap();

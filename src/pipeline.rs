@@ -199,7 +199,8 @@ pub struct LoopConfig {
     /// Metres of path back that a confirmation's searches again reach (default 500; at least
     /// `confirmation_horizon`). They walk back along the route, newest first: each closure they
     /// publish gives the alignment the next older keyframe is searched around, so a confirmation
-    /// that came late still closes the keyframes since the revisit began. Measured on `dc_loc
+    /// that came late still closes the keyframes since the revisit began. The walk stops where no
+    /// alignment is fresh enough to vouch (`trusted_prior_std`). Measured on `dc_loc
     /// revisits --radars nuscenes --noise student-t --drift 1 --direction same` with
     /// `submap.speed_scale_bound` 0.1, where the first closure was confirmed about 340 m into
     /// the revisit: recall 99.3 %, against 89.0 % with a reach of 150 m, 83.6 % without searching
@@ -1067,6 +1068,28 @@ impl Pipeline {
             let Some(rec) = self.db.get(id).cloned() else {
                 continue;
             };
+            // Only what agrees with a fresh alignment is published from here, and the keyframes
+            // queued after this one lie further back along the path: once no alignment is fresh
+            // enough to vouch (`loop.trusted_prior_std`), the rest are not searched.
+            let lc = &self.cfg.r#loop;
+            let chain = self.backfill_alignment.map(|(s, a, p)| (s, (a, p)));
+            let fresh = self
+                .alignments
+                .iter()
+                .map(|(&s, &v)| (s, v))
+                .filter(|(s, _)| chain.is_none_or(|(c, _)| c != *s))
+                .chain(chain)
+                .any(|(_, (_, path_a))| {
+                    alignment_sigmas(rec.path_distance - path_a, lc).0 <= lc.trusted_prior_std
+                });
+            if !fresh {
+                log::debug!(
+                    "keyframe {id} and {} older ones not searched again: no alignment is fresh enough there",
+                    self.backfill.len()
+                );
+                self.backfill.clear();
+                return;
+            }
             let prepared = match self.db.prepared(id as usize, &self.cfg.registration) {
                 Ok(p) => p,
                 Err(e) => {
@@ -1150,6 +1173,14 @@ impl Pipeline {
                 .unwrap_or(std::cmp::Ordering::Equal)
         });
         for (g, target) in passed {
+            if let Some(p) = &g.prediction {
+                if let Err((reason, detail)) =
+                    self.prediction_test(p, &g.closure, prepared, &target)
+                {
+                    self.reject(query.id, g.closure.match_id, reason, detail, out);
+                    continue;
+                }
+            }
             if let Some(s) = &g.slide {
                 if let Err((reason, detail)) = self.slide_test(s, prepared, &target) {
                     self.reject(query.id, g.closure.match_id, reason, detail, out);
@@ -1305,7 +1336,7 @@ impl Pipeline {
     }
 
     /// The gates, in order: registration, inliers, convergence, overlap, common view, ambiguity,
-    /// covariance, consistency, slide.
+    /// covariance, consistency, prediction (for closures that agree with a fresh alignment), slide.
     fn gate(
         &self,
         query: &KeyframeRecord,
@@ -1436,28 +1467,15 @@ impl Pipeline {
                         ),
                     ));
                 }
-            } else if agrees && lc.maximum_ambiguity < 1.0 {
-                // Published alone on the alignment's word: the prediction may be metres off, and a
-                // street slid by as much agrees with it too. The dense stage started at the
-                // prediction must end at the result, or where it ends must fit clearly worse.
-                if let Some(&(a, _)) = self.alignments.get(&cand.session) {
-                    let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
-                    let rc = &self.cfg.registration;
-                    if let Ok(Some((near, o))) = overlap_near(source, target, &predicted, rc) {
-                        if !rc.same_alignment(&near, t) && o > lc.maximum_ambiguity * r.overlap {
-                            let d = (near.translation.vector - t.translation.vector).norm();
-                            return Err((
-                                RejectReason::Ambiguous,
-                                format!(
-                                    "started at the accepted alignment's prediction it ends {d:.2} m away with overlap {o:.2} against {:.2}",
-                                    r.overlap
-                                ),
-                            ));
-                        }
-                    }
-                }
             }
         }
+        // A closure published alone on the alignment's word: the prediction may be metres off, and
+        // a street slid by as much agrees with it too (the prediction test, run by the caller on
+        // the best closures only, see [`Pipeline::prediction_test`]).
+        let prediction = (agrees && lc.maximum_ambiguity < 1.0)
+            .then(|| self.alignments.get(&cand.session))
+            .flatten()
+            .map(|&(a, _)| cand.t_odom_body.inverse() * a * query.t_odom_body);
         // The slide test (run by the caller on the best closures only, see [`Pipeline::slide_test`]):
         // for a session's first closures against `maximum_slide_ratio`; for the other closures that
         // wait for confirmation, a slid alignment must not fit better than the result (then the
@@ -1486,8 +1504,36 @@ impl Pipeline {
         Ok(Gated {
             closure,
             agrees,
+            prediction,
             slide,
         })
+    }
+
+    /// The prediction test of a closure that agrees with a fresh alignment and passed the other
+    /// gates: the dense stage started at the alignment's prediction must end at the result, or where
+    /// it ends must fit with at most `loop.maximum_ambiguity` of the result's overlap.
+    fn prediction_test(
+        &self,
+        predicted: &Iso2,
+        c: &LoopClosure,
+        source: &PreparedSubmap,
+        target: &PreparedSubmap,
+    ) -> Result<(), (RejectReason, String)> {
+        let rc = &self.cfg.registration;
+        let t = iso2_from_iso3(&c.t_match_query);
+        if let Ok(Some((near, o))) = overlap_near(source, target, predicted, rc) {
+            if !rc.same_alignment(&near, &t) && o > self.cfg.r#loop.maximum_ambiguity * c.score {
+                let d = (near.translation.vector - t.translation.vector).norm();
+                return Err((
+                    RejectReason::Ambiguous,
+                    format!(
+                        "started at the accepted alignment's prediction it ends {d:.2} m away with overlap {o:.2} against {:.2}",
+                        c.score
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// The slide test of a closure that passed the other gates ([`slide_overlap`], stopping at the
@@ -1585,6 +1631,8 @@ struct Gated {
     closure: LoopClosure,
     /// It agrees with a fresh accepted alignment (published alone).
     agrees: bool,
+    /// Where that alignment predicts the result, for the prediction test it still needs.
+    prediction: Option<Iso2>,
     /// The slide test it still needs.
     slide: Option<Slide>,
 }

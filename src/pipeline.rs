@@ -121,7 +121,8 @@ pub struct LoopConfig {
     /// at the prediction must end at the result, or where it ends must fit with at most this share
     /// of the result's overlap (with the Doppler speed scale on, one radar at 1 % drift published a
     /// closure slid 4.57 m along its street that agreed with a prediction from 60 m of path before;
-    /// the full `dc_loc revisits` matrix had 4 such at 1-3 % drift, none with the test). Without the third condition
+    /// the full `dc_loc revisits` matrix had 4 such at 1-3 % drift, none with the test; measured
+    /// while building, with no switch left in the code). Without the third condition
     /// one radar at 1 % drift published two closures slid 2.4 and 3.1 m along their street; without
     /// the first, tests/node.rs's drive published one 1.07 m off with a standard deviation of 0.27 m
     /// along the street (where the geometry is weak, the local optimum the prior picks is too).
@@ -173,7 +174,8 @@ pub struct LoopConfig {
     /// At least one of the closures that confirm each other must have this overlap (default 0.6;
     /// 0 disables): weak matches along an aliased street agree with each other as well as true
     /// ones do. Measured on `dc_loc revisits --radars nuscenes --noise gaussian,gamma,student-t
-    /// --drift 1,3,5` with `submap.speed_scale_bound` 0.1: the 4 false confirmations (at 5 %
+    /// --drift 1,3,5 -p loop.confirmation_overlap:=0` (debug log of the held closures' overlaps
+    /// against `--closures-out`): the 4 false confirmations (at 5 %
     /// drift, beyond the drift model; streets 147 m and 520-630 m away) had a best overlap of
     /// 0.45-0.55, the true ones 0.62-0.97 but for one of 0.47 (two closures within the first
     /// lap, closed later by others).
@@ -203,9 +205,11 @@ pub struct LoopConfig {
     /// alignment is fresh enough to vouch (`trusted_prior_std`). Measured on `dc_loc
     /// revisits --radars nuscenes --noise student-t --drift 1 --direction same` with
     /// `submap.speed_scale_bound` 0.1, where the first closure was confirmed about 340 m into
-    /// the revisit: recall 99.3 %, against 89.0 % with a reach of 150 m, 83.6 % without searching
-    /// again, and 84.3 % before the walk back (150 m around the confirmation's alignment alone;
-    /// `tests/revisits.rs`). Over the full matrix it raised recall in 13 of the 36 scenarios and
+    /// the revisit: recall 99.3 %, against 89.0 % with `-p loop.backfill_horizon:=150` (the only
+    /// row of the full matrix that changes) and 83.6 % without searching again
+    /// (`loop.backfill_per_keyframe` 0; `tests/revisits.rs`). Walking back from each closure found
+    /// rather than searching around the confirmation's alignment alone (measured while building,
+    /// with no switch left in the code) raised recall in 13 of the matrix's 36 scenarios and
     /// lowered it in none, with no false closure added.
     pub backfill_horizon: f64,
     /// Let the registration of revisit candidates run its correlative search
@@ -278,27 +282,27 @@ impl LoopConfig {
         if self.confirmations == 0 {
             return Err(ConfigError::new(name("confirmations"), "must be >= 1"));
         }
-        if !(self.backfill_horizon.is_finite()
-            && self.backfill_horizon >= self.confirmation_horizon)
-        {
-            return Err(ConfigError::new(
-                name("backfill_horizon"),
-                format!(
-                    "{} must be finite and >= confirmation_horizon ({})",
-                    self.backfill_horizon, self.confirmation_horizon
-                ),
-            ));
-        }
-        if !(self.confirmation_horizon.is_finite()
-            && self.confirmation_horizon >= self.confirmation_span)
-        {
-            return Err(ConfigError::new(
-                name("confirmation_horizon"),
-                format!(
-                    "{} must be finite and >= confirmation_span ({})",
-                    self.confirmation_horizon, self.confirmation_span
-                ),
-            ));
+        // Each horizon reaches at least as far as the one before it.
+        for (f, v, floor_name, floor) in [
+            (
+                "confirmation_horizon",
+                self.confirmation_horizon,
+                "confirmation_span",
+                self.confirmation_span,
+            ),
+            (
+                "backfill_horizon",
+                self.backfill_horizon,
+                "confirmation_horizon",
+                self.confirmation_horizon,
+            ),
+        ] {
+            if !(v.is_finite() && v >= floor) {
+                return Err(ConfigError::new(
+                    name(f),
+                    format!("{v} must be finite and >= {floor_name} ({floor})"),
+                ));
+            }
         }
         if !(self.search_radius_max.is_finite() && self.search_radius_max >= self.search_radius) {
             return Err(ConfigError::new(
@@ -1068,28 +1072,6 @@ impl Pipeline {
             let Some(rec) = self.db.get(id).cloned() else {
                 continue;
             };
-            // Only what agrees with a fresh alignment is published from here, and the keyframes
-            // queued after this one lie further back along the path: once no alignment is fresh
-            // enough to vouch (`loop.trusted_prior_std`), the rest are not searched.
-            let lc = &self.cfg.r#loop;
-            let chain = self.backfill_alignment.map(|(s, a, p)| (s, (a, p)));
-            let fresh = self
-                .alignments
-                .iter()
-                .map(|(&s, &v)| (s, v))
-                .filter(|(s, _)| chain.is_none_or(|(c, _)| c != *s))
-                .chain(chain)
-                .any(|(_, (_, path_a))| {
-                    alignment_sigmas(rec.path_distance - path_a, lc).0 <= lc.trusted_prior_std
-                });
-            if !fresh {
-                log::debug!(
-                    "keyframe {id} and {} older ones not searched again: no alignment is fresh enough there",
-                    self.backfill.len()
-                );
-                self.backfill.clear();
-                return;
-            }
             let prepared = match self.db.prepared(id as usize, &self.cfg.registration) {
                 Ok(p) => p,
                 Err(e) => {
@@ -1102,12 +1084,32 @@ impl Pipeline {
             let newest = self
                 .backfill_alignment
                 .map(|(s, a, p)| (s, self.alignments.insert(s, (a, p))));
-            let published = self.search_revisits(&rec, &prepared, true, out);
+            // Only what agrees with a fresh alignment is published from here, and the keyframes
+            // queued after this one lie further back along the path: once no alignment is fresh
+            // enough to vouch (`loop.trusted_prior_std`), the rest are not searched.
+            let lc = &self.cfg.r#loop;
+            let fresh = self
+                .alignments
+                .values()
+                .any(|&(_, path_a)| vouches(rec.path_distance - path_a, lc));
+            let published = if fresh {
+                self.search_revisits(&rec, &prepared, true, out)
+            } else {
+                None
+            };
             if let Some((s, before)) = newest {
                 match before {
                     Some(v) => self.alignments.insert(s, v),
                     None => self.alignments.remove(&s),
                 };
+            }
+            if !fresh {
+                log::debug!(
+                    "keyframe {id} and {} older ones not searched again: no alignment is fresh enough there",
+                    self.backfill.len()
+                );
+                self.backfill.clear();
+                return;
             }
             if let Some(c) = published {
                 if let Some((s, a)) = self.closure_alignment(&rec, &c) {
@@ -1270,13 +1272,18 @@ impl Pipeline {
                 );
                 // The keyframes before the confirmation that got nothing are searched again (not
                 // even at the end of a bag when `backfill_per_keyframe` is 0).
-                let queued = self.unclosed.iter().rev().map(|&(id, _)| id);
-                let queued: Vec<u64> = queued
-                    .filter(|id| *id != query.id && publish.iter().all(|p| p.query_id != *id))
-                    .filter(|_| self.cfg.r#loop.backfill_per_keyframe > 0)
-                    .collect();
-                self.unclosed.clear();
-                self.backfill = queued.into();
+                let unclosed = std::mem::take(&mut self.unclosed);
+                self.backfill = if self.cfg.r#loop.backfill_per_keyframe > 0 {
+                    let done = |id: u64| id == query.id || publish.iter().any(|p| p.query_id == id);
+                    unclosed
+                        .iter()
+                        .rev()
+                        .map(|&(id, _)| id)
+                        .filter(|&id| !done(id))
+                        .collect()
+                } else {
+                    VecDeque::new()
+                };
                 self.backfill_alignment = Some((session, a, query.path_distance));
             } else {
                 log::debug!(
@@ -1379,9 +1386,7 @@ impl Pipeline {
         let trusted = self
             .alignments
             .get(&cand.session)
-            .is_some_and(|&(_, path_a)| {
-                alignment_sigmas(query.path_distance - path_a, lc).0 <= lc.trusted_prior_std
-            });
+            .is_some_and(|&(_, path_a)| vouches(query.path_distance - path_a, lc));
         if lc.maximum_ambiguity < 1.0 && r.runner_up_overlap > lc.maximum_ambiguity * r.overlap {
             // The submaps cannot tell the alignments apart; a fresh accepted alignment can, when the
             // result is well determined where it is (translation standard deviation at most half the
@@ -1399,7 +1404,7 @@ impl Pipeline {
                     .filter(|a| a.1 > lc.maximum_ambiguity * r.overlap)
                     .all(|(t, _)| d2(t).is_some_and(|d| d > chi2))
                 && self.alignments.get(&cand.session).is_some_and(|&(a, _)| {
-                    let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
+                    let predicted = predict(&a, query, cand);
                     let rc = &self.cfg.registration;
                     overlap_near(source, target, &predicted, rc).is_ok_and(|near| {
                         near.is_some_and(|(t, _)| rc.same_alignment(&t, &r.t_target_source))
@@ -1442,7 +1447,7 @@ impl Pipeline {
                 // Does the accepted alignment's prediction fit the submaps nearly as well? Then the
                 // scene aliases (a street sliding along itself) and the prior decides: reject.
                 if let Some(&(a, _)) = self.alignments.get(&cand.session) {
-                    let predicted = cand.t_odom_body.inverse() * a * query.t_odom_body;
+                    let predicted = predict(&a, query, cand);
                     if let Ok(Some((_, o))) =
                         overlap_near(source, target, &predicted, &self.cfg.registration)
                     {
@@ -1475,7 +1480,7 @@ impl Pipeline {
         let prediction = (agrees && lc.maximum_ambiguity < 1.0)
             .then(|| self.alignments.get(&cand.session))
             .flatten()
-            .map(|&(a, _)| cand.t_odom_body.inverse() * a * query.t_odom_body);
+            .map(|(a, _)| predict(a, query, cand));
         // The slide test (run by the caller on the best closures only, see [`Pipeline::slide_test`]):
         // for a session's first closures against `maximum_slide_ratio`; for the other closures that
         // wait for confirmation, a slid alignment must not fit better than the result (then the
@@ -1589,7 +1594,7 @@ impl Pipeline {
             ),
             None => return None,
         };
-        let predicted = cand.t_odom_body.inverse() * alignment * query.t_odom_body;
+        let predicted = predict(&alignment, query, cand);
         let e = se2_log(&(t.inverse() * predicted));
         let (sigma_t, sigma_r) = if from_alignment {
             alignment_sigmas(path_gap, lc)
@@ -1617,6 +1622,18 @@ impl Pipeline {
         let inv = cov.try_inverse()?;
         Some(e.dot(&(inv * e)))
     }
+}
+
+/// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
+/// predicts.
+fn predict(alignment: &Iso2, query: &KeyframeRecord, cand: &KeyframeRecord) -> Iso2 {
+    cand.t_odom_body.inverse() * alignment * query.t_odom_body
+}
+
+/// Whether an accepted alignment found `path_gap` metres of path away is fresh enough to vouch for
+/// a closure alone (`loop.trusted_prior_std`).
+fn vouches(path_gap: f64, lc: &LoopConfig) -> bool {
+    alignment_sigmas(path_gap, lc).0 <= lc.trusted_prior_std
 }
 
 /// Largest translation standard deviation of a covariance in ROS order (largest eigenvalue of its x-y
@@ -1706,6 +1723,31 @@ mod tests {
         events
             .iter()
             .any(|e| matches!(e, Event::Dropped { reason: r, .. } if *r == reason))
+    }
+
+    /// Each horizon must reach at least as far as the one before it, and the error names the
+    /// parameter.
+    #[test]
+    fn loop_horizons_are_ordered() {
+        let lc = LoopConfig::default();
+        assert!(lc.validate("loop").is_ok());
+        let short = LoopConfig {
+            backfill_horizon: lc.confirmation_horizon - 1.0,
+            ..lc.clone()
+        };
+        let e = short
+            .validate("loop")
+            .expect_err("shorter than confirmation_horizon");
+        assert!(e.to_string().contains("loop.backfill_horizon"), "{e}");
+        let short = LoopConfig {
+            confirmation_horizon: lc.confirmation_span - 1.0,
+            backfill_horizon: lc.confirmation_span - 1.0,
+            ..lc
+        };
+        let e = short
+            .validate("loop")
+            .expect_err("shorter than confirmation_span");
+        assert!(e.to_string().contains("loop.confirmation_horizon"), "{e}");
     }
 
     #[test]

@@ -9,13 +9,7 @@ use std::process::Command;
 
 #[test]
 fn five_radars_same_direction_one_percent_drift_no_false_closure() {
-    let scenario = RevisitScenario {
-        radars: RadarPreset::Nuscenes,
-        noise: NoiseModel::Gaussian,
-        drift: 0.01,
-        reverse: false,
-        seed: 1,
-    };
+    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!(
         "{}: {:?}; missed {:?}; rejected {:?}",
@@ -40,13 +34,7 @@ fn five_radars_same_direction_one_percent_drift_no_false_closure() {
 /// with the defaults, 89.0 % when the searches again reach 150 m back, 83.6 % without them).
 #[test]
 fn searching_keyframes_again_after_a_confirmation_adds_true_closures() {
-    let scenario = RevisitScenario {
-        radars: RadarPreset::Nuscenes,
-        noise: NoiseModel::StudentT,
-        drift: 0.01,
-        reverse: false,
-        seed: 1,
-    };
+    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.01, false);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let short =
         evaluate_scenario(&scenario, |c| c.r#loop.backfill_horizon = 150.0).expect("scenario runs");
@@ -73,13 +61,7 @@ fn searching_keyframes_again_after_a_confirmation_adds_true_closures() {
 /// closure may be published there (before `loop.minimum_common_view`, 5 of 12 were false).
 #[test]
 fn one_forward_radar_reverse_lap_no_false_closure() {
-    let scenario = RevisitScenario {
-        radars: RadarPreset::Carla,
-        noise: NoiseModel::Gaussian,
-        drift: 0.01,
-        reverse: true,
-        seed: 1,
-    };
+    let scenario = scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.01, true);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.reverse, r.rejected);
     assert!(r.reverse.opportunities > 300, "{:?}", r.reverse);
@@ -97,13 +79,7 @@ fn one_forward_radar_reverse_lap_no_false_closure() {
 /// published (with the Doppler speed scale of `submap.speed_scale_bound`).
 #[test]
 fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
-    let scenario = RevisitScenario {
-        radars: RadarPreset::Carla,
-        noise: NoiseModel::Gamma,
-        drift: 0.01,
-        reverse: false,
-        seed: 1,
-    };
+    let scenario = scenario(RadarPreset::Carla, NoiseModel::Gamma, 0.01, false);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.same, r.rejected);
     assert!(r.same.opportunities > 300, "{:?}", r.same);
@@ -115,13 +91,7 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
 /// 147 m away confirm each other; `loop.confirmation_overlap` wants one strong match among them.
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
-    let scenario = RevisitScenario {
-        radars: RadarPreset::Nuscenes,
-        noise: NoiseModel::Gaussian,
-        drift: 0.05,
-        reverse: true,
-        seed: 1,
-    };
+    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.05, true);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirmation_overlap = 0.0)
         .expect("scenario runs");
@@ -155,6 +125,17 @@ fn the_revisits_command_rejects_bad_arguments() {
         .expect("runs");
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("maximum_ambiguity"));
+}
+
+/// A simulated drive of `dc_loc revisits` (seed 1).
+fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -> RevisitScenario {
+    RevisitScenario {
+        radars,
+        noise,
+        drift,
+        reverse,
+        seed: 1,
+    }
 }
 
 /// Every published closure lies within 2 m of the ground truth.

@@ -11,28 +11,10 @@ use crate::radar::RadarNoise;
 use crate::radar::ego_motion::EgoMotionConfig;
 use crate::registration::RegistrationConfig;
 use crate::submap::{OdometryConfig, SubmapConfig};
+pub use crate::validate::ConfigError;
+use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// A configuration value that cannot be used, with the dotted parameter name.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("invalid parameter `{name}`: {reason}")]
-pub struct ConfigError {
-    /// Dotted parameter name, as in the params YAML (e.g. `radars.front.beta`).
-    pub name: String,
-    /// What is wrong with it.
-    pub reason: String,
-}
-
-impl ConfigError {
-    /// Shorthand constructor.
-    pub fn new(name: impl Into<String>, reason: impl Into<String>) -> Self {
-        ConfigError {
-            name: name.into(),
-            reason: reason.into(),
-        }
-    }
-}
 
 /// Names of the PointCloud2 fields a radar driver publishes.
 ///
@@ -125,65 +107,43 @@ impl RadarConfig {
         }
     }
 
-    fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        let name = |f: &str| format!("{prefix}.{f}");
-        if self.topic.is_empty() {
-            return Err(ConfigError::new(name("topic"), "must not be empty"));
-        }
-        if let Some(i) = self.extrinsic.iter().position(|v| !v.is_finite()) {
-            return Err(ConfigError::new(
-                name("extrinsic"),
-                format!("element {i} is not finite"),
-            ));
-        }
-        if !(self.beta.is_finite() && self.beta >= 0.0 && self.beta < 1.0) {
-            return Err(ConfigError::new(
-                name("beta"),
-                format!("{} is not in [0, 1) s", self.beta),
-            ));
-        }
-        for (f, v) in [
-            ("sigma_range", self.sigma_range),
-            ("sigma_velocity", self.sigma_velocity),
-            ("sigma_azimuth", self.sigma_azimuth),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    name(f),
-                    format!("{v} must be finite and > 0"),
-                ));
-            }
-        }
-        let fl = &self.fields;
-        if fl.x.is_empty() || fl.y.is_empty() {
-            return Err(ConfigError::new(
-                name("fields.x/y"),
-                "x and y field names are required",
-            ));
-        }
-        let vector = !fl.velocity_x.is_empty() || !fl.velocity_y.is_empty();
-        match (fl.velocity.is_empty(), vector) {
-            (false, true) => {
-                return Err(ConfigError::new(
-                    name("fields.velocity"),
-                    "give either a scalar `velocity` field or `velocity_x`/`velocity_y`, not both",
-                ));
-            }
-            (true, false) => {
-                return Err(ConfigError::new(
-                    name("fields.velocity"),
-                    "a radial velocity field is required (`velocity`, or `velocity_x` and `velocity_y`)",
-                ));
-            }
-            (true, true) if fl.velocity_x.is_empty() || fl.velocity_y.is_empty() => {
-                return Err(ConfigError::new(
-                    name("fields.velocity_x"),
-                    "both `velocity_x` and `velocity_y` are needed",
-                ));
-            }
-            _ => {}
-        }
-        Ok(())
+    /// Declares each field's range and rule (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.require("topic", !self.topic.is_empty(), || {
+            "must not be empty".into()
+        });
+        let bad = self.extrinsic.iter().position(|x| !x.is_finite());
+        v.require("extrinsic", bad.is_none(), || {
+            format!("element {} is not finite", bad.unwrap_or_default())
+        });
+        v.range("beta", self.beta, Range::NON_NEGATIVE.below(1.0));
+        v.positive("sigma_range", self.sigma_range);
+        v.positive("sigma_velocity", self.sigma_velocity);
+        v.positive("sigma_azimuth", self.sigma_azimuth);
+        v.section("fields", |v| self.fields.check(v));
+    }
+}
+
+impl FieldsConfig {
+    /// Coordinates are required, and the radial velocity as one scalar field or as a vector.
+    pub fn check(&self, v: &mut Validator) {
+        v.require("x", !self.x.is_empty() && !self.y.is_empty(), || {
+            "x and y field names are required".into()
+        });
+        let scalar = !self.velocity.is_empty();
+        let vector = !self.velocity_x.is_empty() || !self.velocity_y.is_empty();
+        v.require("velocity", !(scalar && vector), || {
+            "give either a scalar `velocity` field or `velocity_x`/`velocity_y`, not both".into()
+        });
+        v.require("velocity", scalar || vector, || {
+            "a radial velocity field is required (`velocity`, or `velocity_x` and `velocity_y`)"
+                .into()
+        });
+        v.require(
+            "velocity_x",
+            scalar || !vector || !(self.velocity_x.is_empty() || self.velocity_y.is_empty()),
+            || "both `velocity_x` and `velocity_y` are needed".into(),
+        );
     }
 }
 
@@ -247,44 +207,50 @@ impl Config {
 
     /// Rejects values that cannot work; the error names the parameter.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        if self.body_frame.is_empty() {
-            return Err(ConfigError::new("body_frame", "must not be empty"));
-        }
-        if self.radar_names.is_empty() {
-            return Err(ConfigError::new(
-                "radar_names",
-                "at least one radar is required",
-            ));
-        }
+        let mut v = Validator::new();
+        self.check(&mut v);
+        v.finish()
+    }
+
+    /// Every numeric parameter's range, by dotted name (radars as configured).
+    pub fn ranges(&self) -> Vec<(String, Range)> {
+        let mut v = Validator::describing();
+        self.check(&mut v);
+        v.ranges().to_vec()
+    }
+
+    /// Declares every section's ranges and rules (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.require("body_frame", !self.body_frame.is_empty(), || {
+            "must not be empty".into()
+        });
+        v.require("radar_names", !self.radar_names.is_empty(), || {
+            "at least one radar is required".into()
+        });
         for (i, n) in self.radar_names.iter().enumerate() {
-            if self.radar_names[..i].contains(n) {
-                return Err(ConfigError::new(
-                    "radar_names",
-                    format!("`{n}` is listed twice"),
-                ));
+            v.require("radar_names", !self.radar_names[..i].contains(n), || {
+                format!("`{n}` is listed twice")
+            });
+            match self.radars.get(n) {
+                Some(r) => v.section(&format!("radars.{n}"), |v| r.check(v)),
+                None => v.require(&format!("radars.{n}"), false, || {
+                    "listed in radar_names but not configured".into()
+                }),
             }
-            let Some(r) = self.radars.get(n) else {
-                return Err(ConfigError::new(
-                    format!("radars.{n}"),
-                    "listed in radar_names but not configured",
-                ));
-            };
-            r.validate(&format!("radars.{n}"))?;
         }
         if let Some(extra) = self.radars.keys().find(|k| !self.radar_names.contains(k)) {
-            return Err(ConfigError::new(
-                format!("radars.{extra}"),
-                "configured but not listed in radar_names",
-            ));
+            v.require(&format!("radars.{extra}"), false, || {
+                "configured but not listed in radar_names".into()
+            });
         }
-        self.odometry.validate("odometry")?;
-        self.ego_motion.validate("ego_motion")?;
-        self.submap.validate("submap")?;
-        self.keyframe.validate("keyframe")?;
-        self.r#loop.validate("loop")?;
-        self.place.validate("place")?;
-        self.map.validate("map")?;
-        self.registration.validate()
+        v.section("odometry", |v| self.odometry.check(v));
+        v.section("ego_motion", |v| self.ego_motion.check(v));
+        v.section("submap", |v| self.submap.check(v));
+        v.section("keyframe", |v| self.keyframe.check(v));
+        v.section("loop", |v| self.r#loop.check(v));
+        v.section("place", |v| self.place.check(v));
+        v.section("map", |v| self.map.check(v));
+        v.section("registration", |v| self.registration.check(v));
     }
 }
 

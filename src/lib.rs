@@ -26,3 +26,4 @@ pub mod ros;
 pub mod runner;
 pub mod sim;
 pub mod submap;
+pub mod validate;

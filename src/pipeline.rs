@@ -10,7 +10,7 @@
 //! [`MapConfig`], [`PipelineStats`]; the keyframe map is [`crate::keyframe_db`].
 
 use crate::cloud::decode_detections;
-use crate::config::{Config, ConfigError};
+use crate::config::Config;
 use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord, SearchSettings};
 use crate::math::{Iso2, Iso3, Mat3, Mat6, Stamp, iso2_from_iso3, iso3_from_iso2};
 use crate::msgs::sensor_msgs::PointCloud2;
@@ -22,6 +22,7 @@ use crate::registration::{
     register_prepared, slide_overlap,
 };
 use crate::submap::{OdometryBuffer, OdometryError, SpeedScale, Submap, SubmapBuilder};
+use crate::validate::{ConfigError, Range, Validator};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, VecDeque};
@@ -50,27 +51,11 @@ impl Default for KeyframeConfig {
 }
 
 impl KeyframeConfig {
-    /// Rejects unusable values, naming the parameter under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        if !(self.distance.is_finite() && self.distance > 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.distance"),
-                "must be > 0 m",
-            ));
-        }
-        if !(self.angle.is_finite() && self.angle > 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.angle"),
-                "must be > 0 rad",
-            ));
-        }
-        if self.min_points < 10 {
-            return Err(ConfigError::new(
-                format!("{prefix}.min_points"),
-                "must be at least 10",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("distance", self.distance);
+        v.positive("angle", self.angle);
+        v.at_least("min_points", self.min_points, 10);
     }
 }
 
@@ -255,110 +240,41 @@ impl Default for LoopConfig {
 }
 
 impl LoopConfig {
-    /// Rejects unusable values, naming the parameter under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        let name = |f: &str| format!("{prefix}.{f}");
-        for (f, v) in [
-            ("search_radius", self.search_radius),
-            ("trusted_prior_std", self.trusted_prior_std),
-            ("maximum_translation_std", self.maximum_translation_std),
-            ("maximum_rotation_std", self.maximum_rotation_std),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(name(f), format!("{v} must be > 0")));
-            }
-        }
-        for (f, v) in [
-            ("drift_rate", self.drift_rate),
-            ("drift_yaw_rate", self.drift_yaw_rate),
-            ("minimum_path_gap", self.minimum_path_gap),
-            ("consistency_chi2", self.consistency_chi2),
-            ("confirmation_span", self.confirmation_span),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(ConfigError::new(name(f), format!("{v} must be >= 0")));
-            }
-        }
-        if self.confirmations == 0 {
-            return Err(ConfigError::new(name("confirmations"), "must be >= 1"));
-        }
-        // Each horizon reaches at least as far as the one before it.
-        for (f, v, floor_name, floor) in [
-            (
-                "confirmation_horizon",
-                self.confirmation_horizon,
-                "confirmation_span",
-                self.confirmation_span,
-            ),
-            (
-                "backfill_horizon",
-                self.backfill_horizon,
-                "confirmation_horizon",
-                self.confirmation_horizon,
-            ),
-        ] {
-            if !(v.is_finite() && v >= floor) {
-                return Err(ConfigError::new(
-                    name(f),
-                    format!("{v} must be finite and >= {floor_name} ({floor})"),
-                ));
-            }
-        }
-        if !(self.search_radius_max.is_finite() && self.search_radius_max >= self.search_radius) {
-            return Err(ConfigError::new(
-                name("search_radius_max"),
-                "must be >= search_radius",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.place_maximum_distance) {
-            return Err(ConfigError::new(
-                name("place_maximum_distance"),
-                "must be in [0, 1]",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.confirmation_overlap) {
-            return Err(ConfigError::new(
-                name("confirmation_overlap"),
-                format!("{} must be in 0..1", self.confirmation_overlap),
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.minimum_common_view) {
-            return Err(ConfigError::new(
-                name("minimum_common_view"),
-                "must be in [0, 1]",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.maximum_slide_ratio) {
-            return Err(ConfigError::new(
-                name("maximum_slide_ratio"),
-                "must be in [0, 1]",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.maximum_ambiguity) {
-            return Err(ConfigError::new(
-                name("maximum_ambiguity"),
-                "must be in [0, 1]",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.minimum_overlap) {
-            return Err(ConfigError::new(
-                name("minimum_overlap"),
-                "must be in [0, 1]",
-            ));
-        }
-        if self.maximum_candidates == 0 {
-            return Err(ConfigError::new(
-                name("maximum_candidates"),
-                "must be at least 1",
-            ));
-        }
-        if self.minimum_inliers < 3 {
-            return Err(ConfigError::new(
-                name("minimum_inliers"),
-                "must be at least 3",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range; each horizon reaches at least as far as the one before it.
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("search_radius", self.search_radius);
+        v.positive("trusted_prior_std", self.trusted_prior_std);
+        v.positive("maximum_translation_std", self.maximum_translation_std);
+        v.positive("maximum_rotation_std", self.maximum_rotation_std);
+        v.non_negative("drift_rate", self.drift_rate);
+        v.non_negative("drift_yaw_rate", self.drift_yaw_rate);
+        v.non_negative("minimum_path_gap", self.minimum_path_gap);
+        v.non_negative("consistency_chi2", self.consistency_chi2);
+        v.non_negative("confirmation_span", self.confirmation_span);
+        v.at_least("confirmations", self.confirmations, 1);
+        v.range(
+            "confirmation_horizon",
+            self.confirmation_horizon,
+            Range::at_least(self.confirmation_span),
+        );
+        v.range(
+            "backfill_horizon",
+            self.backfill_horizon,
+            Range::at_least(self.confirmation_horizon),
+        );
+        v.range(
+            "search_radius_max",
+            self.search_radius_max,
+            Range::at_least(self.search_radius),
+        );
+        v.unit("place_maximum_distance", self.place_maximum_distance);
+        v.unit("confirmation_overlap", self.confirmation_overlap);
+        v.unit("minimum_common_view", self.minimum_common_view);
+        v.unit("maximum_slide_ratio", self.maximum_slide_ratio);
+        v.unit("maximum_ambiguity", self.maximum_ambiguity);
+        v.unit("minimum_overlap", self.minimum_overlap);
+        v.at_least("maximum_candidates", self.maximum_candidates, 1);
+        v.at_least("minimum_inliers", self.minimum_inliers, 3);
     }
 
     /// The candidate-search view of these settings.
@@ -407,27 +323,11 @@ impl Default for MapConfig {
 }
 
 impl MapConfig {
-    /// Rejects unusable values, naming the parameter under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        if !(self.save_interval.is_finite() && self.save_interval > 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.save_interval"),
-                "must be > 0 s",
-            ));
-        }
-        if self.max_points_per_keyframe < 10 {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_points_per_keyframe"),
-                "must be at least 10",
-            ));
-        }
-        if self.prepared_cache == 0 {
-            return Err(ConfigError::new(
-                format!("{prefix}.prepared_cache"),
-                "must be at least 1",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("save_interval", self.save_interval);
+        v.at_least("max_points_per_keyframe", self.max_points_per_keyframe, 10);
+        v.at_least("prepared_cache", self.prepared_cache, 1);
     }
 }
 
@@ -1729,24 +1629,25 @@ mod tests {
     /// parameter.
     #[test]
     fn loop_horizons_are_ordered() {
+        let validate = |lc: &LoopConfig| {
+            let mut v = Validator::at("loop");
+            lc.check(&mut v);
+            v.finish()
+        };
         let lc = LoopConfig::default();
-        assert!(lc.validate("loop").is_ok());
+        assert!(validate(&lc).is_ok());
         let short = LoopConfig {
             backfill_horizon: lc.confirmation_horizon - 1.0,
             ..lc.clone()
         };
-        let e = short
-            .validate("loop")
-            .expect_err("shorter than confirmation_horizon");
+        let e = validate(&short).expect_err("shorter than confirmation_horizon");
         assert!(e.to_string().contains("loop.backfill_horizon"), "{e}");
         let short = LoopConfig {
             confirmation_horizon: lc.confirmation_span - 1.0,
             backfill_horizon: lc.confirmation_span - 1.0,
             ..lc
         };
-        let e = short
-            .validate("loop")
-            .expect_err("shorter than confirmation_span");
+        let e = validate(&short).expect_err("shorter than confirmation_span");
         assert!(e.to_string().contains("loop.confirmation_horizon"), "{e}");
     }
 

@@ -10,9 +10,9 @@
 //! Entry points: [`PlaceConfig`], [`PlaceDescriptor::from_points`], [`PlaceDescriptor::distance`],
 //! [`PlaceIndex`] (insert, query).
 
-use crate::config::ConfigError;
 use crate::growing_index::GrowingIndex;
 use crate::math::Vec2;
+use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
 
 /// Ring-key dimension (fixed: kiddo's dimension is a compile-time constant).
@@ -41,27 +41,11 @@ impl Default for PlaceConfig {
 }
 
 impl PlaceConfig {
-    /// Rejects unusable values, naming the field under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        if !(self.max_range.is_finite() && self.max_range > 1.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_range"),
-                "must be > 1 m",
-            ));
-        }
-        if !(8..=360).contains(&self.sectors) {
-            return Err(ConfigError::new(
-                format!("{prefix}.sectors"),
-                "must be in 8..=360",
-            ));
-        }
-        if self.retrieve == 0 {
-            return Err(ConfigError::new(
-                format!("{prefix}.retrieve"),
-                "must be at least 1",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.range("max_range", self.max_range, Range::above(1.0));
+        v.count("sectors", self.sectors, 8, 360);
+        v.at_least("retrieve", self.retrieve, 1);
     }
 }
 

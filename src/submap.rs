@@ -9,12 +9,12 @@
 //! radar). Each scan is placed with the odometry pose interpolated at its own stamp, and the submap is
 //! expressed in the body frame at the newest scan's stamp (its *anchor*).
 
-use crate::config::ConfigError;
 use crate::math::{Iso3, Mat3, Stamp, Vec3, interpolate_iso3};
 use crate::radar::RadarScan;
 use crate::radar::doppler::{BodyPoint, RadarModel};
 use crate::radar::ego_motion::{EgoMotionConfig, FitDims, fit_radar_velocity, static_mask};
 use crate::registration::PointSet2;
+use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -84,29 +84,14 @@ impl Default for OdometryConfig {
 }
 
 impl OdometryConfig {
-    /// Rejects unusable values, naming the parameter under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        if self.topic.is_empty() {
-            return Err(ConfigError::new(
-                format!("{prefix}.topic"),
-                "must not be empty",
-            ));
-        }
-        for (f, v) in [
-            ("buffer_duration", self.buffer_duration),
-            ("max_gap", self.max_gap),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(format!("{prefix}.{f}"), "must be > 0 s"));
-            }
-        }
-        if !(self.max_extrapolation.is_finite() && self.max_extrapolation >= 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_extrapolation"),
-                "must be >= 0 s",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.require("topic", !self.topic.is_empty(), || {
+            "must not be empty".into()
+        });
+        v.positive("buffer_duration", self.buffer_duration);
+        v.positive("max_gap", self.max_gap);
+        v.non_negative("max_extrapolation", self.max_extrapolation);
     }
 }
 
@@ -268,27 +253,15 @@ impl Default for SubmapConfig {
 }
 
 impl SubmapConfig {
-    /// Rejects unusable values, naming the parameter under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        if self.size == 0 || self.size > 1000 {
-            return Err(ConfigError::new(
-                format!("{prefix}.size"),
-                "must be in 1..=1000 scans",
-            ));
-        }
-        if !(self.max_span.is_finite() && self.max_span > 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_span"),
-                "must be > 0 s",
-            ));
-        }
-        if !(self.speed_scale_bound.is_finite() && (0.0..1.0).contains(&self.speed_scale_bound)) {
-            return Err(ConfigError::new(
-                format!("{prefix}.speed_scale_bound"),
-                "must be in [0, 1)",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.count("size", self.size, 1, 1000);
+        v.positive("max_span", self.max_span);
+        v.range(
+            "speed_scale_bound",
+            self.speed_scale_bound,
+            Range::NON_NEGATIVE.below(1.0),
+        );
     }
 }
 

@@ -57,11 +57,11 @@
 //! estimating from uncorrected scans, as METHOD.md and the evaluation brief prescribe, is the simpler
 //! variant. Both estimate the speed from distorted data.
 
-use super::{IcpConfig, positive, register_icp};
-use crate::config::ConfigError;
+use super::{IcpConfig, register_icp};
 use crate::math::{Iso2, Iso3, Stamp, Vec2, Vec3};
 use crate::radar::Detection;
 use crate::registration::{PointSet2, RegistrationError, RegistrationResult};
+use crate::validate::{ConfigError, Validator};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -93,25 +93,18 @@ impl Default for McRansacConfig {
 }
 
 impl McRansacConfig {
-    /// Rejects values that cannot work; the error names the parameter (`baselines.mc_ransac.<field>`).
+    /// Rejects unusable values, naming them `baselines.mc_ransac.*`.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.icp.validate().map_err(|e| {
-            ConfigError::new(
-                e.name
-                    .replacen("baselines.icp", "baselines.mc_ransac.icp", 1),
-                e.reason,
-            )
-        })?;
-        if self.baseline_scans == 0 {
-            return Err(ConfigError::new(
-                "baselines.mc_ransac.baseline_scans",
-                "must be at least 1",
-            ));
-        }
-        positive(
-            "baselines.mc_ransac.max_scan_interval",
-            self.max_scan_interval,
-        )
+        let mut v = Validator::at("baselines.mc_ransac");
+        self.check(&mut v);
+        v.finish()
+    }
+
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.section("icp", |v| self.icp.check(v));
+        v.at_least("baseline_scans", self.baseline_scans, 1);
+        v.positive("max_scan_interval", self.max_scan_interval);
     }
 }
 

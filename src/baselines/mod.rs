@@ -29,9 +29,9 @@ pub use mc_ransac::{
 };
 pub use ndt::{NdtConfig, NdtMap, NdtObjective, register_ndt};
 
-use crate::config::ConfigError;
 use crate::math::{Iso2, Mat3, Vec2};
 use crate::registration::RegistrationError;
+use crate::validate::{ConfigError, Validator};
 use serde::{Deserialize, Serialize};
 
 /// Configuration of all baselines, the params YAML section `baselines`.
@@ -47,11 +47,13 @@ pub struct BaselinesConfig {
 }
 
 impl BaselinesConfig {
-    /// Rejects values that cannot work; the error names the parameter (`baselines.<method>.<field>`).
+    /// Rejects unusable values, naming them `baselines.*`.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.icp.validate()?;
-        self.ndt.validate()?;
-        self.mc_ransac.validate()
+        let mut v = Validator::at("baselines");
+        v.section("icp", |v| self.icp.check(v));
+        v.section("ndt", |v| self.ndt.check(v));
+        v.section("mc_ransac", |v| self.mc_ransac.check(v));
+        v.finish()
     }
 }
 
@@ -101,16 +103,4 @@ pub(crate) fn spd_inverse(h: &Mat3) -> Option<Mat3> {
         return None;
     }
     sym.cholesky().map(|c| c.inverse())
-}
-
-/// Validation helper: a strictly positive finite number.
-pub(crate) fn positive(name: &str, v: f64) -> Result<(), ConfigError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(())
-    } else {
-        Err(ConfigError::new(
-            name,
-            format!("{v} must be finite and > 0"),
-        ))
-    }
 }

@@ -21,7 +21,7 @@ pub mod revisits;
 
 use crate::baselines::{BaselinesConfig, ForwardSpeedEstimator, register_icp, register_ndt};
 use crate::cloud::decode_detections;
-use crate::config::{Config, ConfigError};
+use crate::config::Config;
 use crate::math::{Iso2, Iso3, Mat3, Stamp, Vec2, Vec3, iso2_from_iso3, wrap_angle};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::pipeline::{Event, Pipeline};
@@ -31,6 +31,7 @@ use crate::registration::{
     PointSet2, PreparedSubmap, RegistrationConfig, RegistrationResult, register_detailed,
 };
 use crate::submap::{OdometryBuffer, OdometryConfig, Submap};
+use crate::validate::{ConfigError, Validator};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -77,28 +78,17 @@ impl Default for EvalConfig {
 }
 
 impl EvalConfig {
-    /// Rejects unusable values, naming the field.
+    /// Rejects unusable values, naming them `eval.*` (and `baselines.*`).
     pub fn validate(&self) -> Result<(), ConfigError> {
-        for (f, v) in [
-            ("pair_radius", self.pair_radius),
-            ("outlier_threshold", self.outlier_threshold),
-            ("velocity_bin_width", self.velocity_bin_width),
-            ("max_heading_difference", self.max_heading_difference),
-            ("ambiguity_ratio", self.ambiguity_ratio),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    format!("eval.{f}"),
-                    format!("{v} must be > 0"),
-                ));
-            }
-        }
-        if !(self.min_pass_gap.is_finite() && self.min_pass_gap >= 0.0) {
-            return Err(ConfigError::new("eval.min_pass_gap", "must be >= 0 m"));
-        }
-        if self.pair_stride == 0 {
-            return Err(ConfigError::new("eval.pair_stride", "must be at least 1"));
-        }
+        let mut v = Validator::at("eval");
+        v.positive("pair_radius", self.pair_radius);
+        v.positive("outlier_threshold", self.outlier_threshold);
+        v.positive("velocity_bin_width", self.velocity_bin_width);
+        v.positive("max_heading_difference", self.max_heading_difference);
+        v.positive("ambiguity_ratio", self.ambiguity_ratio);
+        v.non_negative("min_pass_gap", self.min_pass_gap);
+        v.at_least("pair_stride", self.pair_stride, 1);
+        v.finish()?;
         self.baselines.validate()
     }
 }

@@ -10,9 +10,9 @@
 //! Rays come from the measured positions; the Doppler range error moves a point along its ray, so it does
 //! not change `d` and the fit needs no compensation first.
 
-use crate::config::ConfigError;
 use crate::math::{Iso3, Mat3, Vec3};
 use crate::radar::Detection;
+use crate::validate::{Range, Validator};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use serde::{Deserialize, Serialize};
@@ -55,29 +55,17 @@ impl Default for EgoMotionConfig {
 }
 
 impl EgoMotionConfig {
-    /// Rejects unusable values, naming the parameter under `prefix` (e.g. `ego_motion`).
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        let n = |f: &str| format!("{prefix}.{f}");
-        if !(self.inlier_threshold.is_finite() && self.inlier_threshold > 0.0) {
-            return Err(ConfigError::new(n("inlier_threshold"), "must be > 0 m/s"));
-        }
-        if !(self.min_inlier_threshold > 0.0 && self.min_inlier_threshold <= self.inlier_threshold)
-        {
-            return Err(ConfigError::new(
-                n("min_inlier_threshold"),
-                "must be in (0, inlier_threshold] m/s",
-            ));
-        }
-        if self.min_inliers < 3 {
-            return Err(ConfigError::new(n("min_inliers"), "must be at least 3"));
-        }
-        if self.max_iterations == 0 {
-            return Err(ConfigError::new(n("max_iterations"), "must be at least 1"));
-        }
-        if !(self.prior_tolerance.is_finite() && self.prior_tolerance > 0.0) {
-            return Err(ConfigError::new(n("prior_tolerance"), "must be > 0 m/s"));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("inlier_threshold", self.inlier_threshold);
+        v.range(
+            "min_inlier_threshold",
+            self.min_inlier_threshold,
+            Range::POSITIVE.up_to(self.inlier_threshold),
+        );
+        v.at_least("min_inliers", self.min_inliers, 3);
+        v.at_least("max_iterations", self.max_iterations, 1);
+        v.positive("prior_tolerance", self.prior_tolerance);
     }
 }
 

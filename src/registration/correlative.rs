@@ -25,6 +25,7 @@ use super::PointSet2;
 use super::dense::TargetTree;
 use super::grid::finite_bounds;
 use crate::math::{Iso2, Vec2};
+use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
 
 /// Settings of the correlative search.
@@ -130,67 +131,30 @@ impl Default for CorrelativeConfig {
 }
 
 impl CorrelativeConfig {
-    /// Rejects unusable values, naming the field under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        if self.slide_shifts.len() > 32
-            || !self
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        let shifts_ok = self.slide_shifts.len() <= 32
+            && self
                 .slide_shifts
                 .iter()
-                .all(|v| v.is_finite() && v.abs() <= 200.0)
-        {
-            return Err(ConfigError::new(
-                format!("{prefix}.slide_shifts"),
-                "must be at most 32 finite shifts within +-200 m",
-            ));
-        }
-        for (f, v) in [
-            ("below_score", self.below_score),
-            ("min_overlap", self.min_overlap),
-            ("rich_below_score", self.rich_below_score),
-            ("below_common_view", self.below_common_view),
-        ] {
-            if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
-                return Err(ConfigError::new(
-                    format!("{prefix}.{f}"),
-                    format!("{v} must be in [0, 1]"),
-                ));
-            }
-        }
-        for (f, v) in [
-            ("covariance_cluster", self.covariance_cluster),
-            ("covariance_scale", self.covariance_scale),
-            ("rotation_step_deg", self.rotation_step_deg),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    format!("{prefix}.{f}"),
-                    format!("{v} must be finite and > 0"),
-                ));
-            }
-        }
-        if !(self.cell.is_finite() && self.cell >= 0.1) {
-            return Err(ConfigError::new(
-                format!("{prefix}.cell"),
-                format!("{} must be at least 0.1 m", self.cell),
-            ));
-        }
-        for (f, v, lo, hi) in [
-            ("rotation_peaks", self.rotation_peaks, 1, 16),
-            ("probes", self.probes, 10, 2000),
-            ("candidates", self.candidates, 1, 32),
-            ("per_rotation", self.per_rotation, 1, 64),
-            ("rotation_steps", self.rotation_steps, 0, 10),
-            ("min_inliers", self.min_inliers, 3, 10_000),
-        ] {
-            if !(lo..=hi).contains(&v) {
-                return Err(ConfigError::new(
-                    format!("{prefix}.{f}"),
-                    format!("{v} must be in {lo}..={hi}"),
-                ));
-            }
-        }
-        Ok(())
+                .all(|s| s.is_finite() && s.abs() <= 200.0);
+        v.require("slide_shifts", shifts_ok, || {
+            "must be at most 32 finite shifts within +-200 m".into()
+        });
+        v.unit("below_score", self.below_score);
+        v.unit("min_overlap", self.min_overlap);
+        v.unit("rich_below_score", self.rich_below_score);
+        v.unit("below_common_view", self.below_common_view);
+        v.positive("covariance_cluster", self.covariance_cluster);
+        v.positive("covariance_scale", self.covariance_scale);
+        v.positive("rotation_step_deg", self.rotation_step_deg);
+        v.range("cell", self.cell, Range::at_least(0.1));
+        v.count("rotation_peaks", self.rotation_peaks, 1, 16);
+        v.count("probes", self.probes, 10, 2000);
+        v.count("candidates", self.candidates, 1, 32);
+        v.count("per_rotation", self.per_rotation, 1, 64);
+        v.count("rotation_steps", self.rotation_steps, 0, 10);
+        v.count("min_inliers", self.min_inliers, 3, 10_000);
     }
 }
 
@@ -546,24 +510,19 @@ mod tests {
 
     #[test]
     fn bad_settings_are_named() {
+        let validate = |c: &CorrelativeConfig| {
+            let mut v = Validator::at("r.c");
+            c.check(&mut v);
+            v.finish()
+        };
         let mut c = CorrelativeConfig::default();
-        assert!(c.validate("r.c").is_ok());
+        assert!(validate(&c).is_ok());
         c.cell = 0.0;
-        assert!(
-            c.validate("r.c")
-                .unwrap_err()
-                .to_string()
-                .contains("r.c.cell")
-        );
+        assert!(validate(&c).unwrap_err().to_string().contains("r.c.cell"));
         let c = CorrelativeConfig {
             probes: 0,
             ..CorrelativeConfig::default()
         };
-        assert!(
-            c.validate("r.c")
-                .unwrap_err()
-                .to_string()
-                .contains("r.c.probes")
-        );
+        assert!(validate(&c).unwrap_err().to_string().contains("r.c.probes"));
     }
 }

@@ -13,6 +13,7 @@
 use super::lm::{self, LmConfig};
 use super::{PointSet2, RegistrationError};
 use crate::math::{Iso2, Mat2, Vec2, Vec3};
+use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 
 /// The target points' neighbour index (item = point index): a uniform grid ([`super::grid`]).
@@ -170,65 +171,20 @@ impl Default for DenseConfig {
 }
 
 impl DenseConfig {
-    /// Rejects unusable values, naming the field under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        if self.iterations == 0 {
-            return Err(ConfigError::new(
-                format!("{prefix}.iterations"),
-                "must be at least 1",
-            ));
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.at_least("iterations", self.iterations, 1);
+        v.positive("gate", self.gate);
+        v.positive("max_distance", self.max_distance);
+        v.positive("surface_radius", self.surface_radius);
+        v.positive("covariance_scale", self.covariance_scale);
+        v.non_negative("robust_scale", self.robust_scale);
+        if self.soft_rounds > 0 {
+            v.count("soft_neighbours", self.soft_neighbours, 1, 64);
         }
-        for (f, v) in [
-            ("gate", self.gate),
-            ("max_distance", self.max_distance),
-            ("surface_radius", self.surface_radius),
-            ("covariance_scale", self.covariance_scale),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    format!("{prefix}.{f}"),
-                    format!("{v} must be > 0"),
-                ));
-            }
-        }
-        if !(self.robust_scale.is_finite() && self.robust_scale >= 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.robust_scale"),
-                format!(
-                    "{} must be finite and >= 0 (0: the LM's scale)",
-                    self.robust_scale
-                ),
-            ));
-        }
-        if self.soft_rounds > 0 && !(1..=64).contains(&self.soft_neighbours) {
-            return Err(ConfigError::new(
-                format!("{prefix}.soft_neighbours"),
-                "must be 1 to 64 when soft_rounds > 0",
-            ));
-        }
-        if self.surface_neighbours > 64 {
-            return Err(ConfigError::new(
-                format!("{prefix}.surface_neighbours"),
-                "must be at most 64",
-            ));
-        }
-        if self.max_source_points < self.min_pairs {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_source_points"),
-                format!(
-                    "{} is below min_pairs = {}",
-                    self.max_source_points, self.min_pairs
-                ),
-            ));
-        }
-        if self.min_pairs < 3 {
-            return Err(ConfigError::new(
-                format!("{prefix}.min_pairs"),
-                "must be at least 3",
-            ));
-        }
-        Ok(())
+        v.count("surface_neighbours", self.surface_neighbours, 0, 64);
+        v.at_least("max_source_points", self.max_source_points, self.min_pairs);
+        v.at_least("min_pairs", self.min_pairs, 3);
     }
 }
 

@@ -54,6 +54,7 @@
 use super::grid::PointGrid;
 use crate::math::Vec2;
 use crate::registration::RegistrationError;
+use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 
 /// Length of every descriptor; unused trailing entries are 0. A compile-time constant because the
@@ -146,56 +147,27 @@ impl DescriptorConfig {
             }
     }
 
-    /// Rejects unusable values; `prefix` is the dotted section name.
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        let name = |f: &str| format!("{prefix}.{f}");
-        if !(self.radius.is_finite() && self.radius > 0.0) {
-            return Err(ConfigError::new(
-                name("radius"),
-                format!("{} must be finite and > 0 m", self.radius),
-            ));
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("radius", self.radius);
+        v.at_least("radial_bins", self.radial_bins, 1);
+        if self.angular != AngularStatistic::None {
+            let min = if self.angular == AngularStatistic::Sectors {
+                2
+            } else {
+                1
+            };
+            v.at_least("angular_bins", self.angular_bins, min);
         }
-        if self.radial_bins == 0 {
-            return Err(ConfigError::new(name("radial_bins"), "must be at least 1"));
-        }
-        if self.angular != AngularStatistic::None && self.angular_bins == 0 {
-            return Err(ConfigError::new(
-                name("angular_bins"),
-                "must be at least 1 when `angular` is not `none`",
-            ));
-        }
-        if self.angular == AngularStatistic::Sectors && self.angular_bins < 2 {
-            return Err(ConfigError::new(
-                name("angular_bins"),
-                "`sectors` needs at least 2 sectors",
-            ));
-        }
-        if self.used_dim() > DESCRIPTOR_DIM {
-            return Err(ConfigError::new(
-                name("radial_bins"),
-                format!(
-                    "radial_bins + angular_bins = {} exceeds the descriptor length {DESCRIPTOR_DIM}",
-                    self.used_dim()
-                ),
-            ));
-        }
-        if self.max_support < 2 {
-            return Err(ConfigError::new(name("max_support"), "must be at least 2"));
-        }
-        if self.max_keypoints < 2 {
-            return Err(ConfigError::new(
-                name("max_keypoints"),
-                "must be at least 2",
-            ));
-        }
-        if !(self.angular_weight.is_finite() && self.angular_weight >= 0.0) {
-            return Err(ConfigError::new(
-                name("angular_weight"),
-                format!("{} must be finite and >= 0", self.angular_weight),
-            ));
-        }
-        Ok(())
+        v.require("radial_bins", self.used_dim() <= DESCRIPTOR_DIM, || {
+            format!(
+                "radial_bins + angular_bins = {} exceeds the descriptor length {DESCRIPTOR_DIM}",
+                self.used_dim()
+            )
+        });
+        v.at_least("max_support", self.max_support, 2);
+        v.at_least("max_keypoints", self.max_keypoints, 2);
+        v.non_negative("angular_weight", self.angular_weight);
     }
 }
 

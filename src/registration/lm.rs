@@ -22,6 +22,7 @@
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
 use crate::registration::robust::RobustLoss;
 use crate::registration::{PointSet2, RegistrationError};
+use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 
 /// How the covariance of the estimate is computed at the optimum.
@@ -97,30 +98,14 @@ impl Default for LmConfig {
 }
 
 impl LmConfig {
-    /// Rejects unusable values; `prefix` is the dotted section name (e.g. `registration.lm`).
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        let pos = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(ConfigError::new(
-                    format!("{prefix}.{name}"),
-                    format!("{v} must be finite and > 0"),
-                ))
-            }
-        };
-        pos("isotropic_sigma", self.isotropic_sigma)?;
-        pos("step_tolerance", self.step_tolerance)?;
-        pos("cost_tolerance", self.cost_tolerance)?;
-        pos("initial_lambda", self.initial_lambda)?;
-        if self.max_iterations == 0 {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_iterations"),
-                "must be at least 1",
-            ));
-        }
-        self.robust.validate(&format!("{prefix}.robust"))
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("isotropic_sigma", self.isotropic_sigma);
+        v.positive("step_tolerance", self.step_tolerance);
+        v.positive("cost_tolerance", self.cost_tolerance);
+        v.positive("initial_lambda", self.initial_lambda);
+        v.at_least("max_iterations", self.max_iterations, 1);
+        v.section("robust", |v| self.robust.check(v));
     }
 }
 

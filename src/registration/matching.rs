@@ -28,6 +28,7 @@
 use crate::registration::RegistrationError;
 use crate::registration::descriptor::{DESCRIPTOR_DIM, Descriptor};
 use crate::registration::ransac::Correspondence;
+use crate::validate::{Range, Validator};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 use std::num::NonZeroUsize;
@@ -73,28 +74,11 @@ impl Default for MatchingConfig {
 }
 
 impl MatchingConfig {
-    /// Rejects unusable values; `prefix` is the dotted section name.
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        if self.k == 0 || self.k >= MAX_K {
-            return Err(ConfigError::new(
-                format!("{prefix}.k"),
-                format!("{} is not in 1..{MAX_K}", self.k),
-            ));
-        }
-        if !(self.ratio > 0.0 && self.ratio <= 1.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.ratio"),
-                format!("{} is not in (0, 1]", self.ratio),
-            ));
-        }
-        if self.max_queries < 2 {
-            return Err(ConfigError::new(
-                format!("{prefix}.max_queries"),
-                "must be at least 2",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.count("k", self.k, 1, MAX_K - 1);
+        v.range("ratio", self.ratio, Range::above(0.0).up_to(1.0));
+        v.at_least("max_queries", self.max_queries, 2);
     }
 }
 

@@ -24,6 +24,7 @@ pub mod ransac;
 pub mod robust;
 
 use crate::math::{Iso2, Mat2, Mat3, Mat6, Vec2, Vec3};
+use crate::validate::{ConfigError, Validator};
 
 /// Variance (m^2 or rad^2) reported for the axes a planar registration does not observe (z, roll, pitch).
 ///
@@ -293,99 +294,48 @@ impl RegistrationConfig {
     }
 
     /// Rejects values that cannot work; the error names the parameter (`registration.*`).
-    pub fn validate(&self) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        if self.min_points < 3 {
-            return Err(ConfigError::new(
-                "registration.min_points",
-                format!("{} is below 3", self.min_points),
-            ));
-        }
-        if self.min_inliers < 3 {
-            return Err(ConfigError::new(
-                "registration.min_inliers",
-                format!(
-                    "{} is below 3 (the covariance needs more pairs than unknowns)",
-                    self.min_inliers
-                ),
-            ));
-        }
-        if !(self.min_inlier_spread.is_finite() && self.min_inlier_spread >= 0.0) {
-            return Err(ConfigError::new(
-                "registration.min_inlier_spread",
-                format!("{} must be finite and >= 0 m", self.min_inlier_spread),
-            ));
-        }
-        if !(self.reselect_gate.is_finite() && self.reselect_gate > 0.0) {
-            return Err(ConfigError::new(
-                "registration.reselect_gate",
-                format!("{} must be finite and > 0", self.reselect_gate),
-            ));
-        }
-        if !(self.selection_object_radius.is_finite() && self.selection_object_radius >= 0.0) {
-            return Err(ConfigError::new(
-                "registration.selection_object_radius",
-                format!("{} must be finite and >= 0", self.selection_object_radius),
-            ));
-        }
-        if !(self.covariance_scale.is_finite() && self.covariance_scale > 0.0) {
-            return Err(ConfigError::new(
-                "registration.covariance_scale",
-                format!("{} must be finite and > 0", self.covariance_scale),
-            ));
-        }
-        if !self
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let mut v = Validator::at("registration");
+        self.check(&mut v);
+        v.finish()
+    }
+
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.at_least("min_points", self.min_points, 3);
+        v.at_least("min_inliers", self.min_inliers, 3);
+        v.non_negative("min_inlier_spread", self.min_inlier_spread);
+        v.positive("reselect_gate", self.reselect_gate);
+        v.non_negative("selection_object_radius", self.selection_object_radius);
+        v.positive("covariance_scale", self.covariance_scale);
+        let floor_ok = self
             .covariance_floor
             .iter()
-            .all(|v| v.is_finite() && *v >= 0.0)
-        {
-            return Err(ConfigError::new(
-                "registration.covariance_floor",
-                format!(
-                    "{:?} must be two finite values >= 0 (m, rad)",
-                    self.covariance_floor
-                ),
-            ));
-        }
-        for (name, v) in [
-            (
-                "registration.ambiguity_translation",
-                self.ambiguity_translation,
-            ),
-            ("registration.ambiguity_rotation", self.ambiguity_rotation),
-            (
-                "registration.screen_ambiguity_translation",
-                self.screen_ambiguity_translation,
-            ),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    name,
-                    format!("{v} must be finite and > 0"),
-                ));
-            }
-        }
-        if !(self.selection_sigma.is_finite() && self.selection_sigma >= 0.0) {
-            return Err(ConfigError::new(
-                "registration.selection_sigma",
-                format!("{} must be finite and >= 0 m", self.selection_sigma),
-            ));
-        }
-        if self.screened_hypotheses < self.hypotheses.max(1) {
-            return Err(ConfigError::new(
-                "registration.screened_hypotheses",
-                format!(
-                    "{} is below registration.hypotheses ({})",
-                    self.screened_hypotheses, self.hypotheses
-                ),
-            ));
-        }
-        self.descriptor.validate("registration.descriptor")?;
-        self.matching.validate("registration.matching")?;
-        self.ransac.validate("registration.ransac")?;
-        self.lm.validate("registration.lm")?;
-        self.correlative.validate("registration.correlative")?;
-        self.dense.validate("registration.dense")
+            .all(|x| x.is_finite() && *x >= 0.0);
+        v.require("covariance_floor", floor_ok, || {
+            format!(
+                "{:?} must be two finite values >= 0 (m, rad)",
+                self.covariance_floor
+            )
+        });
+        v.positive("ambiguity_translation", self.ambiguity_translation);
+        v.positive("ambiguity_rotation", self.ambiguity_rotation);
+        v.positive(
+            "screen_ambiguity_translation",
+            self.screen_ambiguity_translation,
+        );
+        v.non_negative("selection_sigma", self.selection_sigma);
+        v.at_least(
+            "screened_hypotheses",
+            self.screened_hypotheses,
+            self.hypotheses.max(1),
+        );
+        v.section("descriptor", |v| self.descriptor.check(v));
+        v.section("matching", |v| self.matching.check(v));
+        v.section("ransac", |v| self.ransac.check(v));
+        v.section("lm", |v| self.lm.check(v));
+        v.section("correlative", |v| self.correlative.check(v));
+        v.section("dense", |v| self.dense.check(v));
     }
 }
 

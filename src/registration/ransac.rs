@@ -19,6 +19,7 @@
 
 use crate::math::{Iso2, Mat2, Vec2};
 use crate::registration::{PointSet2, RegistrationError};
+use crate::validate::{Range, Validator};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
@@ -83,41 +84,13 @@ impl Default for RansacConfig {
 }
 
 impl RansacConfig {
-    /// Rejects unusable values; `prefix` is the dotted section name.
-    pub fn validate(&self, prefix: &str) -> Result<(), crate::config::ConfigError> {
-        use crate::config::ConfigError;
-        let name = |f: &str| format!("{prefix}.{f}");
-        if !(self.inlier_threshold.is_finite() && self.inlier_threshold > 0.0) {
-            return Err(ConfigError::new(
-                name("inlier_threshold"),
-                format!("{} must be finite and > 0 m", self.inlier_threshold),
-            ));
-        }
-        if !(self.mahalanobis_gate.is_finite() && self.mahalanobis_gate >= 0.0) {
-            return Err(ConfigError::new(
-                name("mahalanobis_gate"),
-                format!("{} must be finite and >= 0", self.mahalanobis_gate),
-            ));
-        }
-        if !(self.confidence > 0.0 && self.confidence < 1.0) {
-            return Err(ConfigError::new(
-                name("confidence"),
-                format!("{} is not in (0, 1)", self.confidence),
-            ));
-        }
-        if self.max_iterations == 0 {
-            return Err(ConfigError::new(
-                name("max_iterations"),
-                "must be at least 1",
-            ));
-        }
-        if !(self.min_sample_separation.is_finite() && self.min_sample_separation >= 0.0) {
-            return Err(ConfigError::new(
-                name("min_sample_separation"),
-                format!("{} must be finite and >= 0 m", self.min_sample_separation),
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("inlier_threshold", self.inlier_threshold);
+        v.non_negative("mahalanobis_gate", self.mahalanobis_gate);
+        v.range("confidence", self.confidence, Range::above(0.0).below(1.0));
+        v.at_least("max_iterations", self.max_iterations, 1);
+        v.non_negative("min_sample_separation", self.min_sample_separation);
     }
 }
 

@@ -6,6 +6,7 @@
 //! `s`, so the cost is `1/2 sum rho(s_i)`. The scale `c` is in units of the residual before squaring
 //! (sigma when the residual is whitened), i.e. residuals beyond about `c` start to lose weight.
 
+use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 
 /// Which robust loss.
@@ -74,15 +75,9 @@ impl RobustLoss {
         }
     }
 
-    /// Rejects a scale that is not finite and positive; `name` is the dotted parameter prefix.
-    pub fn validate(&self, name: &str) -> Result<(), crate::config::ConfigError> {
-        if !(self.scale.is_finite() && self.scale > 0.0) {
-            return Err(crate::config::ConfigError::new(
-                format!("{name}.scale"),
-                format!("{} must be finite and > 0", self.scale),
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("scale", self.scale);
     }
 }
 

@@ -27,22 +27,26 @@ pub mod export;
 pub mod noise;
 pub mod nuscenes;
 pub mod odometry;
+pub mod radar_config;
 pub mod revisit;
 pub mod route;
 pub mod sensor;
 pub mod world;
+pub mod world_config;
 
-pub use config::{RadarPreset, SimConfig, SimRadarConfig};
+pub use config::SimConfig;
 pub use noise::{NoiseConfig, NoiseModel};
 pub use odometry::{OdometrySample, PoseSample};
+pub use radar_config::{RadarPreset, SimRadarConfig};
 pub use revisit::{Revisit, RevisitIndex};
 pub use route::{EgoState, LapInfo};
 pub use sensor::{DetectionTruth, Dropout};
 pub use world::TargetKind;
 
-use crate::config::{Config, ConfigError};
+use crate::config::Config;
 use crate::math::{Iso2, Stamp};
 use crate::radar::RadarScan;
+use crate::validate::ConfigError;
 use noise::NoiseSampler;
 use odometry::OdometryIntegrator;
 use rand::rngs::StdRng;

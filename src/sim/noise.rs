@@ -17,7 +17,7 @@
 //! paper's numbers keep their face value: 0.25 m, 0.025 deg and 0.01 m/s. Note that the azimuth and
 //! velocity noise of the Gamma data are then 20 and 10 times smaller than the Gaussian's, as printed.
 
-use crate::config::ConfigError;
+use crate::validate::{ConfigError, Range, Validator};
 use rand::RngExt;
 use rand_distr::{Distribution, Gamma, StandardNormal, StudentT};
 use serde::{Deserialize, Serialize};
@@ -60,20 +60,10 @@ impl Default for NoiseScales {
 }
 
 impl NoiseScales {
-    fn validate(&self, p: &str) -> Result<(), ConfigError> {
-        for (f, v) in [
-            ("range", self.range),
-            ("azimuth", self.azimuth),
-            ("velocity", self.velocity),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(ConfigError::new(
-                    format!("{p}.{f}"),
-                    format!("{v} must be finite and > 0"),
-                ));
-            }
-        }
-        Ok(())
+    fn check(&self, v: &mut Validator) {
+        v.positive("range", self.range);
+        v.positive("azimuth", self.azimuth);
+        v.positive("velocity", self.velocity);
     }
 }
 
@@ -131,24 +121,14 @@ impl NoiseConfig {
         }
     }
 
-    /// Rejects unusable values, naming the field under `prefix`.
-    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        self.gaussian.validate(&format!("{prefix}.gaussian"))?;
-        self.gamma.validate(&format!("{prefix}.gamma"))?;
-        self.student_t.validate(&format!("{prefix}.student_t"))?;
-        if !(self.gamma_shape.is_finite() && self.gamma_shape > 0.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.gamma_shape"),
-                "must be finite and > 0",
-            ));
-        }
-        if !(self.student_t_dof.is_finite() && self.student_t_dof > 2.0) {
-            return Err(ConfigError::new(
-                format!("{prefix}.student_t_dof"),
-                "must be > 2 (finite variance)",
-            ));
-        }
-        Ok(())
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.section("gaussian", |v| self.gaussian.check(v));
+        v.section("gamma", |v| self.gamma.check(v));
+        v.section("student_t", |v| self.student_t.check(v));
+        v.positive("gamma_shape", self.gamma_shape);
+        // Finite variance.
+        v.range("student_t_dof", self.student_t_dof, Range::above(2.0));
     }
 }
 
@@ -170,7 +150,9 @@ enum Kind {
 impl NoiseSampler {
     /// A sampler for a validated configuration; `ConfigError` if its parameters are unusable.
     pub fn new(cfg: &NoiseConfig) -> Result<Self, ConfigError> {
-        cfg.validate("noise")?;
+        let mut v = Validator::at("noise");
+        cfg.check(&mut v);
+        v.finish()?;
         let (kind, scales) = match cfg.model {
             NoiseModel::None => (Kind::None, cfg.gaussian),
             NoiseModel::Gaussian => (Kind::Gaussian, cfg.gaussian),

@@ -15,9 +15,9 @@
 //! times speed. The speed profile is piecewise constant acceleration in `u` (forward-backward passes over
 //! the lap cruise speed, the corner speed `sqrt(a_lat / |kappa|)` and the acceleration limits).
 
-use crate::config::ConfigError;
 use crate::math::{Iso2, Vec2};
 use crate::sim::config::{DriveConfig, LapConfig, RouteConfig};
+use crate::validate::ConfigError;
 use std::f64::consts::PI;
 
 /// Node spacing of the speed profile, m.

@@ -21,9 +21,10 @@
 
 use crate::math::{Vec2, Vec3};
 use crate::radar::Detection;
-use crate::sim::config::{SimRadarConfig, WorldConfig};
 use crate::sim::noise::NoiseSampler;
+use crate::sim::radar_config::SimRadarConfig;
 use crate::sim::world::{CarBox, MoverState, TargetKind, World};
+use crate::sim::world_config::WorldConfig;
 use rand::RngExt;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Exp1, Poisson};

@@ -11,10 +11,11 @@
 //! streets. The far end of each side street is closed by a building. Objects carry an `id` (unique over
 //! the world) so that detections can name what they hit.
 
-use crate::config::ConfigError;
 use crate::math::Vec2;
-use crate::sim::config::{SimConfig, WorldConfig};
+use crate::sim::config::SimConfig;
 use crate::sim::route::Centerline;
+use crate::sim::world_config::WorldConfig;
+use crate::validate::ConfigError;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,269 @@
+//! Simulated radars: the presets ([`RadarPreset`]: the paper's CARLA radar, the five nuScenes
+//! ARS408-21) and one radar's mounting, coverage and detection model ([`SimRadarConfig`]).
+
+use crate::math::Quat;
+use crate::validate::{Range, Validator};
+use serde::{Deserialize, Serialize};
+
+/// A ready-made radar set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RadarPreset {
+    /// The paper's CARLA radar: one forward radar, 100 m range, 150 deg field of view, 13 Hz, beta 0.04 s.
+    Carla,
+    /// The five nuScenes Continental ARS408-21 radars with their real extrinsics (from the nuScenes calibration), each at
+    /// 13 Hz with its own phase.
+    Nuscenes,
+    /// The radars listed in `radars`.
+    Custom,
+}
+
+/// One simulated radar: where it sits, what it publishes, and how it detects.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimRadarConfig {
+    /// Name (the key in the pipeline's `radars` map), e.g. `front`.
+    pub name: String,
+    /// PointCloud2 topic, e.g. `/radar_front/points`.
+    pub topic: String,
+    /// `header.frame_id`, e.g. `radar_front`.
+    pub frame_id: String,
+    /// Radar frame in the body frame: x, y, z (m), roll, pitch, yaw (rad). Roll and pitch must be 0
+    /// (the simulation is planar).
+    pub extrinsic: [f64; 6],
+    /// Doppler range coupling `beta`, s (default 0.04).
+    pub beta: f64,
+    /// Scan rate, Hz (default 13).
+    pub rate: f64,
+    /// Time of the first scan after the drive starts, s (default 0).
+    pub phase: f64,
+    /// Standard deviation of the scan time jitter, s (default 0.0005).
+    pub stamp_jitter: f64,
+    /// Coverage: `[|azimuth| (rad), max range (m)]` breakpoints, azimuth increasing, range linear in
+    /// between; nothing is seen beyond the last azimuth. Default: 100 m out to +-75 deg (the CARLA radar).
+    pub coverage: Vec<[f64; 2]>,
+    /// Shortest range reported, m (default 0.2).
+    pub min_range: f64,
+    /// Range resolution, m (default 0.39, ARS408-21 near range per the paper).
+    pub range_resolution: f64,
+    /// Azimuth resolution, rad (default 3.2 deg, ARS408-21 per the paper).
+    pub azimuth_resolution: f64,
+    /// Radial velocity resolution, m/s (default 0.12, ARS408-21 0.43 km/h).
+    pub velocity_resolution: f64,
+    /// RCS detected with probability 0.5 at the coverage range, dBsm (default 10, a car). Detection
+    /// probability is logistic in the SNR margin `rcs - reference_rcs - 40 log10(r / r_max(azimuth))`.
+    pub reference_rcs: f64,
+    /// Width of the logistic detection curve, dB (default 2).
+    pub detection_spread: f64,
+    /// Most detections reported per scan, strongest kept (default 125, the ARS408 scans in
+    /// nuscenes-radar-pcd/ hold 125).
+    pub max_detections: usize,
+    /// Mean number of false alarms per scan (random range, azimuth and Doppler; default 3).
+    pub false_alarm_rate: f64,
+    /// Probability that a scan comes out empty (default 0.005).
+    pub empty_scan_probability: f64,
+    /// Probability that a scan loses its tail (a random 20-80 % of its detections; default 0.02).
+    pub partial_scan_probability: f64,
+}
+
+impl Default for SimRadarConfig {
+    /// The paper's CARLA forward radar, mounted where nuScenes' RADAR_FRONT sits (3.412 m ahead of the
+    /// rear axle, 0.5 m up).
+    fn default() -> Self {
+        SimRadarConfig {
+            name: "front".into(),
+            topic: "/radar_front/points".into(),
+            frame_id: "radar_front".into(),
+            extrinsic: [3.412, 0.0, 0.5, 0.0, 0.0, 0.0],
+            beta: 0.04,
+            rate: 13.0,
+            phase: 0.0,
+            stamp_jitter: 0.0005,
+            coverage: vec![[0.0, 100.0], [75f64.to_radians(), 100.0]],
+            min_range: 0.2,
+            range_resolution: 0.39,
+            azimuth_resolution: 3.2f64.to_radians(),
+            velocity_resolution: 0.12,
+            reference_rcs: 10.0,
+            detection_spread: 2.0,
+            max_detections: 125,
+            false_alarm_rate: 3.0,
+            empty_scan_probability: 0.005,
+            partial_scan_probability: 0.02,
+        }
+    }
+}
+
+impl SimRadarConfig {
+    /// Largest range seen at any azimuth, m.
+    pub fn max_range(&self) -> f64 {
+        self.coverage.iter().map(|c| c[1]).fold(0.0, f64::max)
+    }
+    /// Half field of view, rad.
+    pub fn half_fov(&self) -> f64 {
+        self.coverage.last().map_or(0.0, |c| c[0])
+    }
+    /// Coverage range at `azimuth` (rad), m; 0 outside the field of view.
+    pub fn range_at(&self, azimuth: f64) -> f64 {
+        let a = azimuth.abs();
+        let c = &self.coverage;
+        for w in c.windows(2) {
+            let ([a0, r0], [a1, r1]) = (w[0], w[1]);
+            if a <= a1 {
+                if a1 <= a0 {
+                    return r1;
+                }
+                return r0 + (r1 - r0) * ((a - a0) / (a1 - a0)).max(0.0);
+            }
+        }
+        match c[..] {
+            [only] if a <= only[0] => only[1],
+            _ => 0.0,
+        }
+    }
+
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        for (field, x) in [
+            ("name", &self.name),
+            ("topic", &self.topic),
+            ("frame_id", &self.frame_id),
+        ] {
+            v.require(field, !x.is_empty(), || "must not be empty".into());
+        }
+        let bad = self.extrinsic.iter().position(|x| !x.is_finite());
+        v.require("extrinsic", bad.is_none(), || {
+            format!("element {} is not finite", bad.unwrap_or_default())
+        });
+        let planar = self.extrinsic[3].abs() <= 1e-9 && self.extrinsic[4].abs() <= 1e-9;
+        v.require("extrinsic", planar, || {
+            "roll and pitch must be 0 (planar simulation)".into()
+        });
+        v.range("beta", self.beta, Range::NON_NEGATIVE.below(1.0));
+        v.range("rate", self.rate, Range::closed(0.5, 100.0));
+        v.range(
+            "phase",
+            self.phase,
+            Range::NON_NEGATIVE.below(1.0 / self.rate),
+        );
+        v.range(
+            "stamp_jitter",
+            self.stamp_jitter,
+            Range::NON_NEGATIVE.below(0.1 / self.rate),
+        );
+        v.require("coverage", !self.coverage.is_empty(), || {
+            "needs at least one [azimuth, range] pair".into()
+        });
+        let mut prev = -1.0;
+        for (i, &[a, r]) in self.coverage.iter().enumerate() {
+            let ok = a.is_finite()
+                && r.is_finite()
+                && a >= prev
+                && a < 89f64.to_radians()
+                && r > 0.0
+                && r <= 400.0;
+            v.require("coverage", ok, || {
+                format!(
+                    "entry {i} [{a}, {r}]: azimuths must rise within [0, 89 deg), ranges in (0, 400] m"
+                )
+            });
+            prev = a;
+        }
+        v.range(
+            "min_range",
+            self.min_range,
+            Range::NON_NEGATIVE.below(self.max_range()),
+        );
+        v.positive("range_resolution", self.range_resolution);
+        v.positive("azimuth_resolution", self.azimuth_resolution);
+        v.positive("velocity_resolution", self.velocity_resolution);
+        v.range("reference_rcs", self.reference_rcs, Range::FINITE);
+        v.positive("detection_spread", self.detection_spread);
+        v.at_least("max_detections", self.max_detections, 1);
+        v.range(
+            "false_alarm_rate",
+            self.false_alarm_rate,
+            Range::closed(0.0, 100.0),
+        );
+        v.unit("empty_scan_probability", self.empty_scan_probability);
+        v.unit("partial_scan_probability", self.partial_scan_probability);
+    }
+}
+
+impl RadarPreset {
+    /// The radars of this preset (empty for `Custom`).
+    pub fn radars(self) -> Vec<SimRadarConfig> {
+        match self {
+            RadarPreset::Carla => vec![SimRadarConfig::default()],
+            RadarPreset::Nuscenes => nuscenes_radars(),
+            RadarPreset::Custom => Vec::new(),
+        }
+    }
+}
+
+/// The five ARS408-21 radars of the nuScenes Singapore vehicle (nuScenes calibration: translation in the ego frame
+/// at the rear-axle midpoint, rotation as quaternion w, x, y, z about z only).
+fn nuscenes_radars() -> Vec<SimRadarConfig> {
+    // (channel, translation, quaternion w, z)
+    let table: [(&str, [f64; 3], f64, f64); 5] = [
+        (
+            "front",
+            [3.412, 0.0, 0.5],
+            0.9999984769132877,
+            0.0017453283658983088,
+        ),
+        (
+            "front_left",
+            [2.422, 0.8, 0.78],
+            0.7171539204983457,
+            0.6969148113750004,
+        ),
+        (
+            "front_right",
+            [2.422, -0.8, 0.77],
+            0.7010337393110511,
+            -0.7131281065471795,
+        ),
+        (
+            "back_left",
+            [-0.562, 0.628, 0.53],
+            0.04876260733128922,
+            0.9988103964848657,
+        ),
+        (
+            "back_right",
+            [-0.562, -0.618, 0.53],
+            0.0339401344459428,
+            -0.9994238676726663,
+        ),
+    ];
+    // ARS408-21 coverage (Continental data sheet): far range 250 m within +-4 deg falling to 150 m at
+    // +-9 deg; near range 70 m out to +-45 deg, falling to 20 m at +-60 deg.
+    let coverage = vec![
+        [0.0, 250.0],
+        [4f64.to_radians(), 250.0],
+        [9f64.to_radians(), 150.0],
+        [10f64.to_radians(), 70.0],
+        [45f64.to_radians(), 70.0],
+        [60f64.to_radians(), 20.0],
+    ];
+    let period = 1.0 / 13.0;
+    table
+        .iter()
+        .enumerate()
+        .map(|(i, &(name, t, w, z))| {
+            let q = Quat::new_normalize(nalgebra::Quaternion::new(w, 0.0, 0.0, z));
+            let yaw = q.euler_angles().2;
+            SimRadarConfig {
+                name: name.into(),
+                topic: format!("/radar_{name}/points"),
+                frame_id: format!("radar_{name}"),
+                extrinsic: [t[0], t[1], t[2], 0.0, 0.0, yaw],
+                coverage: coverage.clone(),
+                // Own phase per radar: the five sweeps interleave.
+                phase: period * i as f64 / 5.0,
+                ..SimRadarConfig::default()
+            }
+        })
+        .collect()
+}

@@ -1,5 +1,6 @@
 //! Scratch: the evaluation protocol on a simulated drive, in memory.
 use dc_loc::eval::{Collector, EvalConfig, Method, evaluate, make_pairs, report};
+use dc_loc::sim::inputs::{ScanEncoding, SimInputs};
 use dc_loc::sim::{SimConfig, simulate};
 use std::time::Instant;
 
@@ -38,7 +39,9 @@ fn main() {
     }
     let ecfg = EvalConfig::default();
     let mut col = Collector::new(&pcfg, &ecfg).unwrap();
-    col.push_sim_drive(&drive).unwrap();
+    for input in SimInputs::new(&drive, ScanEncoding::Clouds).flatten() {
+        col.push(&input);
+    }
     let (kfs, _) = col.finish();
     let pairs = make_pairs(&kfs, &ecfg);
     println!(

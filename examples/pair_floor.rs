@@ -31,6 +31,7 @@
 //! (0.048 against 0.041 m with perfect odometry); the Doppler speed scale takes it out (0.040 m).
 use dc_loc::eval::{Collector, EvalConfig, make_pairs};
 use dc_loc::registration::{PreparedSubmap, matching, overlap_near, ransac, register_detailed};
+use dc_loc::sim::inputs::{ScanEncoding, SimInputs};
 use dc_loc::sim::{NoiseModel, SimConfig, config::OdometrySimConfig, simulate};
 use rayon::prelude::*;
 use std::collections::HashSet;
@@ -59,7 +60,9 @@ fn main() {
     }
     let ecfg = EvalConfig::default();
     let mut col = Collector::new(&pcfg, &ecfg).unwrap();
-    col.push_sim_drive(&drive).unwrap();
+    for input in SimInputs::new(&drive, ScanEncoding::Clouds).flatten() {
+        col.push(&input);
+    }
     let (kfs, _) = col.finish();
     let pairs = make_pairs(&kfs, &ecfg);
     let rcfg = &pcfg.registration;

@@ -1,7 +1,8 @@
 //! Scratch: the pipeline over the default simulated drive, closures against ground truth.
-use dc_loc::math::{iso2_from_iso3, iso3_from_iso2, wrap_angle};
+use dc_loc::math::{iso2_from_iso3, wrap_angle};
 use dc_loc::pipeline::{Event, Pipeline};
-use dc_loc::sim::{SimConfig, SimEventRef, simulate};
+use dc_loc::sim::inputs::{ScanEncoding, SimInputs};
+use dc_loc::sim::{SimConfig, simulate};
 use std::time::Instant;
 
 fn main() {
@@ -18,12 +19,8 @@ fn main() {
     let mut p = Pipeline::new(drive.to_config()).unwrap();
     let t0 = Instant::now();
     let mut closures = Vec::new();
-    for ev in drive.events() {
-        let out = match ev {
-            SimEventRef::Odometry(o) => p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)),
-            SimEventRef::Scan(s) => p.push_scan(s.scan.clone()),
-            SimEventRef::GroundTruth(_) => continue,
-        };
+    for input in SimInputs::new(&drive, ScanEncoding::Detections).flatten() {
+        let out = p.push(&input);
         for e in out {
             if let Event::Closure(c) = e {
                 let q = drive.state_at(c.query_stamp).t_map_body;

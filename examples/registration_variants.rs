@@ -303,9 +303,7 @@ fn main() {
                         succ += 1;
                         t_err_sum += te;
                         r_err_sum += re;
-                        let e = dc_loc::registration::lm::se2_log(
-                            &(det.result.t_target_source.inverse() * t),
-                        );
+                        let e = dc_loc::math::se2_log(&(det.result.t_target_source.inverse() * t));
                         if let Some(inf) = det.covariance_se2.try_inverse() {
                             nees_sum += e.dot(&(inf * e));
                         }

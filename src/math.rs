@@ -102,6 +102,32 @@ pub fn interpolate_iso3(a: &Iso3, b: &Iso3, s: f64) -> Iso3 {
     Iso3::from_parts(nalgebra::Translation3::from(t), rot)
 }
 
+/// `Exp` of se(2): `delta = (x, y, theta)` to a rigid motion (`t = V(theta) (x, y)`).
+pub fn se2_exp(delta: &Vec3) -> Iso2 {
+    let th = delta[2];
+    let (a, b) = v_coeffs(th);
+    let t = Vec2::new(a * delta[0] - b * delta[1], b * delta[0] + a * delta[1]);
+    Iso2::new(t, th)
+}
+
+/// `Log` of SE(2), inverse of [`se2_exp`]; theta in (-pi, pi].
+pub fn se2_log(t: &Iso2) -> Vec3 {
+    let th = t.rotation.angle();
+    let (a, b) = v_coeffs(th);
+    let p = t.translation.vector;
+    let k = 1.0 / (a * a + b * b);
+    Vec3::new(k * (a * p.x + b * p.y), k * (-b * p.x + a * p.y), th)
+}
+
+/// `sin(th)/th` and `(1 - cos(th))/th`, with series near zero.
+fn v_coeffs(th: f64) -> (f64, f64) {
+    if th.abs() < 1e-6 {
+        (1.0 - th * th / 6.0, th / 2.0 - th * th * th / 24.0)
+    } else {
+        (th.sin() / th, (1.0 - th.cos()) / th)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,5 +201,18 @@ mod tests {
             Vec3::new(4.0, 8.0, 0.0),
             epsilon = 1e-12
         );
+    }
+
+    #[test]
+    fn exp_log_round_trip() {
+        for d in [
+            Vec3::new(1.0, -2.0, 0.3),
+            Vec3::new(0.1, 0.2, -3.0),
+            Vec3::new(5.0, 1.0, 1e-9),
+            Vec3::new(0.0, 0.0, 0.0),
+        ] {
+            let back = se2_log(&se2_exp(&d));
+            assert!((back - d).norm() < 1e-9, "{d} -> {back}");
+        }
     }
 }

@@ -3,7 +3,7 @@
 //! Steps, in order, as data arrives: decode a radar cloud -> wait until odometry covers its stamp ->
 //! Doppler compensation, covariance, moving-object rejection ([`crate::submap::SubmapBuilder`]) ->
 //! keyframe decision -> revisit search in the keyframe database -> registration -> gates -> closure.
-//! Nothing calls back: every `push_*` returns the [`Event`]s it produced, and counters live in
+//! Nothing calls back: [`Pipeline::push`] returns the [`Event`]s it produced, and counters live in
 //! [`PipelineStats`].
 //!
 //! Entry points: [`Pipeline`], [`Event`], [`LoopClosure`], [`KeyframeConfig`], [`LoopConfig`],
@@ -11,12 +11,13 @@
 
 use crate::cloud::decode_detections;
 use crate::config::Config;
+use crate::input::Input;
 use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord, SearchSettings};
+use crate::math::se2_log;
 use crate::math::{Iso2, Iso3, Mat3, Mat6, Stamp, iso2_from_iso3, iso3_from_iso2};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
-use crate::registration::lm::se2_log;
 use crate::registration::{
     PreparedSubmap, RegistrationError, RegistrationResult, common_view, overlap_near,
     register_prepared, slide_overlap,
@@ -693,8 +694,19 @@ impl Pipeline {
         out.push(Event::Dropped { reason, detail });
     }
 
+    /// Feeds one input: the one door through which every source's data enters the pipeline. Ground
+    /// truth is not an input of the pipeline (it produces nothing).
+    pub fn push(&mut self, input: &Input) -> Vec<Event> {
+        match input {
+            Input::Radar { radar, cloud } => self.push_cloud(*radar, cloud),
+            Input::Scan(scan) => self.push_scan(scan.clone()),
+            Input::Odometry { stamp, t_odom_body } => self.push_odometry(*stamp, *t_odom_body),
+            Input::GroundTruth { .. } => Vec::new(),
+        }
+    }
+
     /// Feeds one odometry sample (`t_odom_body` at `stamp`); releases scans that were waiting for it.
-    pub fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
+    fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
         let mut out = Vec::new();
         if !self.check_time(stamp, "odometry", &mut out) {
             return out;
@@ -725,7 +737,7 @@ impl Pipeline {
     }
 
     /// Decodes and feeds one radar cloud from radar `radar` (index in `radar_names`).
-    pub fn push_cloud(&mut self, radar: usize, cloud: &PointCloud2) -> Vec<Event> {
+    fn push_cloud(&mut self, radar: usize, cloud: &PointCloud2) -> Vec<Event> {
         let mut out = Vec::new();
         let Some(name) = self.cfg.radar_names.get(radar) else {
             self.drop(
@@ -764,7 +776,7 @@ impl Pipeline {
     }
 
     /// Feeds one decoded scan.
-    pub fn push_scan(&mut self, scan: RadarScan) -> Vec<Event> {
+    fn push_scan(&mut self, scan: RadarScan) -> Vec<Event> {
         let mut out = Vec::new();
         if scan.radar >= self.cfg.radar_names.len() {
             self.drop(

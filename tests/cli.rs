@@ -20,16 +20,19 @@ use std::sync::OnceLock;
 use dc_loc::bag::{BagReader, BagWriter, schema};
 use dc_loc::cloud::{CloudLayout, encode_detections};
 use dc_loc::config::Config;
+use dc_loc::input::{Input, IssueReason};
+use dc_loc::io::rosbag::BagInputs;
 use dc_loc::math::{
     Iso2, Stamp, Vec3, interpolate_iso3, iso2_from_iso3, iso3_from_iso2, wrap_angle,
 };
 use dc_loc::msgs::builtin_interfaces::Time;
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::std_msgs::Header;
+use dc_loc::output::ClosureRecord;
 use dc_loc::params::{ParamSet, apply};
 use dc_loc::pipeline::Pipeline;
 use dc_loc::radar::Detection;
-use dc_loc::runner::{BagInputs, ClosureRecord, Input, IssueReason, run_bag};
+use dc_loc::runner::run_inputs;
 use dc_loc::sim::export::{GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC, params_yaml};
 use dc_loc::sim::{RadarPreset, SimConfig, SimDrive, simulate};
 use serde_json::json;
@@ -446,7 +449,7 @@ fn runner_reports_bad_messages_and_goes_on() {
 
     // Through the pipeline: every good input is used.
     let mut pipeline = Pipeline::new(cfg.clone()).unwrap();
-    let report = run_bag(
+    let report = run_inputs(
         &mut pipeline,
         BagInputs::new(&reader, &cfg, None).unwrap(),
         |_| {},

@@ -9,10 +9,10 @@ use std::process::Output;
 use dc_loc::bag::foxglove::{
     FrameTransform, PackedElementField, PointCloud, Quaternion, Timestamp, Vector3,
 };
+use dc_loc::input::Input;
 use dc_loc::io::nuscenes::RADAR_CHANNELS;
 use dc_loc::io::vod_sequence::{VodInputs, open_sequences};
 use dc_loc::math::{Iso3, Stamp, iso3_from_iso2, iso3_from_xyz_rpy};
-use dc_loc::runner::Input;
 use dc_loc::sim::{SimDrive, SimScan, simulate};
 use prost::Message;
 

@@ -5,8 +5,9 @@
 #[path = "support/radar_scene.rs"]
 mod radar_scene;
 
+use dc_loc::math::se2_log;
 use dc_loc::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
-use dc_loc::registration::lm::{self, CovarianceMode, LmConfig, se2_log};
+use dc_loc::registration::lm::{self, CovarianceMode, LmConfig};
 use dc_loc::registration::ransac::Correspondence;
 use dc_loc::registration::robust::{RobustKind, RobustLoss};
 use dc_loc::registration::{

@@ -3,10 +3,11 @@
 //! any bag's `/tf_static` or `/tf`.
 //!
 //! Entry points: the protobuf messages ([`PointCloud`], [`FrameTransform`], [`FrameTransforms`], with
-//! their `foxglove/schemas` field numbers), [`point_cloud_to_pointcloud2`], [`FoxgloveInputs`] (a
-//! foxglove MCAP as the runner's input stream), [`bag_extrinsics`], [`is_foxglove_cloud`].
+//! their `foxglove/schemas` field numbers), [`point_cloud_to_pointcloud2`], [`transforms_of`],
+//! [`bag_extrinsics`], [`is_foxglove_cloud`]; the input stream of such a file is
+//! `crate::io::foxglove::FoxgloveInputs`.
 //!
-//! nuscenes2mcap's layout (FORMATS.md): topics `/radar_front` ... (or `/RADAR_FRONT` in the 2022
+//! nuscenes2mcap's layout (docs/formats.md): topics `/radar_front` ... (or `/RADAR_FRONT` in the 2022
 //! version), frame id the channel name, point stride 43, the PCD fields in order with their packed
 //! offsets, `data` the raw PCD records; `/tf` carries `map -> base_link` (the ego pose, at every sweep)
 //! and `base_link -> radar_*` (calibrated_sensor). The ego pose is what the pipeline gets as odometry.
@@ -15,12 +16,11 @@ use std::collections::BTreeMap;
 
 use prost::Message;
 
-use super::{BagError, BagReader, Messages, schema};
+use super::{BagError, BagReader, schema};
 use crate::math::{Iso3, Quat, Stamp};
 use crate::msgs::sensor_msgs::{PointCloud2, PointField};
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
-use crate::runner::{Input, InputIssue, IssueReason};
 
 /// Schema name of a foxglove point cloud.
 pub const POINT_CLOUD: &str = "foxglove.PointCloud";
@@ -277,7 +277,7 @@ pub fn is_foxglove_cloud(reader: &BagReader, topic: &str) -> bool {
 
 /// The transforms of one message of a transform topic (tf2 TFMessage in CDR, or foxglove
 /// FrameTransform(s) in protobuf): (parent, child, stamp, pose); undecodable messages give none.
-fn transforms_of(msg: &super::BagMessage) -> Vec<(String, String, Stamp, Iso3)> {
+pub fn transforms_of(msg: &super::BagMessage) -> Vec<(String, String, Stamp, Iso3)> {
     let mut out = Vec::new();
     match (msg.type_name(), msg.message_encoding()) {
         (schema::TF_MESSAGE, "cdr") => {
@@ -342,111 +342,6 @@ pub fn bag_extrinsics(
         }
     }
     Ok(found)
-}
-
-/// A foxglove MCAP as the runner's input stream: radar clouds from `foxglove.PointCloud` topics
-/// (radar index by topic), odometry from `map_frame -> body_frame` transforms on `/tf`. Messages that do
-/// not decode come out as issues; the stream goes on.
-pub struct FoxgloveInputs {
-    messages: Messages,
-    radar_of: BTreeMap<String, usize>,
-    map_frame: String,
-    body_frame: String,
-    queue: std::collections::VecDeque<Input>,
-    total: u64,
-}
-
-impl FoxgloveInputs {
-    /// Reads `radar_topics[i]` as radar `i` and `/tf` for the ego pose (`map_frame -> body_frame`).
-    pub fn new(
-        reader: &BagReader,
-        radar_topics: &[String],
-        map_frame: &str,
-        body_frame: &str,
-    ) -> Result<Self, BagError> {
-        let mut topics: Vec<&str> = radar_topics.iter().map(String::as_str).collect();
-        if reader.topic("/tf").is_some() {
-            topics.push("/tf");
-        }
-        let total = topics
-            .iter()
-            .map(|t| reader.topic(t).map_or(0, |i| i.message_count))
-            .sum();
-        Ok(FoxgloveInputs {
-            messages: reader.messages_on(&topics)?,
-            radar_of: radar_topics
-                .iter()
-                .enumerate()
-                .map(|(i, t)| (t.clone(), i))
-                .collect(),
-            map_frame: map_frame.to_string(),
-            body_frame: body_frame.to_string(),
-            queue: Default::default(),
-            total,
-        })
-    }
-
-    /// Messages on the topics read (for progress).
-    pub fn total_messages(&self) -> u64 {
-        self.total
-    }
-}
-
-impl Iterator for FoxgloveInputs {
-    type Item = Result<Input, InputIssue>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(i) = self.queue.pop_front() {
-                return Some(Ok(i));
-            }
-            let msg = match self.messages.next()? {
-                Ok(m) => m,
-                Err(e) => {
-                    return Some(Err(InputIssue {
-                        topic: String::new(),
-                        stamp: Stamp(0),
-                        reason: IssueReason::Damaged(e),
-                    }));
-                }
-            };
-            let issue = |reason| InputIssue {
-                topic: msg.topic().to_string(),
-                stamp: msg.log_time,
-                reason,
-            };
-            if let Some(&radar) = self.radar_of.get(msg.topic()) {
-                let cloud = PointCloud::decode(msg.data())
-                    .map_err(|e| FoxgloveError::Decode {
-                        type_name: POINT_CLOUD,
-                        message: e.to_string(),
-                    })
-                    .and_then(|c| point_cloud_to_pointcloud2(&c));
-                return Some(match cloud {
-                    Ok(mut cloud) => {
-                        if Stamp::from(cloud.header.stamp) == Stamp(0) {
-                            cloud.header.stamp = msg.log_time.into();
-                        }
-                        Ok(Input::Radar { radar, cloud })
-                    }
-                    Err(e) => Err(issue(IssueReason::Foreign(e.to_string()))),
-                });
-            }
-            for (parent, child, stamp, pose) in transforms_of(&msg) {
-                if parent == self.map_frame && child == self.body_frame {
-                    let stamp = if stamp == Stamp(0) {
-                        msg.log_time
-                    } else {
-                        stamp
-                    };
-                    self.queue.push_back(Input::Odometry {
-                        stamp,
-                        t_odom_body: pose,
-                    });
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]

@@ -58,7 +58,7 @@
 //! variant. Both estimate the speed from distorted data.
 
 use super::{IcpConfig, register_icp};
-use crate::math::{Iso2, Iso3, Stamp, Vec2, Vec3};
+use crate::math::{Iso2, Iso3, Stamp, Vec2, Vec3, se2_exp, se2_log};
 use crate::radar::Detection;
 use crate::registration::{PointSet2, RegistrationError, RegistrationResult};
 use crate::validate::{ConfigError, Validator};
@@ -307,30 +307,6 @@ impl ForwardSpeedEstimator {
     }
 }
 
-/// `Exp` of a planar twist `(x, y, theta)` (constant velocity along an arc).
-fn se2_exp(xi: &Vec3) -> Iso2 {
-    let th = xi.z;
-    let (a, b) = if th.abs() < 1e-9 {
-        (1.0, th / 2.0)
-    } else {
-        (th.sin() / th, (1.0 - th.cos()) / th)
-    };
-    Iso2::new(Vec2::new(a * xi.x - b * xi.y, b * xi.x + a * xi.y), th)
-}
-
-/// `Log` of a planar pose: the twist `(x, y, theta)` that reaches it along an arc.
-fn se2_log(t: &Iso2) -> Vec3 {
-    let th = t.rotation.angle();
-    let (a, b) = if th.abs() < 1e-9 {
-        (1.0, th / 2.0)
-    } else {
-        (th.sin() / th, (1.0 - th.cos()) / th)
-    };
-    let p = t.translation.vector;
-    let det = a * a + b * b;
-    Vec3::new((a * p.x + b * p.y) / det, (-b * p.x + a * p.y) / det, th)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -361,22 +337,6 @@ mod tests {
         let ray_body = t_body_radar.rotation * p_radar;
         let got = doppler_correct_body(&p_body.xy().coords, &ray_body.xy(), v, beta);
         assert_relative_eq!(got, corrected_body.xy().coords, epsilon = 1e-12);
-    }
-
-    #[test]
-    fn se2_exp_and_log_invert_each_other() {
-        for xi in [
-            Vec3::new(1.5, 0.0, 0.0),
-            Vec3::new(1.5, -0.2, 0.3),
-            Vec3::new(-2.0, 0.7, -2.5),
-            Vec3::new(0.0, 0.0, 1e-12),
-        ] {
-            assert_relative_eq!(se2_log(&se2_exp(&xi)), xi, epsilon = 1e-12);
-        }
-        // Driving an arc of radius 10 m through 0.5 rad: forward speed times time is the arc length.
-        let (r, th) = (10.0_f64, 0.5_f64);
-        let t = Iso2::new(Vec2::new(r * th.sin(), r * (1.0 - th.cos())), th);
-        assert_relative_eq!(se2_log(&t), Vec3::new(r * th, 0.0, th), epsilon = 1e-12);
     }
 
     #[test]

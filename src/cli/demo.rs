@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::CliError;
 use super::eval::{collect, evaluate_and_report};
-use super::run::load_params;
+use super::params::load_params;
 use crate::eval::{EvalConfig, Method};
 use crate::sim::export::export_drive;
 use crate::sim::{NoiseModel, SimConfig, simulate};

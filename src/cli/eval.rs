@@ -1,4 +1,5 @@
-//! `dc_loc eval`: the paper's evaluation protocol on a bag with ground truth.
+//! `dc_loc eval`: the paper's evaluation protocol on a bag with ground truth (the datasets on disk:
+//! [`super::eval_datasets`]).
 //!
 //! Drives the pipeline over the bag (revisit search off), pairs keyframes of different passes over the
 //! same place by ground truth, registers every pair with every method and ablation row, prints the
@@ -9,65 +10,32 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-
-use super::run::load_params;
-use super::{CliError, set_progress};
+use super::params::load_params;
+use super::source::{SourceArgs, bag_inputs};
+use super::{CliError, progress};
 use crate::bag::BagReader;
 use crate::config::Config;
 use crate::eval::report::{self, MethodSummary};
 use crate::eval::{Collector, EvalConfig, EvalKeyframe, Method, PairResult, evaluate, make_pairs};
-use crate::runner::{BagInputs, Input, RunnerError};
+use crate::input::Input;
 
 /// Arguments of `dc_loc eval`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
-    /// rosbag2 bag with radar clouds, odometry and ground truth (directory or .mcap).
-    #[arg(long, value_name = "BAG", required_unless_present_any = ["nuscenes", "vod"])]
-    pub bag: Option<PathBuf>,
-    /// ROS 2 params YAML (e.g. the `dc_loc.yaml` that `dc_loc sim` writes into its bag directory).
-    /// Required with `--bag`; with `--nuscenes` / `--vod` it is optional (defaults, radars and
-    /// extrinsics from the dataset).
-    #[arg(long, value_name = "FILE")]
-    pub params: Option<PathBuf>,
-    /// nuScenes data root (holding `<version>/`, `samples/`, `sweeps/`): every scene is a drive, pairs
-    /// across scenes at one location.
-    #[arg(long, value_name = "DIR", conflicts_with_all = ["bag", "vod"])]
-    pub nuscenes: Option<PathBuf>,
-    /// nuScenes version folder.
-    #[arg(long, default_value = "v1.0-mini")]
-    pub version: String,
-    /// nuScenes: only these scenes (comma-separated names, e.g. scene-0061,scene-0103).
-    #[arg(long, value_delimiter = ',')]
-    pub scenes: Vec<String>,
+    /// The data and its parameters (a bag needs ground truth on `--ground-truth-topic`; nuScenes
+    /// pairs scenes at one location, View-of-Delft runs of consecutive frames).
+    #[command(flatten)]
+    pub source: SourceArgs,
     /// nuScenes: skip scenes whose sweep files are missing (a partly extracted trainval) instead of
     /// stopping.
     #[arg(long)]
     pub skip_incomplete_scenes: bool,
-    /// nuScenes radar filter: kept `invalid_state` values (comma-separated, or `all`).
-    #[arg(long, default_value = "0")]
-    pub radar_invalid_states: String,
-    /// nuScenes radar filter: kept `dyn_prop` values (comma-separated, or `all`; the devkit keeps 0-6,
-    /// the DC-Loc authors' code only stationary points: 1).
-    #[arg(long, default_value = "0,1,2,3,4,5,6")]
-    pub radar_dynprop_states: String,
-    /// nuScenes radar filter: kept `ambig_state` values (comma-separated, or `all`).
-    #[arg(long, default_value = "3")]
-    pub radar_ambig_states: String,
     /// nuScenes: odometry from the ego poses with this relative scale error (0.01 = 1 %).
     #[arg(long, default_value_t = 0.0)]
     pub odometry_scale_error: f64,
     /// nuScenes: odometry from the ego poses with this yaw-rate bias, deg/s.
     #[arg(long, default_value_t = 0.0)]
     pub odometry_yaw_bias_deg: f64,
-    /// View-of-Delft radar directory (`velodyne/`, `pose/`, `calib/`, or a folder holding
-    /// `radar/training/`): its longest run of consecutive frames is evaluated.
-    #[arg(long, value_name = "DIR", conflicts_with_all = ["bag", "nuscenes"])]
-    pub vod: Option<PathBuf>,
-    /// VoD frame rate, Hz (the `.bin` files carry no time).
-    #[arg(long, default_value_t = 10.0)]
-    pub frame_rate: f64,
-
     /// Ground-truth nav_msgs/Odometry topic (map frame).
     #[arg(long, default_value = "/ground_truth/odom")]
     pub ground_truth_topic: String,
@@ -86,12 +54,6 @@ pub struct EvalArgs {
     /// Only DC-Loc (skip the baselines and the ablation).
     #[arg(long)]
     pub dcloc_only: bool,
-    /// Node name whose section of the params file applies.
-    #[arg(long, default_value = "dc_loc")]
-    pub node_name: String,
-    /// Parameter override, applied after the file (repeatable).
-    #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
-    pub overrides: Vec<String>,
 }
 
 /// What an evaluation produced.
@@ -106,15 +68,11 @@ pub struct EvalOutcome {
     pub plot: PathBuf,
 }
 
-fn bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
-    if let Ok(style) = ProgressStyle::with_template(&format!(
-        "{{elapsed_precise}} [{{wide_bar}}] {{pos}}/{{len}} {what} ({{eta}} left)"
-    )) {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    set_progress(Some(bar.clone()));
-    bar
+fn bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    progress::bar(
+        len,
+        &format!("{{elapsed_precise}} [{{wide_bar}}] {{pos}}/{{len}} {what} ({{eta}} left)"),
+    )
 }
 
 /// Collects the keyframes of a bag with ground truth.
@@ -125,20 +83,17 @@ pub fn collect(
     eval: &EvalConfig,
 ) -> Result<Vec<EvalKeyframe>, CliError> {
     let reader = BagReader::open(bag).map_err(|e| CliError::Runtime(e.to_string()))?;
-    let inputs = BagInputs::new(&reader, cfg, Some(gt_topic)).map_err(|e| match e {
-        RunnerError::Bag(e) => CliError::Runtime(e.to_string()),
-        e => CliError::Usage(e.to_string()),
-    })?;
+    let inputs = bag_inputs(&reader, cfg, Some(gt_topic))?;
     let mut collector = Collector::new(cfg, eval).map_err(|e| CliError::Usage(e.to_string()))?;
-    let progress = bar(inputs.total_messages(), "messages");
+    let bar = bar(inputs.total_messages(), "messages");
     let (mut ground_truth, mut radar, mut odometry, mut skipped) = (0u64, 0u64, 0u64, 0u64);
     for item in inputs {
-        progress.inc(1);
+        bar.inc(1);
         match item {
             Ok(input) => {
                 match &input {
                     Input::GroundTruth { .. } => ground_truth += 1,
-                    Input::Radar { .. } => radar += 1,
+                    Input::Radar { .. } | Input::Scan(_) => radar += 1,
                     Input::Odometry { .. } => odometry += 1,
                 }
                 collector.push(&input);
@@ -149,8 +104,7 @@ pub fn collect(
             }
         }
     }
-    progress.finish_and_clear();
-    set_progress(None);
+    progress::clear(&bar);
     if ground_truth == 0 {
         return Err(CliError::Usage(format!(
             "no ground truth on {gt_topic} in {}",
@@ -181,15 +135,14 @@ pub fn evaluate_and_report(
             eval.pair_radius, eval.min_pass_gap
         )));
     }
-    let progress = bar(pairs.len() as u64, "pairs");
+    let bar = bar(pairs.len() as u64, "pairs");
     // Chunks keep the progress bar moving while rayon works inside each.
     let mut results: Vec<PairResult> = Vec::new();
     for chunk in pairs.chunks(16) {
         results.extend(evaluate(kfs, chunk, methods, &cfg.registration, eval));
-        progress.inc(chunk.len() as u64);
+        bar.inc(chunk.len() as u64);
     }
-    progress.finish_and_clear();
-    set_progress(None);
+    progress::clear(&bar);
     let summaries = report::summarize(&results, methods, eval);
     let plot = write_and_print(
         &summaries,
@@ -290,29 +243,28 @@ pub fn eval_config(args: &EvalArgs) -> EvalConfig {
     }
 }
 
-/// Runs `dc_loc eval`.
+/// The methods to evaluate: every method and ablation row, or DC-Loc alone.
+pub fn methods(args: &EvalArgs) -> Vec<Method> {
+    if args.dcloc_only {
+        vec![Method::DCLOC]
+    } else {
+        Method::all()
+    }
+}
+
+/// Runs `dc_loc eval --bag`.
 pub fn main(args: &EvalArgs) -> Result<(), CliError> {
-    if args.nuscenes.is_some() {
-        return super::realdata::eval_nuscenes(args);
-    }
-    if args.vod.is_some() {
-        return super::realdata::eval_vod(args);
-    }
-    let (Some(bag), Some(params)) = (&args.bag, &args.params) else {
+    let (Some(bag), Some(params)) = (&args.source.bag, &args.source.params) else {
         return Err(CliError::Usage(
             "--bag needs --params (the params file of the bag's radars and topics)".into(),
         ));
     };
-    let cfg = load_params(params, "/", &args.node_name, &args.overrides)?;
+    let src = &args.source;
+    let cfg = load_params(params, "/", &src.node_name, &src.overrides)?;
     let eval = eval_config(args);
     eval.validate()
         .map_err(|e| CliError::Usage(e.to_string()))?;
     let kfs = collect(bag, &cfg, &args.ground_truth_topic, &eval)?;
-    let methods = if args.dcloc_only {
-        vec![Method::DCLOC]
-    } else {
-        Method::all()
-    };
-    evaluate_and_report(&kfs, &cfg, &eval, &methods, &args.out_dir)?;
+    evaluate_and_report(&kfs, &cfg, &eval, &methods(args), &args.out_dir)?;
     Ok(())
 }

@@ -1,8 +1,8 @@
 //! Command-line front ends: the offline subcommands and the node's entry point.
 //!
-//! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`], [`demo`],
-//! [`revisits`]; the datasets on disk, `--nuscenes` and `--vod` of `run` and `eval`, in [`realdata`]),
-//! [`node_main`] (the ROS 2 node).
+//! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`] with
+//! [`eval_datasets`] for `--nuscenes` and `--vod`, [`demo`], [`revisits`]; the data they read in
+//! [`source`], its parameters in [`params`]), [`node_main`] (the ROS 2 node).
 //!
 //! Conventions of every subcommand: results and summaries on stdout; logs on stderr through
 //! `env_logger` (`RUST_LOG` honoured; default `warn` with dc_loc's own messages at `info`), kept clear of
@@ -11,15 +11,15 @@
 
 pub mod demo;
 pub mod eval;
-pub mod realdata;
+pub mod eval_datasets;
+pub mod params;
+pub mod progress;
 pub mod revisits;
 pub mod run;
 pub mod sim;
-
-use std::sync::Mutex;
+pub mod source;
 
 use clap::{Parser, Subcommand};
-use indicatif::ProgressBar;
 
 /// `dc_loc`: DC-Loc radar loop closures; offline tools (the ROS 2 node runs without a subcommand).
 #[derive(Debug, Parser)]
@@ -85,6 +85,10 @@ pub fn main(args: &[String]) -> i32 {
     let (name, result) = match cli.command {
         Command::Sim(a) => ("sim", sim::main(&a)),
         Command::Run(a) => ("run", run::main(&a)),
+        Command::Eval(a) if a.source.nuscenes.is_some() => {
+            ("eval", eval_datasets::eval_nuscenes(&a))
+        }
+        Command::Eval(a) if a.source.vod.is_some() => ("eval", eval_datasets::eval_vod(&a)),
         Command::Eval(a) => ("eval", eval::main(&a)),
         Command::Demo(a) => ("demo", demo::main(&a)),
         Command::Revisits(a) => ("revisits", revisits::main(&a)),
@@ -113,16 +117,6 @@ pub fn node_main(_args: &[String]) -> i32 {
     2
 }
 
-/// The progress bar on screen, if any: log lines are printed around it.
-static PROGRESS: Mutex<Option<ProgressBar>> = Mutex::new(None);
-
-/// Shows `bar` (or none) as the one progress bar that log output suspends.
-fn set_progress(bar: Option<ProgressBar>) {
-    if let Ok(mut g) = PROGRESS.lock() {
-        *g = bar;
-    }
-}
-
 /// env_logger, with each record written while the progress bar is cleared from the screen.
 struct CliLogger(env_logger::Logger);
 
@@ -134,11 +128,7 @@ impl log::Log for CliLogger {
         if !self.0.matches(record) {
             return;
         }
-        let bar = PROGRESS.lock().ok().and_then(|g| g.clone());
-        match bar {
-            Some(bar) => bar.suspend(|| self.0.log(record)),
-            None => self.0.log(record),
-        }
+        progress::suspended(|| self.0.log(record));
     }
     fn flush(&self) {
         self.0.flush();

@@ -22,11 +22,12 @@ pub mod revisits;
 use crate::baselines::{BaselinesConfig, ForwardSpeedEstimator, register_icp, register_ndt};
 use crate::cloud::decode_detections;
 use crate::config::Config;
+use crate::input::Input;
+use crate::math::se2_log;
 use crate::math::{Iso2, Iso3, Mat3, Stamp, Vec2, Vec3, iso2_from_iso3, wrap_angle};
-use crate::msgs::sensor_msgs::PointCloud2;
 use crate::pipeline::{Event, Pipeline};
+use crate::radar::Detection;
 use crate::radar::doppler::RadarModel;
-use crate::registration::lm::se2_log;
 use crate::registration::{
     PointSet2, PreparedSubmap, RegistrationConfig, RegistrationResult, register_detailed,
 };
@@ -239,99 +240,54 @@ impl Collector {
         })
     }
 
-    /// Feeds a whole simulated drive in time order, its scans encoded as the simulator's bags carry
-    /// them (float32 x y z v_r rcs PointCloud2), as a bag of it would be read.
-    pub fn push_sim_drive(&mut self, drive: &crate::sim::SimDrive) -> Result<(), String> {
-        use crate::sim::SimEventRef;
-        let layout = crate::cloud::CloudLayout::radar_f32();
-        for ev in drive.events() {
-            match ev {
-                SimEventRef::Odometry(o) => {
-                    self.push_odometry(o.stamp, crate::math::iso3_from_iso2(&o.t_odom_body));
-                }
-                SimEventRef::Scan(s) => {
-                    let header = crate::msgs::std_msgs::Header {
-                        stamp: s.scan.stamp.into(),
-                        frame_id: String::new(),
-                    };
-                    let cloud =
-                        crate::cloud::encode_detections(&s.scan.detections, &layout, header)
-                            .map_err(|e| e.to_string())?;
-                    self.push_cloud(s.scan.radar, &cloud);
-                }
-                SimEventRef::GroundTruth(g) => self.push_ground_truth(
-                    g.stamp,
-                    crate::math::iso3_from_iso2(&g.t_map_body),
-                    g.speed,
-                ),
-            }
-        }
-        Ok(())
-    }
-
-    /// Feeds one input of the runner's stream (radar, odometry or ground truth).
-    pub fn push(&mut self, input: &crate::runner::Input) -> Vec<Event> {
-        use crate::runner::Input;
+    /// Feeds one input of a stream: to the pipeline (ground truth to the evaluation only), and a radar
+    /// scan's uncorrected points to the MC-RANSAC-style speed estimator of that radar.
+    pub fn push(&mut self, input: &Input) -> Vec<Event> {
         match input {
-            Input::Radar { radar, cloud } => self.push_cloud(*radar, cloud),
-            Input::Odometry { stamp, t_odom_body } => self.push_odometry(*stamp, *t_odom_body),
+            Input::Radar { radar, cloud } => {
+                let fields = self.fields.get(*radar);
+                if let Some(decoded) = fields.and_then(|f| decode_detections(cloud, f).ok()) {
+                    self.estimate_speed(*radar, cloud.header.stamp.into(), &decoded.detections);
+                }
+            }
+            Input::Scan(scan) => self.estimate_speed(scan.radar, scan.stamp, &scan.detections),
             Input::GroundTruth {
                 stamp,
                 t_map_body,
                 speed,
-            } => {
-                self.push_ground_truth(*stamp, *t_map_body, *speed);
-                Vec::new()
-            }
+            } => self.push_ground_truth(*stamp, *t_map_body, *speed),
+            Input::Odometry { .. } => {}
         }
-    }
-
-    /// Feeds odometry to the pipeline.
-    pub fn push_odometry(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Vec<Event> {
-        let events = self.pipeline.push_odometry(stamp, t_odom_body);
-        self.keep_keyframes(&events);
-        events
-    }
-
-    fn keep_keyframes(&mut self, events: &[Event]) {
-        for e in events {
+        let events = self.pipeline.push(input);
+        for e in &events {
             if let Event::Keyframe { id, submap, .. } = e {
                 self.keyframes.push((*id, submap.clone()));
             }
         }
-    }
-
-    /// Feeds a radar cloud to the pipeline, and its uncorrected points to the MC-RANSAC-style speed
-    /// estimator of that radar.
-    pub fn push_cloud(&mut self, radar: usize, cloud: &PointCloud2) -> Vec<Event> {
-        if let (Some(model), Some(fields), Some(est)) = (
-            self.radars.get(radar),
-            self.fields.get(radar),
-            self.estimators.get_mut(radar),
-        ) {
-            if let Ok(decoded) = decode_detections(cloud, fields) {
-                let pts: Vec<Vec2> = decoded
-                    .detections
-                    .iter()
-                    .map(|d| {
-                        (model.t_body_radar * nalgebra::Point3::from(d.p_radar))
-                            .coords
-                            .xy()
-                    })
-                    .collect();
-                let stamp: Stamp = cloud.header.stamp.into();
-                if let Ok(Some(e)) = est.push(stamp, pts) {
-                    self.speeds.insert((radar, stamp), e.forward_speed);
-                }
-            }
-        }
-        let events = self.pipeline.push_cloud(radar, cloud);
-        self.keep_keyframes(&events);
         events
     }
 
+    /// The MC-RANSAC-style forward speed of radar `radar` at `stamp`, from its uncorrected points.
+    fn estimate_speed(&mut self, radar: usize, stamp: Stamp, detections: &[Detection]) {
+        let (Some(model), Some(est)) = (self.radars.get(radar), self.estimators.get_mut(radar))
+        else {
+            return;
+        };
+        let pts: Vec<Vec2> = detections
+            .iter()
+            .map(|d| {
+                (model.t_body_radar * nalgebra::Point3::from(d.p_radar))
+                    .coords
+                    .xy()
+            })
+            .collect();
+        if let Ok(Some(e)) = est.push(stamp, pts) {
+            self.speeds.insert((radar, stamp), e.forward_speed);
+        }
+    }
+
     /// Feeds a ground-truth pose (map frame) and speed.
-    pub fn push_ground_truth(&mut self, stamp: Stamp, t_map_body: Iso3, speed: f64) {
+    fn push_ground_truth(&mut self, stamp: Stamp, t_map_body: Iso3, speed: f64) {
         let prev = self.gt.newest();
         if self.gt.push(stamp, t_map_body).is_err() || !speed.is_finite() {
             self.bad_ground_truth += 1;

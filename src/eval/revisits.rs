@@ -17,11 +17,10 @@
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
 use crate::config::Config;
-use crate::math::{Iso2, Stamp, iso2_from_iso3, iso3_from_iso2, wrap_angle};
+use crate::math::{Iso2, Stamp, iso2_from_iso3, wrap_angle};
 use crate::pipeline::{Event, LoopClosure, Pipeline, PipelineStats};
-use crate::sim::{
-    NoiseModel, RadarPreset, SimConfig, SimDrive, SimEventRef, config::LapConfig, simulate,
-};
+use crate::sim::inputs::{ScanEncoding, SimInputs};
+use crate::sim::{NoiseModel, RadarPreset, SimConfig, SimDrive, config::LapConfig, simulate};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -227,17 +226,11 @@ pub fn evaluate_revisits(
     Ok(judge(drive, &keyframes, &closures, &rejections, p.stats()))
 }
 
-/// Pushes a simulated drive's odometry and scans through `p` in time order, handing each step's
-/// events to `sink` (ground truth is not an input).
+/// Pushes a simulated drive's inputs through `p` in time order (its scans as decoded detections),
+/// handing each input's events to `sink`.
 pub fn feed(drive: &SimDrive, p: &mut Pipeline, mut sink: impl FnMut(Vec<Event>)) {
-    for ev in drive.events() {
-        match ev {
-            SimEventRef::Odometry(o) => {
-                sink(p.push_odometry(o.stamp, iso3_from_iso2(&o.t_odom_body)))
-            }
-            SimEventRef::Scan(s) => sink(p.push_scan(s.scan.clone())),
-            SimEventRef::GroundTruth(_) => {}
-        }
+    for input in SimInputs::new(drive, ScanEncoding::Detections).flatten() {
+        sink(p.push(&input));
     }
 }
 

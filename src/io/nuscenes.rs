@@ -16,12 +16,12 @@
 //! Timestamps are microseconds since the epoch.
 
 use crate::config::{Config, RadarConfig};
+use crate::input::{Input, InputIssue, IssueReason};
 use crate::io::nuscenes_pcd::{
     NuscenesRadarFilter, PcdError, filtered_pointcloud2, nuscenes_fields_config,
 };
 use crate::math::{Iso3, Quat, Stamp};
 use crate::msgs::std_msgs::Header;
-use crate::runner::Input;
 use serde::Deserialize;
 use serde::de::{DeserializeOwned, DeserializeSeed, SeqAccess, Visitor};
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -626,20 +626,20 @@ pub struct OdometryDrift {
     pub yaw_rate_bias: f64,
 }
 
-/// A scene as the runner's input stream: per sweep, in time order, the ground truth (ego pose, speed
+/// A scene as an input stream: per sweep, in time order, the ground truth (ego pose, speed
 /// from the neighbouring ego poses), the odometry (the ego poses with [`OdometryDrift`] integrated in)
 /// and the radar cloud (the PCD records that pass the filter, as a PointCloud2 stamped with the sweep
-/// time, frame id `radar_<channel>`). Errors (a missing or damaged PCD file) end the scene.
+/// time, frame id `radar_<channel>`). A missing or damaged PCD file is reported as an
+/// [`InputIssue`] and skipped; the scene goes on.
 pub struct SceneInputs<'a> {
     dataroot: &'a Path,
     scene: &'a NuscenesScene,
     filter: NuscenesRadarFilter,
     drift: OdometryDrift,
     next: usize,
-    queue: std::collections::VecDeque<Input>,
+    queue: std::collections::VecDeque<Result<Input, InputIssue>>,
     odom: Option<(Stamp, Iso3, Iso3)>,
     speeds: Vec<f64>,
-    failed: bool,
 }
 
 impl<'a> SceneInputs<'a> {
@@ -659,7 +659,6 @@ impl<'a> SceneInputs<'a> {
             queue: Default::default(),
             odom: None,
             speeds: ego_speeds(&scene.sweeps),
-            failed: false,
         }
     }
 
@@ -707,58 +706,56 @@ fn ego_speeds(sweeps: &[RadarSweep]) -> Vec<f64> {
 }
 
 impl Iterator for SceneInputs<'_> {
-    type Item = Result<Input, NuscenesError>;
+    type Item = Result<Input, InputIssue>;
 
     fn next(&mut self) -> Option<Self::Item> {
         if let Some(i) = self.queue.pop_front() {
-            return Some(Ok(i));
-        }
-        if self.failed {
-            return None;
+            return Some(i);
         }
         let sweep = self.scene.sweeps.get(self.next)?;
         let speed = self.speeds.get(self.next).copied().unwrap_or(0.0);
         self.next += 1;
-        let path = self.dataroot.join(&sweep.filename);
-        let bytes = match std::fs::read(&path) {
-            Ok(b) => b,
-            Err(source) => {
-                self.failed = true;
-                return Some(Err(NuscenesError::MissingSweep {
-                    path,
-                    token: sweep.token.clone(),
-                    source,
-                }));
-            }
-        };
-        let name = RADAR_CHANNELS
+        let channel = RADAR_CHANNELS
             .get(sweep.channel)
-            .map_or("radar".to_string(), |c| c.to_ascii_lowercase());
+            .copied()
+            .unwrap_or("RADAR");
         let stamp = sweep.stamp();
-        let header = Header {
-            stamp: stamp.into(),
-            frame_id: name,
-        };
-        let cloud = match filtered_pointcloud2(&bytes, &self.filter, header) {
-            Ok(c) => c,
-            Err(source) => {
-                self.failed = true;
-                return Some(Err(NuscenesError::Pcd { path, source }));
-            }
-        };
         if let Some(t_odom_body) = self.odometry(stamp, sweep.t_global_ego) {
-            self.queue.push_back(Input::GroundTruth {
+            self.queue.push_back(Ok(Input::GroundTruth {
                 stamp,
                 t_map_body: sweep.t_global_ego,
                 speed,
-            });
-            self.queue.push_back(Input::Odometry { stamp, t_odom_body });
+            }));
+            self.queue
+                .push_back(Ok(Input::Odometry { stamp, t_odom_body }));
         }
-        self.queue.push_back(Input::Radar {
-            radar: sweep.channel,
-            cloud,
+        let header = Header {
+            stamp: stamp.into(),
+            frame_id: channel.to_ascii_lowercase(),
+        };
+        let path = self.dataroot.join(&sweep.filename);
+        let cloud = match std::fs::read(&path) {
+            Err(source) => Err(NuscenesError::MissingSweep {
+                path,
+                token: sweep.token.clone(),
+                source,
+            }),
+            Ok(bytes) => filtered_pointcloud2(&bytes, &self.filter, header)
+                .map_err(|source| NuscenesError::Pcd { path, source }),
+        };
+        // A sweep that cannot be read is skipped and reported; the scene goes on.
+        self.queue.push_back(match cloud {
+            Ok(cloud) => Ok(Input::Radar {
+                radar: sweep.channel,
+                cloud,
+            }),
+            Err(e) => Err(InputIssue {
+                topic: channel.to_string(),
+                stamp,
+                reason: IssueReason::Unreadable(e.to_string()),
+            }),
         });
-        self.queue.pop_front().map(Ok)
+        self.queue.pop_front()
     }
 }
 

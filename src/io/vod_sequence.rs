@@ -14,11 +14,11 @@
 //! between two frames (VoD numbers its clips one after another).
 
 use crate::config::{Config, FieldsConfig, RadarConfig};
+use crate::input::{Input, InputIssue, IssueReason};
 use crate::io::vod::{KittiCalib, VodError, VodPoses, iso3_from_matrix};
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::{PointCloud2, PointField};
 use crate::msgs::std_msgs::Header;
-use crate::runner::Input;
 use std::path::{Path, PathBuf};
 
 /// Odometry jump that splits a sequence, m.
@@ -227,15 +227,14 @@ pub fn bin_to_pointcloud2(bytes: &[u8], header: Header) -> Result<PointCloud2, V
     })
 }
 
-/// A sequence as the runner's input stream: per frame the ground truth (map pose, speed from the
-/// neighbouring frames), the odometry and the radar cloud. A file that cannot be read ends the stream
-/// with its error.
+/// A sequence as an input stream: per frame the ground truth (map pose, speed from the neighbouring
+/// frames), the odometry and the radar cloud. A frame file that cannot be read is reported as an
+/// [`InputIssue`] and skipped; the sequence goes on.
 pub struct VodInputs<'a> {
     seq: &'a VodSequence,
     frame_rate: f64,
     next: usize,
-    queue: std::collections::VecDeque<Input>,
-    failed: bool,
+    queue: std::collections::VecDeque<Result<Input, InputIssue>>,
 }
 
 impl<'a> VodInputs<'a> {
@@ -246,7 +245,6 @@ impl<'a> VodInputs<'a> {
             frame_rate,
             next: 0,
             queue: Default::default(),
-            failed: false,
         }
     }
 
@@ -267,21 +265,28 @@ impl<'a> VodInputs<'a> {
 }
 
 impl Iterator for VodInputs<'_> {
-    type Item = Result<Input, VodSequenceError>;
+    type Item = Result<Input, InputIssue>;
 
     fn next(&mut self) -> Option<Self::Item> {
         if let Some(i) = self.queue.pop_front() {
-            return Some(Ok(i));
-        }
-        if self.failed {
-            return None;
+            return Some(i);
         }
         let i = self.next;
         let frame = self.seq.frames.get(i)?;
         self.next += 1;
-        let err = |source| VodSequenceError::Frame {
-            frame: frame.number,
-            source,
+        let stamp = frame.stamp(self.frame_rate);
+        self.queue.push_back(Ok(Input::GroundTruth {
+            stamp,
+            t_map_body: frame.t_map_radar,
+            speed: self.speed(i),
+        }));
+        self.queue.push_back(Ok(Input::Odometry {
+            stamp,
+            t_odom_body: frame.t_odom_radar,
+        }));
+        let header = Header {
+            stamp: stamp.into(),
+            frame_id: "radar".into(),
         };
         let cloud = std::fs::read(&frame.bin)
             .map_err(|source| VodError::Io {
@@ -289,36 +294,26 @@ impl Iterator for VodInputs<'_> {
                 source,
             })
             .and_then(|b| {
-                bin_to_pointcloud2(
-                    &b,
-                    Header {
-                        stamp: frame.stamp(self.frame_rate).into(),
-                        frame_id: "radar".into(),
-                    },
-                )
-                .map_err(|e| VodError::InFile {
+                bin_to_pointcloud2(&b, header).map_err(|e| VodError::InFile {
                     path: frame.bin.clone(),
                     source: Box::new(e),
                 })
             });
-        let cloud = match cloud {
-            Ok(c) => c,
-            Err(e) => {
-                self.failed = true;
-                return Some(Err(err(e)));
-            }
-        };
-        let stamp = frame.stamp(self.frame_rate);
-        self.queue.push_back(Input::GroundTruth {
-            stamp,
-            t_map_body: frame.t_map_radar,
-            speed: self.speed(i),
+        // A frame that cannot be read is skipped and reported; the sequence goes on.
+        self.queue.push_back(match cloud {
+            Ok(cloud) => Ok(Input::Radar { radar: 0, cloud }),
+            Err(source) => Err(InputIssue {
+                topic: format!("frame {:05}", frame.number),
+                stamp,
+                reason: IssueReason::Unreadable(
+                    VodSequenceError::Frame {
+                        frame: frame.number,
+                        source,
+                    }
+                    .to_string(),
+                ),
+            }),
         });
-        self.queue.push_back(Input::Odometry {
-            stamp,
-            t_odom_body: frame.t_odom_radar,
-        });
-        self.queue.push_back(Input::Radar { radar: 0, cloud });
-        self.queue.pop_front().map(Ok)
+        self.queue.pop_front()
     }
 }

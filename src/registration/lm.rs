@@ -2,7 +2,7 @@
 //! the result.
 //!
 //! Entry points: [`LmConfig`], [`refine`] (LM from an initial guess on given correspondences),
-//! [`LmResult`], [`CovarianceMode`]; the SE(2) maps [`se2_exp`] and [`se2_log`]; [`pair_terms`] (one
+//! [`LmResult`], [`CovarianceMode`]; [`pair_terms`] (one
 //! residual's cost, gradient and Gauss-Newton block, public so that tests can check it against finite
 //! differences).
 //!
@@ -19,7 +19,7 @@
 //!   Gauss-Newton *Hessian* leaves that term out (it is second order: it vanishes with the residuals);
 //!   this is the usual GICP approximation and keeps the normal matrix positive semi-definite.
 
-use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
+use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_exp};
 use crate::registration::robust::RobustLoss;
 use crate::registration::{PointSet2, RegistrationError};
 use crate::validate::Validator;
@@ -124,32 +124,6 @@ pub struct LmResult {
     pub iterations: usize,
     /// A tolerance was met before the iteration limit.
     pub converged: bool,
-}
-
-/// `Exp` of se(2): `delta = (x, y, theta)` to a rigid motion (`t = V(theta) (x, y)`).
-pub fn se2_exp(delta: &Vec3) -> Iso2 {
-    let th = delta[2];
-    let (a, b) = v_coeffs(th);
-    let t = Vec2::new(a * delta[0] - b * delta[1], b * delta[0] + a * delta[1]);
-    Iso2::new(t, th)
-}
-
-/// `Log` of SE(2), inverse of [`se2_exp`]; theta in (-pi, pi].
-pub fn se2_log(t: &Iso2) -> Vec3 {
-    let th = t.rotation.angle();
-    let (a, b) = v_coeffs(th);
-    let p = t.translation.vector;
-    let k = 1.0 / (a * a + b * b);
-    Vec3::new(k * (a * p.x + b * p.y), k * (-b * p.x + a * p.y), th)
-}
-
-/// `sin(th)/th` and `(1 - cos(th))/th`, with series near zero.
-fn v_coeffs(th: f64) -> (f64, f64) {
-    if th.abs() < 1e-6 {
-        (1.0 - th * th / 6.0, th / 2.0 - th * th * th / 24.0)
-    } else {
-        (th.sin() / th, (1.0 - th.cos()) / th)
-    }
 }
 
 /// `[0 -1; 1 0] v`: the generator of planar rotation applied to `v`.
@@ -641,19 +615,6 @@ mod tests {
         // L L^T with L lower triangular [a 0; b c]
         let l = Mat2::new(a, 0.0, b, c);
         l * l.transpose()
-    }
-
-    #[test]
-    fn exp_log_round_trip() {
-        for d in [
-            Vec3::new(1.0, -2.0, 0.3),
-            Vec3::new(0.1, 0.2, -3.0),
-            Vec3::new(5.0, 1.0, 1e-9),
-            Vec3::new(0.0, 0.0, 0.0),
-        ] {
-            let back = se2_log(&se2_exp(&d));
-            assert!((back - d).norm() < 1e-9, "{d} -> {back}");
-        }
     }
 
     #[test]

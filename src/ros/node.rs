@@ -41,6 +41,7 @@ use super::convert::{
 };
 use super::merge::StampMerger;
 use crate::config::Config;
+use crate::input::{Input, odometry_pose};
 use crate::keyframe_db::{KeyframeDb, KeyframeRecord, save_records};
 use crate::math::{Iso3, Stamp};
 use crate::msgs::builtin_interfaces::Time;
@@ -49,9 +50,9 @@ use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
+use crate::output::loop_closure_msg;
 use crate::params::{ParamError, ParamSet, apply, flatten_config};
 use crate::pipeline::{Event, Pipeline};
-use crate::runner::loop_closure_msg;
 
 /// The node's own settings (not part of [`Config`], which the offline tools share).
 #[derive(Debug, Clone, PartialEq)]
@@ -731,7 +732,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
                         }
                     };
                     shared.count_received("odometry");
-                    match crate::runner::odometry_pose(&odom) {
+                    match odometry_pose(&odom) {
                         Some((stamp, t_odom_body)) => inbox.send(Work::Odometry {
                             stamp,
                             t_odom_body,
@@ -1008,14 +1009,20 @@ impl Worker {
                 radar,
                 cloud,
                 arrived,
-            } => (self.pipeline.push_cloud(radar, &cloud), arrived),
+            } => (
+                self.pipeline.push(&Input::Radar {
+                    radar,
+                    cloud: *cloud,
+                }),
+                arrived,
+            ),
             Work::Odometry {
                 stamp,
                 t_odom_body,
                 frame_id,
                 arrived,
             } => {
-                let events = self.pipeline.push_odometry(stamp, t_odom_body);
+                let events = self.pipeline.push(&Input::Odometry { stamp, t_odom_body });
                 let accepted = !events.iter().any(|e| matches!(e, Event::Dropped { .. }));
                 if accepted && !frame_id.is_empty() {
                     self.odom_frame = frame_id;

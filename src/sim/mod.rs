@@ -24,6 +24,7 @@
 
 pub mod config;
 pub mod export;
+pub mod inputs;
 pub mod noise;
 pub mod nuscenes;
 pub mod odometry;

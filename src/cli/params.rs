@@ -1,0 +1,83 @@
+//! The pipeline configuration of an offline run: a ROS 2 params file (the node's section) and `-p`
+//! overrides onto the defaults, or onto a dataset's own radar layout ([`dataset_config`]).
+
+use std::path::Path;
+
+use super::CliError;
+use crate::config::Config;
+use crate::params::{ParamSet, apply, flatten_config};
+
+/// The configuration from a params file (the section of node `/namespace/node_name`) and `-p`
+/// overrides, validated.
+pub fn load_params(
+    params: &Path,
+    namespace: &str,
+    node_name: &str,
+    overrides: &[String],
+) -> Result<Config, CliError> {
+    let file = params.display();
+    let mut set = read_params(params, namespace, node_name)?;
+    if set.entries().is_empty() {
+        log::warn!(
+            "{file} has no parameters for node {node_name} (namespace {namespace}): running with the defaults"
+        );
+    }
+    add_overrides(&mut set, overrides)?;
+    apply(&set).map_err(|e| CliError::Usage(format!("parameters ({file} and -p): {e}")))
+}
+
+/// The configuration for a dataset whose radars `template` describes: `template`'s parameters, then the
+/// params file's (optional), then the overrides.
+pub fn dataset_config(
+    template: &Config,
+    params: Option<&Path>,
+    node_name: &str,
+    overrides: &[String],
+) -> Result<Config, CliError> {
+    let mut set = ParamSet::default();
+    for (name, value) in flatten_config(template) {
+        set.set(name, value);
+    }
+    if let Some(p) = params {
+        for (name, value) in read_params(p, "/", node_name)?.entries() {
+            set.set(name.clone(), value.clone());
+        }
+    }
+    add_overrides(&mut set, overrides)?;
+    apply(&set).map_err(|e| CliError::Usage(format!("parameters: {e}")))
+}
+
+/// The parameters of node `/namespace/node_name` in the params file `path`.
+fn read_params(path: &Path, namespace: &str, node_name: &str) -> Result<ParamSet, CliError> {
+    let file = path.display();
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))?;
+    ParamSet::from_yaml(&text, namespace, node_name)
+        .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))
+}
+
+fn add_overrides(set: &mut ParamSet, overrides: &[String]) -> Result<(), CliError> {
+    for o in overrides {
+        set.set_override(o)
+            .map_err(|e| CliError::Usage(format!("-p: {e}")))?;
+    }
+    Ok(())
+}
+
+/// A flag's list of kept states: comma-separated integers, or `all` (no filtering on that flag).
+pub fn parse_states(flag: &str, value: &str) -> Result<Option<Vec<i8>>, CliError> {
+    if value.trim() == "all" {
+        return Ok(None);
+    }
+    value
+        .split(',')
+        .map(|v| {
+            v.trim().parse::<i8>().map_err(|_| {
+                CliError::Usage(format!(
+                    "--{flag}: `{v}` is not a state number (give e.g. 0,1,2 or all)"
+                ))
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}

@@ -1,0 +1,159 @@
+//! What enters the pipeline: [`Input`] (a radar cloud, a decoded scan, an odometry or ground-truth
+//! sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft, the simulator, the
+//! node's DDS subscriptions), the [`InputIssue`] a source reports for a message it skips, and the
+//! conversions of ROS messages into inputs ([`odometry_pose`], [`ground_truth_sample`],
+//! [`stamp_or_log_time`]).
+//!
+//! Stamps: an input carries its message's `header.stamp`. Some drivers leave it zero (the TI mmWave
+//! ROS driver does); then the receive time (a bag's log time, the node's clock) stands in.
+
+use crate::bag::BagError;
+use crate::math::{Iso3, Stamp, Vec3};
+use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::sensor_msgs::PointCloud2;
+use crate::msgs::std_msgs::Header;
+use crate::radar::RadarScan;
+
+/// One input of the pipeline, from any source.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Input {
+    /// A radar cloud (its `header.stamp` already replaced by the receive or log time when it was zero).
+    Radar {
+        /// Radar index (position in `radar_names`).
+        radar: usize,
+        /// The cloud.
+        cloud: PointCloud2,
+    },
+    /// A radar scan already decoded into detections (the simulator's scans, datasets read without a
+    /// PointCloud2).
+    Scan(RadarScan),
+    /// An odometry sample.
+    Odometry {
+        /// Its stamp.
+        stamp: Stamp,
+        /// Body pose in the odometry frame.
+        t_odom_body: Iso3,
+    },
+    /// A ground-truth sample (not used by the pipeline; for evaluation).
+    GroundTruth {
+        /// Its stamp.
+        stamp: Stamp,
+        /// Body pose in the map frame.
+        t_map_body: Iso3,
+        /// Speed: norm of the twist's linear velocity, m/s.
+        speed: f64,
+    },
+}
+
+impl Input {
+    /// The input's stamp.
+    pub fn stamp(&self) -> Stamp {
+        match self {
+            Input::Radar { cloud, .. } => cloud.header.stamp.into(),
+            Input::Scan(scan) => scan.stamp,
+            Input::Odometry { stamp, .. } | Input::GroundTruth { stamp, .. } => *stamp,
+        }
+    }
+}
+
+/// Why a message of a source was not turned into an [`Input`].
+#[derive(Debug, thiserror::Error)]
+pub enum IssueReason {
+    /// The message does not decode as its topic's type (the CDR error).
+    #[error("does not decode: {0}")]
+    Decode(#[source] BagError),
+    /// An odometry or ground-truth pose with a non-finite value or a zero quaternion.
+    #[error("pose is not finite (or its quaternion is zero)")]
+    NonFinitePose,
+    /// A cloud whose `header.frame_id` is not the configured `frame_id` of the topic's radar(s).
+    #[error("frame_id `{got}` is not the configured `{expected}`")]
+    FrameMismatch {
+        /// The configured frame id(s), `|`-separated when several radars share the topic.
+        expected: String,
+        /// The cloud's frame id.
+        got: String,
+    },
+    /// The bag file is damaged from here on (messages before were read; the file ends here).
+    #[error("damaged bag file: {0}")]
+    Damaged(#[source] BagError),
+    /// A message of a non-ROS encoding (foxglove protobuf, [`crate::bag::foxglove`]) that does not
+    /// decode or convert.
+    #[error("does not convert: {0}")]
+    Foreign(String),
+    /// A dataset file (a nuScenes sweep, a View-of-Delft frame) that is missing or does not parse.
+    #[error("unreadable file: {0}")]
+    Unreadable(String),
+}
+
+impl IssueReason {
+    /// Short snake_case name for counts and summaries.
+    pub fn name(&self) -> &'static str {
+        match self {
+            IssueReason::Decode(_) => "undecodable",
+            IssueReason::NonFinitePose => "non_finite_pose",
+            IssueReason::FrameMismatch { .. } => "frame_mismatch",
+            IssueReason::Damaged(_) => "damaged_file",
+            IssueReason::Foreign(_) => "undecodable_foreign",
+            IssueReason::Unreadable(_) => "unreadable_file",
+        }
+    }
+}
+
+/// A message of a source that was skipped, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("{topic} at {:.6} s: {reason}", .stamp.as_secs_f64())]
+pub struct InputIssue {
+    /// Topic of the message (empty for damage that belongs to no message).
+    pub topic: String,
+    /// Header stamp, or the log time when the header is zero or could not be read.
+    pub stamp: Stamp,
+    /// What is wrong.
+    pub reason: IssueReason,
+}
+
+/// The header stamp, or `log_time` when the header stamp is zero (recorders that leave it unset).
+pub fn stamp_or_log_time(header: &Header, log_time: Stamp) -> Stamp {
+    let s: Stamp = header.stamp.into();
+    if s == Stamp(0) { log_time } else { s }
+}
+
+/// Stamp and body pose of an odometry message; `None` when the pose is not finite.
+pub fn odometry_pose(msg: &Odometry) -> Option<(Stamp, Iso3)> {
+    Some((msg.header.stamp.into(), msg.pose.pose.to_iso3()?))
+}
+
+/// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message; `None`
+/// when the pose is not finite (the speed is not checked: the pose is what matters).
+pub fn ground_truth_sample(msg: &Odometry) -> Option<(Stamp, Iso3, f64)> {
+    let (stamp, pose) = odometry_pose(msg)?;
+    let l = &msg.twist.twist.linear;
+    Some((stamp, pose, Vec3::new(l.x, l.y, l.z).norm()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::builtin_interfaces::Time;
+
+    #[test]
+    fn converters_check_finiteness_and_fall_back_to_log_time() {
+        let mut m = Odometry::default();
+        m.header.stamp = Time { sec: 5, nanosec: 7 };
+        m.pose.pose.position.x = 2.0;
+        m.twist.twist.linear.x = 3.0;
+        m.twist.twist.linear.y = 4.0;
+        let (s, t, v) = ground_truth_sample(&m).unwrap();
+        assert_eq!(s, Stamp(5_000_000_007));
+        assert_eq!(t.translation.x, 2.0);
+        assert_eq!(v, 5.0);
+        m.pose.pose.orientation.w = f64::NAN;
+        assert!(odometry_pose(&m).is_none());
+        m.pose.pose.orientation = Default::default();
+        m.pose.pose.position.y = f64::INFINITY;
+        assert!(odometry_pose(&m).is_none());
+
+        let log = Stamp(99);
+        assert_eq!(stamp_or_log_time(&m.header, log), Stamp(5_000_000_007));
+        assert_eq!(stamp_or_log_time(&Header::default(), log), log);
+    }
+}

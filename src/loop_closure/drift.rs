@@ -1,0 +1,138 @@
+//! The odometry drift model the gates test closures against: how far a prediction from odometry, or
+//! from an accepted alignment, may be off after some metres of path.
+
+use super::{Alignment, LoopConfig};
+use crate::keyframe_db::KeyframeRecord;
+use crate::math::{Iso2, Mat3, Mat6, se2_log};
+
+/// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
+/// predicts.
+pub fn predict(alignment: &Iso2, query: &KeyframeRecord, cand: &KeyframeRecord) -> Iso2 {
+    cand.t_odom_body.inverse() * alignment * query.t_odom_body
+}
+
+/// Whether an accepted alignment found `path_gap` metres of path away is fresh enough to vouch for
+/// a closure alone (`loop.trusted_prior_std`).
+pub fn vouches(path_gap: f64, lc: &LoopConfig) -> bool {
+    alignment_sigmas(path_gap, lc).0 <= lc.trusted_prior_std
+}
+
+/// Largest translation standard deviation of a covariance in ROS order (largest eigenvalue of its x-y
+/// block), m.
+pub fn translation_std(cov: &Mat6) -> f64 {
+    let xy = cov.fixed_view::<2, 2>(0, 0).into_owned();
+    xy.symmetric_eigenvalues().max().max(0.0).sqrt()
+}
+
+/// Standard deviations (m, rad) of the odometry drift over `path_gap` metres: the drift model's bounds
+/// (search radius plus `drift_rate` per metre, 0.05 rad plus `drift_yaw_rate` per metre) read as three
+/// standard deviations, so that the default 3-dof chi-square gate accepts a closure whose translation
+/// and heading errors both lie near their bounds (heading drift also moves the position).
+pub fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
+    let gap = path_gap.abs();
+    (
+        (lc.search_radius + lc.drift_rate * gap).min(lc.search_radius_max) / 3.0,
+        (0.05 + lc.drift_yaw_rate * gap).min(std::f64::consts::PI) / 3.0,
+    )
+}
+
+/// Standard deviations (m, rad) of an accepted alignment's prediction `path_gap` metres of path after the
+/// closure that gave it: the closure's own accuracy (0.5 m, 0.01 rad) plus the drift since, with the drift
+/// model's rates read as two standard deviations. Tighter than [`drift_sigmas`]: right after a closure the
+/// odometry is known to within decimetres, and a street that slides by a few metres is caught.
+pub fn alignment_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
+    let gap = path_gap.abs();
+    (
+        (0.5 + 0.5 * lc.drift_rate * gap).min(lc.search_radius_max),
+        (0.01 + 0.5 * lc.drift_yaw_rate * gap).min(std::f64::consts::PI),
+    )
+}
+
+/// Squared Mahalanobis distance between two alignments of the same odometry frame found `path_gap`
+/// metres of path apart, compared where they are used (the body pose `at`): two true closures agree to
+/// registration accuracy (1 m, 0.02 rad standard deviation, generous) plus the drift between them (the
+/// drift model's rates read as two standard deviations, as in [`alignment_sigmas`]).
+pub fn alignment_distance(a: &Iso2, b: &Iso2, at: &Iso2, path_gap: f64, lc: &LoopConfig) -> f64 {
+    let e = se2_log(&((a * at).inverse() * (b * at)));
+    let gap = path_gap.abs();
+    let st = 1.0 + 0.5 * lc.drift_rate * gap;
+    let sr = 0.02 + 0.5 * lc.drift_yaw_rate * gap;
+    (e.x * e.x + e.y * e.y) / (st * st) + e.z * e.z / (sr * sr)
+}
+
+/// What a closure is tested against: the session's accepted alignment, or (for a candidate of this
+/// session) odometry itself.
+#[derive(Debug, Clone, Copy)]
+pub enum Prior<'a> {
+    /// The accepted alignment to the candidate's session.
+    Alignment(&'a Alignment),
+    /// Odometry: the candidate belongs to this session.
+    Odometry,
+}
+
+/// Squared Mahalanobis distance between a registered `T_match_query` (`t`, covariance `cov6` in ROS
+/// order) and its prediction by `prior` under the closure's covariance plus the drift since the prior
+/// was found; `None` when the covariance is singular.
+pub fn inconsistency(
+    prior: Prior<'_>,
+    query: &KeyframeRecord,
+    cand: &KeyframeRecord,
+    t: &Iso2,
+    cov6: &Mat6,
+    lc: &LoopConfig,
+) -> Option<f64> {
+    let (alignment, (sigma_t, sigma_r)) = match prior {
+        Prior::Alignment(a) => (a.t, alignment_sigmas(query.path_distance - a.path, lc)),
+        Prior::Odometry => (
+            Iso2::identity(),
+            drift_sigmas(query.path_distance - cand.path_distance, lc),
+        ),
+    };
+    let predicted = predict(&alignment, query, cand);
+    let e = se2_log(&(t.inverse() * predicted));
+    // The planar block of the ROS-order covariance: x, y and yaw (row and column 5).
+    let mut cov = Mat3::zeros();
+    for (i, a) in [0usize, 1, 5].into_iter().enumerate() {
+        for (j, b) in [0usize, 1, 5].into_iter().enumerate() {
+            cov[(i, j)] = cov6[(a, b)];
+        }
+    }
+    cov[(0, 0)] += sigma_t * sigma_t;
+    cov[(1, 1)] += sigma_t * sigma_t;
+    cov[(2, 2)] += sigma_r * sigma_r;
+    let inv = cov.try_inverse()?;
+    Some(e.dot(&(inv * e)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The alignment's prediction tightens the drift model near the closure that gave it, and both
+    /// grow with the path.
+    #[test]
+    fn sigmas_grow_with_the_path_and_alignments_are_tighter() {
+        let lc = LoopConfig::default();
+        let (t0, r0) = alignment_sigmas(0.0, &lc);
+        assert_eq!((t0, r0), (0.5, 0.01));
+        let (t100, _) = alignment_sigmas(100.0, &lc);
+        assert!((t100 - 3.0).abs() < 1e-12);
+        let (d100, _) = drift_sigmas(100.0, &lc);
+        assert!((d100 - 20.0 / 3.0).abs() < 1e-12);
+        assert!(vouches(60.0, &lc) && !vouches(61.0, &lc));
+        let far = drift_sigmas(1e9, &lc);
+        assert_eq!(far.0, lc.search_radius_max / 3.0);
+    }
+
+    #[test]
+    fn alignments_agree_within_their_drift() {
+        let lc = LoopConfig::default();
+        let a = Iso2::new(crate::math::Vec2::new(10.0, 0.0), 0.1);
+        let at = Iso2::new(crate::math::Vec2::new(50.0, 20.0), 0.3);
+        assert_eq!(alignment_distance(&a, &a, &at, 0.0, &lc), 0.0);
+        let b = Iso2::new(crate::math::Vec2::new(12.0, 0.0), 0.1);
+        // 2 m apart: 4 sigma^2 right after the closure, under 1 after 100 m of path.
+        assert!((alignment_distance(&a, &b, &at, 0.0, &lc) - 4.0).abs() < 1e-9);
+        assert!(alignment_distance(&a, &b, &at, 100.0, &lc) < 1.0);
+    }
+}

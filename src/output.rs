@@ -4,12 +4,12 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::loop_closure::LoopClosure;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::geometry_msgs::{Pose, PoseWithCovariance};
 use crate::msgs::std_msgs::Header;
 use crate::msgs::{self};
-use crate::pipeline::LoopClosure;
 
 /// A loop closure as `dc_loc/msg/LoopClosure`, stamped with the query keyframe time in `frame_id` (the
 /// body frame).

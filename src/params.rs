@@ -11,7 +11,9 @@
 //! defaults, then its `radars.<name>.*` parameters. Unknown names and wrong types are refused with the
 //! parameter's name; nothing is silently ignored or clamped.
 
-use crate::config::{Config, ConfigError, RadarConfig};
+use crate::pipeline::Config;
+use crate::radar::RadarConfig;
+use crate::validate::ConfigError;
 use serde_json::{Map, Value};
 
 /// Why parameters could not be read or applied.

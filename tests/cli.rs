@@ -19,7 +19,6 @@ use std::sync::OnceLock;
 
 use dc_loc::bag::{BagReader, BagWriter, schema};
 use dc_loc::cloud::{CloudLayout, encode_detections};
-use dc_loc::config::Config;
 use dc_loc::input::{Input, IssueReason};
 use dc_loc::io::rosbag::BagInputs;
 use dc_loc::math::{
@@ -30,6 +29,7 @@ use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::output::ClosureRecord;
 use dc_loc::params::{ParamSet, apply};
+use dc_loc::pipeline::Config;
 use dc_loc::pipeline::Pipeline;
 use dc_loc::radar::Detection;
 use dc_loc::runner::run_inputs;

@@ -5,11 +5,11 @@ use dc_loc::cloud::{
     CloudLayout, DecodeError, DecodedCloud, EncodeError, FieldRole, LayoutField, ScalarType,
     decode_detections, decode_detections_into, encode_detections,
 };
-use dc_loc::config::FieldsConfig;
 use dc_loc::math::Vec3;
 use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::radar::Detection;
+use dc_loc::radar::FieldsConfig;
 use rand::rngs::StdRng;
 use rand::seq::{IndexedRandom, SliceRandom};
 use rand::{RngExt, SeedableRng};

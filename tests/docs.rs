@@ -1,8 +1,8 @@
 //! The documentation keeps up with the code: every parameter of the configuration tree is documented in
 //! README_NODE.md as `name` (type, default), with the default the code has.
 
-use dc_loc::config::Config;
 use dc_loc::params::flatten_config;
+use dc_loc::pipeline::Config;
 
 #[test]
 fn every_parameter_is_documented_with_its_default() {

@@ -20,11 +20,11 @@ use std::process::{Command, Output};
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use dc_loc::bag::BagReader;
-use dc_loc::config::Config;
 use dc_loc::eval::{Collector, EvalConfig, make_pairs};
 use dc_loc::io::rosbag::BagInputs;
 use dc_loc::math::{Stamp, wrap_angle};
 use dc_loc::output::{ClosureRecord, PoseRecord};
+use dc_loc::pipeline::Config;
 use dc_loc::sim::export::GROUND_TRUTH_TOPIC;
 use dc_loc::sim::{SimConfig, SimDrive, simulate};
 

@@ -14,10 +14,10 @@ use super::params::load_params;
 use super::source::{SourceArgs, bag_inputs};
 use super::{CliError, progress};
 use crate::bag::BagReader;
-use crate::config::Config;
 use crate::eval::report::{self, MethodSummary};
 use crate::eval::{Collector, EvalConfig, EvalKeyframe, Method, PairResult, evaluate, make_pairs};
 use crate::input::Input;
+use crate::pipeline::Config;
 
 /// Arguments of `dc_loc eval`.
 #[derive(Debug, Clone, clap::Args)]

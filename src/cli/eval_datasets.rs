@@ -19,7 +19,6 @@ use std::path::Path;
 use super::eval::{EvalArgs, eval_config, methods, write_and_print};
 use super::source::{open_nuscenes, select_scenes, vod_sequences};
 use super::{CliError, progress};
-use crate::config::Config;
 use crate::eval::Collector;
 use crate::eval::drives::{CrossDriveEval, DriveInfo, PairRecord};
 use crate::eval::report;
@@ -27,6 +26,7 @@ use crate::input::{Input, InputIssue};
 use crate::io::nuscenes::{NuscenesScene, OdometryDrift, SceneInputs, nuscenes_config};
 use crate::io::vod_sequence::{VodInputs, vod_config};
 use crate::math::iso2_from_iso3;
+use crate::pipeline::Config;
 
 /// Runs `dc_loc eval --nuscenes DIR --version V`.
 pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {

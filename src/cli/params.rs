@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use super::CliError;
-use crate::config::Config;
 use crate::params::{ParamSet, apply, flatten_config};
+use crate::pipeline::Config;
 
 /// The configuration from a params file (the section of node `/namespace/node_name`) and `-p`
 /// overrides, validated.

@@ -10,11 +10,11 @@ use std::path::PathBuf;
 use rayon::prelude::*;
 
 use super::CliError;
-use crate::config::Config;
 use crate::eval::revisits::{
     RevisitReport, RevisitScenario, evaluate_scenario, format_revisit_table,
 };
 use crate::params::{ParamSet, apply, flatten_config};
+use crate::pipeline::Config;
 use crate::sim::{NoiseModel, RadarPreset};
 
 /// Arguments of `dc_loc revisits`.

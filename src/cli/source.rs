@@ -14,7 +14,6 @@ use super::CliError;
 use super::params::{dataset_config, load_params, parse_states};
 use super::progress;
 use crate::bag::BagReader;
-use crate::config::Config;
 use crate::input::{Input, InputIssue};
 use crate::io::foxglove::FoxgloveInputs;
 use crate::io::nuscenes::{
@@ -25,6 +24,7 @@ use crate::io::rosbag::{BagInputError, BagInputs};
 use crate::io::vod_sequence::{
     VodInputs, VodSequence, VodSequenceError, open_sequences, vod_config,
 };
+use crate::pipeline::Config;
 
 /// Where the data comes from, as `dc_loc run` and `dc_loc eval` take it.
 #[derive(Debug, Clone, clap::Args)]

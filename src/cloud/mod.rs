@@ -11,7 +11,7 @@
 //!   [`CloudLayout::fields_config`] gives the detections back within each datatype's precision.
 //! - [`ScalarType`]: the PointField datatypes and their sizes.
 //!
-//! [`FieldsConfig`]: crate::config::FieldsConfig
+//! [`FieldsConfig`]: crate::radar::FieldsConfig
 //! [`Detection`]: crate::radar::Detection
 
 pub mod pointcloud2;

@@ -9,11 +9,11 @@
 //! runs one tight loop over the points with no allocation beyond the output vector and no string work.
 //! Byte order is a const generic, so the inner loop carries no endianness branch.
 
-use crate::config::FieldsConfig;
 use crate::math::Vec3;
 use crate::msgs::sensor_msgs::{PointCloud2, PointField};
 use crate::msgs::std_msgs::Header;
 use crate::radar::Detection;
+use crate::radar::FieldsConfig;
 
 /// The scalar types a `PointField` can hold (`PointField::INT8` ..= `PointField::FLOAT64`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

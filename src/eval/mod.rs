@@ -21,10 +21,10 @@ pub mod revisits;
 
 use crate::baselines::{BaselinesConfig, ForwardSpeedEstimator, register_icp, register_ndt};
 use crate::cloud::decode_detections;
-use crate::config::Config;
 use crate::input::Input;
 use crate::math::se2_log;
 use crate::math::{Iso2, Iso3, Mat3, Stamp, Vec2, Vec3, iso2_from_iso3, wrap_angle};
+use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline};
 use crate::radar::Detection;
 use crate::radar::doppler::RadarModel;
@@ -191,7 +191,7 @@ pub struct EvalKeyframe {
 pub struct Collector {
     pipeline: Pipeline,
     radars: Vec<RadarModel>,
-    fields: Vec<crate::config::FieldsConfig>,
+    fields: Vec<crate::radar::FieldsConfig>,
     gt: OdometryBuffer,
     gt_speed: Vec<(Stamp, f64)>,
     gt_path: Vec<(Stamp, f64)>,

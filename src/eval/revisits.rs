@@ -16,9 +16,10 @@
 //!   published at least one correct closure / opportunities.
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
-use crate::config::Config;
+use crate::loop_closure::LoopClosure;
 use crate::math::{Iso2, Stamp, iso2_from_iso3, wrap_angle};
-use crate::pipeline::{Event, LoopClosure, Pipeline, PipelineStats};
+use crate::pipeline::Config;
+use crate::pipeline::{Event, Pipeline, PipelineStats};
 use crate::sim::inputs::{ScanEncoding, SimInputs};
 use crate::sim::{NoiseModel, RadarPreset, SimConfig, SimDrive, config::LapConfig, simulate};
 use serde::Serialize;
@@ -190,7 +191,7 @@ pub struct RevisitReport {
 pub fn evaluate_scenario(
     scenario: &RevisitScenario,
     tweak: impl FnOnce(&mut Config),
-) -> Result<RevisitReport, crate::config::ConfigError> {
+) -> Result<RevisitReport, crate::validate::ConfigError> {
     let drive = simulate(&scenario.sim_config())?;
     let mut cfg = drive.to_config();
     tweak(&mut cfg);
@@ -203,7 +204,7 @@ pub fn evaluate_scenario(
 pub fn evaluate_revisits(
     drive: &SimDrive,
     mut cfg: Config,
-) -> Result<RevisitReport, crate::config::ConfigError> {
+) -> Result<RevisitReport, crate::validate::ConfigError> {
     cfg.r#loop.enabled = true;
     let mut p = Pipeline::new(cfg)?;
     let mut keyframes: Vec<(u64, Stamp)> = Vec::new();

@@ -15,13 +15,14 @@
 //! global frame of a log's location is the map frame. Quaternions in the tables are w, x, y, z.
 //! Timestamps are microseconds since the epoch.
 
-use crate::config::{Config, RadarConfig};
 use crate::input::{Input, InputIssue, IssueReason};
 use crate::io::nuscenes_pcd::{
     NuscenesRadarFilter, PcdError, filtered_pointcloud2, nuscenes_fields_config,
 };
 use crate::math::{Iso3, Quat, Stamp};
 use crate::msgs::std_msgs::Header;
+use crate::pipeline::Config;
+use crate::radar::RadarConfig;
 use serde::Deserialize;
 use serde::de::{DeserializeOwned, DeserializeSeed, SeqAccess, Visitor};
 use std::collections::{BTreeMap, HashMap, HashSet};

@@ -14,11 +14,11 @@
 //! are never used for it.
 
 use crate::cloud::ScalarType;
-use crate::config::FieldsConfig;
 use crate::math::Vec3;
 use crate::msgs::sensor_msgs::{PointCloud2, PointField};
 use crate::msgs::std_msgs::Header;
 use crate::radar::Detection;
+use crate::radar::FieldsConfig;
 use std::path::{Path, PathBuf};
 
 /// Why a PCD file could not be read. Variants name the header key, field or file at fault.

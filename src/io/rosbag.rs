@@ -12,11 +12,11 @@
 use std::collections::BTreeMap;
 
 use crate::bag::{BagError, BagReader, Messages, schema};
-use crate::config::Config;
 use crate::input::{Input, InputIssue, IssueReason, ground_truth_sample, stamp_or_log_time};
 use crate::math::Stamp;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::pipeline::Config;
 
 /// Why a bag cannot be run with a configuration.
 #[derive(Debug, thiserror::Error)]

@@ -13,12 +13,13 @@
 //! A sequence ends where a frame number is skipped or the odometry jumps more than `MAX_JUMP` metres
 //! between two frames (VoD numbers its clips one after another).
 
-use crate::config::{Config, FieldsConfig, RadarConfig};
 use crate::input::{Input, InputIssue, IssueReason};
 use crate::io::vod::{KittiCalib, VodError, VodPoses, iso3_from_matrix};
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::{PointCloud2, PointField};
 use crate::msgs::std_msgs::Header;
+use crate::pipeline::Config;
+use crate::radar::{FieldsConfig, RadarConfig};
 use std::path::{Path, PathBuf};
 
 /// Odometry jump that splits a sequence, m.

@@ -8,8 +8,8 @@
 //! Conventions (METHOD.md section 1): `r_hat = r + beta * v_r`, `v_r` positive away from the radar, the
 //! radial velocity itself undistorted. Elevation is ignored in the covariance (z = 0 rows), as in the paper.
 
-use crate::config::RadarConfig;
 use crate::math::{Iso3, Mat3, Vec3};
+use crate::radar::RadarConfig;
 use crate::radar::{Detection, RadarNoise};
 
 /// Doppler-compensated position of a detection, radar frame (eq. 4):

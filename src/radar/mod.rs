@@ -4,8 +4,11 @@
 //! extrinsics, per-point covariance); [`ego_motion`] (velocity and planar twist from radial velocities,
 //! moving-object rejection).
 
+pub mod config;
 pub mod doppler;
 pub mod ego_motion;
+
+pub use config::{FieldsConfig, RadarConfig};
 
 use crate::math::{Stamp, Vec3};
 use serde::{Deserialize, Serialize};

@@ -40,7 +40,6 @@ use super::convert::{
     DiagnosticArray, DiagnosticStatus, KeyValue, MarkerArray, MarkerPoint, markers, submap_cloud,
 };
 use super::merge::StampMerger;
-use crate::config::Config;
 use crate::input::{Input, odometry_pose};
 use crate::keyframe_db::{KeyframeDb, KeyframeRecord, save_records};
 use crate::math::{Iso3, Stamp};
@@ -52,6 +51,7 @@ use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
 use crate::output::loop_closure_msg;
 use crate::params::{ParamError, ParamSet, apply, flatten_config};
+use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline};
 
 /// The node's own settings (not part of [`Config`], which the offline tools share).
@@ -122,7 +122,7 @@ impl NodeSettings {
             if v.is_finite() && v > 0.0 {
                 Ok(v)
             } else {
-                Err(crate::config::ConfigError::new(name, format!("{v} must be > 0")).into())
+                Err(crate::validate::ConfigError::new(name, format!("{v} must be > 0")).into())
             }
         };
         for (name, v) in params.entries() {
@@ -130,7 +130,7 @@ impl NodeSettings {
                 match v.as_u64() {
                     Some(n) if n >= 1 => Ok(n as usize),
                     Some(_) => {
-                        Err(crate::config::ConfigError::new(name, "must be at least 1").into())
+                        Err(crate::validate::ConfigError::new(name, "must be at least 1").into())
                     }
                     None => Err(ty(name, "a positive integer", v)),
                 }

@@ -5,8 +5,9 @@
 //! [`OdometrySimConfig`].
 //! Units are SI (m, s, rad, m/s); RCS values are in dBsm. Parameters that are probabilities are in [0, 1].
 
-use crate::config::{Config, FieldsConfig, RadarConfig};
 use crate::math::Vec2;
+use crate::pipeline::Config;
+use crate::radar::{FieldsConfig, RadarConfig};
 use crate::sim::noise::{NoiseConfig, NoiseModel};
 use crate::sim::radar_config::{RadarPreset, SimRadarConfig};
 use crate::sim::world_config::WorldConfig;
@@ -104,7 +105,7 @@ impl SimConfig {
         }
     }
 
-    /// The `crate::config::Config` radar section matching the simulated radars: names, topics, frame ids,
+    /// The `crate::pipeline::Config` radar section matching the simulated radars: names, topics, frame ids,
     /// extrinsics, `beta`, field names `x, y, z, v_r, rcs` and the noise standard deviations of the selected
     /// noise model (see [`NoiseConfig::std_devs`]).
     pub fn to_config(&self) -> Config {

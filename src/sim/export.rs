@@ -7,7 +7,7 @@
 //! The bag (`<dir>/metadata.yaml`, `<dir>/<name>_0.mcap`, written by [`BagWriter`]):
 //! - each radar's scans as `sensor_msgs/msg/PointCloud2` on its topic (from [`SimDrive::to_config`]),
 //!   `frame_id` the radar frame, fields `x, y, z, v_r, rcs` FLOAT32 ([`CloudLayout::radar_f32`]);
-//! - [`crate::config::Config`]'s odometry topic (`/odom`): `nav_msgs/msg/Odometry`, frame `odom`, child
+//! - [`crate::pipeline::Config`]'s odometry topic (`/odom`): `nav_msgs/msg/Odometry`, frame `odom`, child
 //!   `base_link` (the simulator's `odom_frame` and `body_frame`), the drifting odometry;
 //! - [`GROUND_TRUTH_TOPIC`]: `nav_msgs/msg/Odometry`, frame `map`, the true pose and twist;
 //! - [`TF_STATIC_TOPIC`]: one `tf2_msgs/msg/TFMessage` at the start with `base_link -> <radar frame>`
@@ -22,12 +22,12 @@ use serde_json::{Map, Value};
 
 use crate::bag::{BagError, BagWriter, schema};
 use crate::cloud::{CloudLayout, EncodeError, encode_detections};
-use crate::config::Config;
 use crate::math::Stamp;
 use crate::msgs::geometry_msgs::{Transform, TransformStamped};
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::params::flatten_config;
+use crate::pipeline::Config;
 use crate::sim::noise::NoiseModel;
 use crate::sim::{RadarPreset, SimConfig, SimDrive, SimEventRef};
 

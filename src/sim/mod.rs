@@ -44,8 +44,8 @@ pub use route::{EgoState, LapInfo};
 pub use sensor::{DetectionTruth, Dropout};
 pub use world::TargetKind;
 
-use crate::config::Config;
 use crate::math::{Iso2, Stamp};
+use crate::pipeline::Config;
 use crate::radar::RadarScan;
 use crate::validate::ConfigError;
 use noise::NoiseSampler;

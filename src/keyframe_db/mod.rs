@@ -1,0 +1,493 @@
+//! The keyframe map: compact keyframes, revisit candidates, and the map file.
+//!
+//! Entry points: [`KeyframeRecord`] ([`record`]), [`KeyframeDb`] ([`KeyframeDb::insert`],
+//! [`KeyframeDb::candidates`], [`KeyframeDb::prepared`] with a bounded cache of registration-ready
+//! submaps), [`KeyframeDb::save`] / [`KeyframeDb::load`] (the map file, [`file`]), [`MapConfig`].
+//! Ids are positions in the database, so a loaded map keeps its ids and new keyframes continue after
+//! them.
+
+mod candidates;
+pub mod file;
+pub mod record;
+
+pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings};
+pub use file::{MAP_FORMAT_VERSION, MapError, MapFile, save_records};
+pub use record::{
+    KeyframeRecord, POINT_QUANTUM, dequantise_cov, dequantise_point, quantise_cov, quantise_point,
+};
+
+use crate::growing_index::GrowingIndex;
+use crate::place::{PlaceConfig, PlaceDescriptor, PlaceIndex};
+use crate::registration::{PreparedSubmap, RegistrationConfig, RegistrationError};
+use crate::validate::Validator;
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::path::Path;
+use std::sync::Arc;
+
+/// The keyframe map: where it is kept and how it is loaded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MapConfig {
+    /// Map file to load at start and save to (default empty: no persistence).
+    pub file: String,
+    /// Start with an empty map when the file exists but cannot be used (corrupt, other version); the
+    /// file is then left untouched until the first save would replace it... which is refused: the new
+    /// map goes to `<file>.new` instead (default false: refuse to start).
+    pub start_empty_on_error: bool,
+    /// Seconds between saves while keyframes are added (default 30; the node also saves at shutdown).
+    pub save_interval: f64,
+    /// Most points kept per keyframe (default 4000: stored quantised at 7 bytes a point, under 32 KB per
+    /// keyframe with its descriptor).
+    pub max_points_per_keyframe: usize,
+    /// Registration-ready keyframes kept in memory (default 64).
+    pub prepared_cache: usize,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            file: String::new(),
+            start_empty_on_error: false,
+            save_interval: 30.0,
+            max_points_per_keyframe: 4000,
+            prepared_cache: 64,
+        }
+    }
+}
+
+impl MapConfig {
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.positive("save_interval", self.save_interval);
+        v.at_least("max_points_per_keyframe", self.max_points_per_keyframe, 10);
+        v.at_least("prepared_cache", self.prepared_cache, 1);
+    }
+}
+
+/// The keyframe database.
+pub struct KeyframeDb {
+    records: Vec<Arc<KeyframeRecord>>,
+    /// Planar odometry positions by id.
+    positions: GrowingIndex<2>,
+    /// Place-descriptor columns by id ([`PlaceDescriptor::columns`]), for fast ranking.
+    place_columns: Vec<Vec<u32>>,
+    place: PlaceIndex,
+    place_cfg: PlaceConfig,
+    cache: VecDeque<(usize, Arc<PreparedSubmap>)>,
+    cache_size: usize,
+}
+
+impl KeyframeDb {
+    /// An empty database.
+    pub fn new(place_cfg: PlaceConfig, cache_size: usize) -> Self {
+        KeyframeDb {
+            records: Vec::new(),
+            positions: GrowingIndex::default(),
+            place_columns: Vec::new(),
+            place: PlaceIndex::default(),
+            place_cfg,
+            cache: VecDeque::new(),
+            cache_size: cache_size.max(1),
+        }
+    }
+
+    /// Number of keyframes.
+    pub fn len(&self) -> usize {
+        self.records.len()
+    }
+
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.records.is_empty()
+    }
+
+    /// The keyframe with this id.
+    pub fn get(&self, id: u64) -> Option<&KeyframeRecord> {
+        self.records
+            .get(usize::try_from(id).ok()?)
+            .map(|r| r.as_ref())
+    }
+
+    /// All records, by id.
+    pub fn records(&self) -> impl Iterator<Item = &KeyframeRecord> {
+        self.records.iter().map(|r| r.as_ref())
+    }
+
+    /// The id the next keyframe gets.
+    pub fn next_id(&self) -> u64 {
+        self.records.len() as u64
+    }
+
+    /// Highest session in the database (`None` when empty).
+    pub fn last_session(&self) -> Option<u32> {
+        self.records.iter().map(|r| r.session).max()
+    }
+
+    /// Adds a record; its id must be [`KeyframeDb::next_id`] (else it is refused and `false` returned).
+    pub fn insert(&mut self, rec: KeyframeRecord) -> bool {
+        if rec.id != self.next_id() {
+            return false;
+        }
+        let Ok(item) = u32::try_from(rec.id) else {
+            return false;
+        };
+        let p = rec.t_odom_body.translation.vector;
+        if !(p.x.is_finite() && p.y.is_finite()) {
+            return false;
+        }
+        if self.positions.push([p.x, p.y]) != Some(self.records.len()) {
+            return false;
+        }
+        self.place.insert(item, &rec.place);
+        self.place_columns.push(rec.place.columns());
+        self.records.push(Arc::new(rec));
+        true
+    }
+
+    /// The registration-ready form of keyframe `index`, from a small cache (built on a miss, or when the
+    /// cached one was prepared under other settings than `cfg`).
+    pub fn prepared(
+        &mut self,
+        index: usize,
+        cfg: &RegistrationConfig,
+    ) -> Result<Arc<PreparedSubmap>, RegistrationError> {
+        // A cached submap prepared under other settings is prepared again.
+        if let Some(pos) = self
+            .cache
+            .iter()
+            .position(|(i, p)| *i == index && p.fits(cfg))
+        {
+            if let Some(entry) = self.cache.remove(pos) {
+                let p = entry.1.clone();
+                self.cache.push_back(entry);
+                return Ok(p);
+            }
+        }
+        let rec = self
+            .records
+            .get(index)
+            .ok_or_else(|| RegistrationError::Numerical(format!("no keyframe {index}")))?;
+        let p = Arc::new(PreparedSubmap::new(rec.point_set(), cfg)?);
+        self.put_prepared(index, p.clone());
+        Ok(p)
+    }
+
+    /// Puts an already prepared submap into the cache (the pipeline prepares each new keyframe anyway).
+    pub fn put_prepared(&mut self, index: usize, p: Arc<PreparedSubmap>) {
+        self.cache.retain(|(i, _)| *i != index);
+        self.cache.push_back((index, p));
+        while self.cache.len() > self.cache_size {
+            self.cache.pop_front();
+        }
+    }
+
+    /// A snapshot of the records for saving elsewhere (cheap: shared pointers).
+    pub fn snapshot(&self) -> Vec<Arc<KeyframeRecord>> {
+        self.records.clone()
+    }
+
+    /// Writes the map file crash-safely (temporary file, sync, rename, directory sync).
+    pub fn save(&self, path: &Path) -> Result<(), MapError> {
+        save_records(&self.snapshot(), &self.place_cfg, path)
+    }
+
+    /// Reads a map file. Place descriptors made with other settings than `place_cfg` are recomputed.
+    pub fn load(path: &Path, place_cfg: PlaceConfig, cache_size: usize) -> Result<Self, MapError> {
+        let file = file::read_map(path)?;
+        let corrupt = |reason: String| MapError::Corrupt {
+            path: path.display().to_string(),
+            reason,
+        };
+        let mut db = KeyframeDb::new(place_cfg.clone(), cache_size);
+        let recompute = file.place != place_cfg;
+        for (k, mut rec) in file.keyframes.into_iter().enumerate() {
+            if rec.id != k as u64 || rec.points.len() != rec.covs.len() {
+                return Err(corrupt(format!("keyframe {k} is inconsistent")));
+            }
+            if recompute {
+                rec.place = PlaceDescriptor::from_points(&rec.planar_points(), &place_cfg);
+            }
+            if !db.insert(rec) {
+                return Err(corrupt(format!("keyframe {k} could not be indexed")));
+            }
+        }
+        Ok(db)
+    }
+}
+
+impl std::fmt::Debug for KeyframeDb {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("KeyframeDb")
+            .field("keyframes", &self.records.len())
+            .field("sessions", &self.last_session().map_or(0, |s| s + 1))
+            .field("cached", &self.cache.len())
+            .finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Iso2, Mat2, Stamp, Vec2};
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
+
+    fn record(id: u64, session: u32, x: f64, rng: &mut StdRng) -> KeyframeRecord {
+        let pts: Vec<Vec2> = (0..300)
+            .map(|_| Vec2::new(rng.random_range(-60.0..60.0), rng.random_range(-60.0..60.0)))
+            .collect();
+        let t = Iso2::new(Vec2::new(x, 0.5 * x), 0.1 * id as f64);
+        KeyframeRecord {
+            id,
+            session,
+            stamp: Stamp(1_000_000_000 * (id as i64 + 1)),
+            t_odom_body: t,
+            odom_pose: [
+                x,
+                0.5 * x,
+                0.0,
+                0.0,
+                0.0,
+                (0.05 * id as f64).sin(),
+                (0.05 * id as f64).cos(),
+            ],
+            path_distance: 2.0 * id as f64,
+            points: pts.iter().filter_map(|&p| quantise_point(p)).collect(),
+            covs: pts
+                .iter()
+                .map(|_| quantise_cov(&Mat2::new(0.04, 0.001, 0.001, 0.09)))
+                .collect(),
+            place: PlaceDescriptor::from_points(&pts, &PlaceConfig::default()),
+        }
+    }
+
+    fn db_with(n: u64) -> KeyframeDb {
+        let mut rng = StdRng::seed_from_u64(7);
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        for id in 0..n {
+            assert!(db.insert(record(id, (id / 5) as u32, 3.0 * id as f64, &mut rng)));
+        }
+        db
+    }
+
+    fn scratch(name: &str) -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("dc_loc_kfdb_{name}_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d.join("map.dcloc")
+    }
+
+    #[test]
+    fn quantised_points_and_covariances_keep_the_mahalanobis_geometry() {
+        let mut rng = StdRng::seed_from_u64(3);
+        for _ in 0..2000 {
+            let p = Vec2::new(
+                rng.random_range(-300.0..300.0),
+                rng.random_range(-300.0..300.0),
+            );
+            let back = dequantise_point(quantise_point(p).unwrap());
+            assert!((back - p).abs().max() <= 0.5 * POINT_QUANTUM + 1e-12);
+            // A random covariance with sigmas from 1 mm to 20 m and any orientation.
+            let s1 = 0.02 * 1000f64.powf(rng.random_range(0.0..1.0));
+            let s2 = s1 * rng.random_range(0.05..1.0);
+            let th: f64 = rng.random_range(-3.2..3.2);
+            let r = Mat2::new(th.cos(), -th.sin(), th.sin(), th.cos());
+            let c = r * Mat2::new(s1 * s1, 0.0, 0.0, s2 * s2) * r.transpose();
+            let cq = dequantise_cov(quantise_cov(&c));
+            // Squared Mahalanobis lengths of random residuals agree within the step sizes (4.4% per
+            // sigma, pi/256 in angle: the angle matters little for round ellipses, more for flat ones).
+            let (ci, cqi) = (c.try_inverse().unwrap(), cq.try_inverse().unwrap());
+            for _ in 0..4 {
+                let e = Vec2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let (m, mq) = ((e.transpose() * ci * e)[0], (e.transpose() * cqi * e)[0]);
+                let tol = 0.1 + 0.02 * s1 / s2;
+                assert!((mq / m - 1.0).abs() < tol, "{m} vs {mq} for {c} / {cq}");
+            }
+        }
+        assert_eq!(quantise_point(Vec2::new(400.0, 0.0)), None);
+        assert_eq!(quantise_point(Vec2::new(f64::NAN, 0.0)), None);
+        // Degenerate input stays usable: a zero covariance becomes the smallest stored circle.
+        let z = dequantise_cov(quantise_cov(&Mat2::zeros()));
+        assert!(z.try_inverse().is_some());
+    }
+
+    /// The cache hands out a prepared submap only for the settings it was prepared with.
+    #[test]
+    fn the_prepared_cache_follows_the_registration_settings() {
+        let mut db = db_with(3);
+        let cfg = RegistrationConfig::default();
+        let a = db.prepared(1, &cfg).expect("prepared");
+        let again = db.prepared(1, &cfg).expect("cached");
+        assert!(Arc::ptr_eq(&a, &again), "same settings: the cached one");
+        let mut other = cfg.clone();
+        other.dense.surface_radius = 3.0;
+        let b = db.prepared(1, &other).expect("prepared anew");
+        assert!(!Arc::ptr_eq(&a, &b));
+        assert!(b.fits(&other) && !b.fits(&cfg));
+    }
+
+    #[test]
+    fn ids_must_follow_on() {
+        let mut rng = StdRng::seed_from_u64(1);
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        assert!(!db.insert(record(1, 0, 0.0, &mut rng)));
+        assert!(db.insert(record(0, 0, 0.0, &mut rng)));
+        assert!(!db.insert(record(0, 0, 0.0, &mut rng)));
+        assert_eq!(db.len(), 1);
+    }
+
+    #[test]
+    fn save_load_round_trip_keeps_every_record_and_the_search() {
+        let db = db_with(12);
+        let path = scratch("roundtrip");
+        db.save(&path).unwrap();
+        let back = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap();
+        assert_eq!(back.len(), 12);
+        for (a, b) in db.records().zip(back.records()) {
+            assert_eq!(a, b);
+        }
+        assert_eq!(back.last_session(), Some(2));
+        // The position index was rebuilt: a query near keyframe 7 finds it (another session).
+        let mut rng = StdRng::seed_from_u64(99);
+        let mut q = record(12, 3, 21.0, &mut rng);
+        q.place = back.get(7).unwrap().place.clone();
+        let s = SearchSettings {
+            radius: 15.0,
+            drift_rate: 0.0,
+            max_radius: 15.0,
+            min_path_gap: 0.0,
+            place_retrieve: 3,
+            place_max_distance: 1.0,
+            max_candidates: 3,
+        };
+        let c = back.candidates(
+            &CandidateQuery {
+                query: &q,
+                alignment: None,
+            },
+            3,
+            &s,
+        );
+        assert_eq!(c.first().map(|c| c.index), Some(7), "{c:?}");
+    }
+
+    #[test]
+    fn truncated_damaged_foreign_and_newer_files_are_refused() {
+        let db = db_with(5);
+        let path = scratch("refuse");
+        db.save(&path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        for cut in [good.len() - 1, good.len() / 2, 13, 9] {
+            std::fs::write(&path, &good[..cut]).unwrap();
+            let e = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap_err();
+            assert!(matches!(e, MapError::Corrupt { .. }), "cut {cut}: {e}");
+        }
+        let mut flipped = good.clone();
+        flipped[good.len() / 3] ^= 0x40;
+        std::fs::write(&path, &flipped).unwrap();
+        assert!(matches!(
+            KeyframeDb::load(&path, PlaceConfig::default(), 4),
+            Err(MapError::Corrupt { .. })
+        ));
+        std::fs::write(&path, b"PK\x03\x04 a zip file, not a map").unwrap();
+        assert!(matches!(
+            KeyframeDb::load(&path, PlaceConfig::default(), 4),
+            Err(MapError::NotAMap(_))
+        ));
+        let mut newer = good.clone();
+        newer[8..12].copy_from_slice(&(MAP_FORMAT_VERSION + 1).to_le_bytes());
+        std::fs::write(&path, &newer).unwrap();
+        let e = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains(&format!("format version {}", MAP_FORMAT_VERSION + 1)),
+            "{e}"
+        );
+        let missing = KeyframeDb::load(&path.with_extension("none"), PlaceConfig::default(), 4);
+        assert!(matches!(missing, Err(MapError::Io { .. })));
+    }
+
+    #[test]
+    fn a_save_replaces_the_old_map_whole_and_leaves_no_temporary_file() {
+        let path = scratch("replace");
+        db_with(3).save(&path).unwrap();
+        db_with(9).save(&path).unwrap();
+        let back = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap();
+        assert_eq!(back.len(), 9);
+        let dir = path.parent().unwrap();
+        let names: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+    }
+
+    #[test]
+    fn other_place_settings_are_recomputed_on_load() {
+        let db = db_with(4);
+        let path = scratch("place");
+        db.save(&path).unwrap();
+        let other = PlaceConfig {
+            sectors: 30,
+            ..PlaceConfig::default()
+        };
+        let back = KeyframeDb::load(&path, other.clone(), 4).unwrap();
+        let r = back.get(2).unwrap();
+        assert_eq!(
+            r.place,
+            PlaceDescriptor::from_points(&r.planar_points(), &other)
+        );
+        assert_ne!(r.place, db.get(2).unwrap().place);
+    }
+
+    #[test]
+    fn drift_radius_grows_with_path_and_min_gap_holds() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        // Keyframes along x every 5 m of path, all session 0, all with y = 0 (enough to build the tree).
+        for id in 0..200u64 {
+            let mut r = record(id, 0, 5.0 * id as f64, &mut rng);
+            r.t_odom_body = Iso2::new(Vec2::new(5.0 * id as f64, 0.0), 0.0);
+            r.path_distance = 5.0 * id as f64;
+            assert!(db.insert(r));
+        }
+        // Query 60 m to the side of keyframe 0 after 1000 m of path: outside a fixed 15 m radius,
+        // inside 15 m + 5 % of 1000 m.
+        let mut q = record(200, 0, 0.0, &mut rng);
+        q.t_odom_body = Iso2::new(Vec2::new(0.0, 60.0), 0.0);
+        q.path_distance = 1000.0;
+        let mut s = SearchSettings {
+            radius: 15.0,
+            drift_rate: 0.0,
+            max_radius: 300.0,
+            min_path_gap: 100.0,
+            place_retrieve: 0,
+            place_max_distance: 0.0,
+            max_candidates: 100,
+        };
+        let cq = CandidateQuery {
+            query: &q,
+            alignment: None,
+        };
+        assert!(db.candidates(&cq, 0, &s).is_empty());
+        s.drift_rate = 0.05;
+        let ids: Vec<usize> = db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect();
+        // Keyframe k is at distance hypot(5k, 60) and allowed 15 + 0.05 (1000 - 5k).
+        let expect: Vec<usize> = (0..200)
+            .filter(|&k| {
+                let d = (25.0 * (k * k) as f64 + 3600.0).sqrt();
+                d <= 15.0 + 0.05 * (1000.0 - 5.0 * k as f64) && 1000.0 - 5.0 * k as f64 >= 100.0
+            })
+            .collect();
+        assert!(expect.len() >= 3, "{expect:?}");
+        let mut sorted = ids.clone();
+        sorted.sort();
+        assert_eq!(sorted, expect);
+        assert_eq!(
+            ids.first(),
+            Some(&0),
+            "nearest to the predicted position first"
+        );
+    }
+}

@@ -1,0 +1,655 @@
+//! The gates a registered revisit must pass before it is published or held, each a function of the
+//! registration result, the session's accepted alignments and the configuration, returning the
+//! verdict with its reason.
+//!
+//! In order ([`gate`]): registration, inliers, convergence, overlap, common view, ambiguity,
+//! covariance, consistency; then, on the best candidates only and in order until one passes, the
+//! prediction test ([`prediction_test`], for closures published on a fresh alignment's word) and the
+//! slide test ([`slide_test`], for a session's first closures and those that wait for confirmation).
+
+use std::collections::BTreeMap;
+
+use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
+use super::{Alignment, LoopClosure, LoopConfig, RejectReason};
+use crate::keyframe_db::KeyframeRecord;
+use crate::math::{Iso2, iso3_from_iso2};
+use crate::registration::{
+    PreparedSubmap, RegistrationConfig, RegistrationError, RegistrationResult, common_view,
+    overlap_near, slide_overlap,
+};
+
+/// Why a candidate was refused, for the log and the counters.
+pub type Refusal = (RejectReason, String);
+
+/// What the gates know: the settings and the session's accepted alignments.
+#[derive(Clone, Copy)]
+pub struct Gates<'a> {
+    /// `loop.*`.
+    pub lc: &'a LoopConfig,
+    /// `registration.*` (the dense stage the ambiguity probes run).
+    pub rc: &'a RegistrationConfig,
+    /// This session's number.
+    pub session: u32,
+    /// Per earlier session, the accepted alignment of this session's odometry into it.
+    pub alignments: &'a BTreeMap<u32, Alignment>,
+}
+
+/// The two submaps of a candidate pair.
+#[derive(Clone, Copy)]
+pub struct Pair<'a> {
+    /// The query keyframe (newer).
+    pub query: &'a KeyframeRecord,
+    /// The candidate keyframe (older).
+    pub cand: &'a KeyframeRecord,
+    /// The query's prepared submap (the registration's source).
+    pub source: &'a PreparedSubmap,
+    /// The candidate's prepared submap (the registration's target).
+    pub target: &'a PreparedSubmap,
+}
+
+/// A closure that passed the gates before the prediction and slide tests.
+#[derive(Debug, Clone)]
+pub struct Gated {
+    /// The closure.
+    pub closure: LoopClosure,
+    /// It agrees with a fresh accepted alignment (published alone).
+    pub agrees: bool,
+    /// Where that alignment predicts the result, for the prediction test it still needs.
+    pub prediction: Option<Iso2>,
+    /// The slide test it still needs.
+    pub slide: Option<Slide>,
+}
+
+/// A pending slide test: the result, its overlap, the largest share of it a slid alignment may
+/// reach, and whether it is a session's first closure.
+#[derive(Debug, Clone, Copy)]
+pub struct Slide {
+    /// The result.
+    pub t: Iso2,
+    /// Its overlap.
+    pub overlap: f64,
+    /// The largest share of `overlap` a slid alignment may reach.
+    pub ratio: f64,
+    /// The candidate's session has no accepted alignment yet.
+    pub first: bool,
+}
+
+impl Gates<'_> {
+    /// The accepted alignment to `session`.
+    fn alignment(&self, session: u32) -> Option<&Alignment> {
+        self.alignments.get(&session)
+    }
+
+    /// What a closure to `cand` is tested against: the accepted alignment to its session (when
+    /// `use_alignment`), else odometry for a candidate of this session; `None` for another
+    /// session without an alignment.
+    fn prior(&self, cand: &KeyframeRecord, use_alignment: bool) -> Option<Prior<'_>> {
+        match self.alignment(cand.session) {
+            Some(a) if use_alignment => Some(Prior::Alignment(a)),
+            _ if cand.session == self.session => Some(Prior::Odometry),
+            _ => None,
+        }
+    }
+
+    /// Squared Mahalanobis distance of `t` (with the result's covariance) to its prediction.
+    fn distance(
+        &self,
+        p: &Pair<'_>,
+        r: &RegistrationResult,
+        t: &Iso2,
+        aligned: bool,
+    ) -> Option<f64> {
+        let prior = self.prior(p.cand, aligned)?;
+        inconsistency(prior, p.query, p.cand, t, &r.covariance, self.lc)
+    }
+
+    /// The accepted alignment to the candidate's session is fresh enough to vouch for a closure.
+    fn trusted(&self, p: &Pair<'_>) -> bool {
+        self.alignment(p.cand.session)
+            .is_some_and(|a| vouches(p.query.path_distance - a.path, self.lc))
+    }
+
+    /// The pose the accepted alignment to the candidate's session predicts.
+    fn predicted(&self, p: &Pair<'_>) -> Option<Iso2> {
+        self.alignment(p.cand.session)
+            .map(|a| predict(&a.t, p.query, p.cand))
+    }
+}
+
+/// Every gate in order; the closure with the tests it still needs, or why it is refused.
+pub fn gate(
+    g: &Gates<'_>,
+    p: &Pair<'_>,
+    res: Result<RegistrationResult, RegistrationError>,
+) -> Result<Gated, Refusal> {
+    let r = res.map_err(|e| (RejectReason::Registration, e.to_string()))?;
+    quality(g.lc, &r)?;
+    common_view_gate(g.lc, p, &r)?;
+    ambiguity(g, p, &r)?;
+    covariance(g.lc, &r)?;
+    let agrees = consistency(g, p, &r)?;
+    let lc = g.lc;
+    // A closure published alone on the alignment's word: the prediction may be metres off, and a
+    // street slid by as much agrees with it too.
+    let prediction = (agrees && lc.maximum_ambiguity < 1.0)
+        .then(|| g.predicted(p))
+        .flatten();
+    // A session's first closures against `maximum_slide_ratio`; the other closures that wait for
+    // confirmation must not have a slid alignment that fits better than the result (then the result
+    // is not the best alignment around, and agreeing closures along the same street cannot make it
+    // so).
+    let first = g.alignment(p.cand.session).is_none();
+    let slide = (lc.maximum_slide_ratio < 1.0 && (first || !agrees)).then_some(Slide {
+        t: r.t_target_source,
+        overlap: r.overlap,
+        ratio: if first { lc.maximum_slide_ratio } else { 1.0 },
+        first,
+    });
+    Ok(Gated {
+        closure: closure(p, &r),
+        agrees,
+        prediction,
+        slide,
+    })
+}
+
+/// The closure a result gives.
+fn closure(p: &Pair<'_>, r: &RegistrationResult) -> LoopClosure {
+    LoopClosure {
+        query_id: p.query.id,
+        match_id: p.cand.id,
+        query_stamp: p.query.stamp,
+        match_stamp: p.cand.stamp,
+        query_odom_pose: p.query.odom_pose_iso3(),
+        match_odom_pose: p.cand.odom_pose_iso3(),
+        t_match_query: iso3_from_iso2(&r.t_target_source),
+        covariance: r.covariance,
+        inliers: r.inliers as u32,
+        score: r.overlap,
+        match_session: p.cand.session,
+    }
+}
+
+/// Enough inliers, a converged optimiser and enough overlap.
+pub fn quality(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal> {
+    if r.inliers < lc.minimum_inliers {
+        return Err((RejectReason::FewInliers, format!("{} inliers", r.inliers)));
+    }
+    if !r.converged {
+        return Err((
+            RejectReason::NotConverged,
+            format!("{} iterations", r.iterations),
+        ));
+    }
+    if r.overlap < lc.minimum_overlap {
+        return Err((
+            RejectReason::LowOverlap,
+            format!("overlap {:.2}", r.overlap),
+        ));
+    }
+    Ok(())
+}
+
+/// The two submaps looked in directions that can have seen the same things (`loop.minimum_common_view`).
+pub fn common_view_gate(
+    lc: &LoopConfig,
+    p: &Pair<'_>,
+    r: &RegistrationResult,
+) -> Result<(), Refusal> {
+    if lc.minimum_common_view <= 0.0 {
+        return Ok(());
+    }
+    let view = common_view(p.source, p.target, &r.t_target_source);
+    if view < lc.minimum_common_view {
+        return Err((
+            RejectReason::NoCommonView,
+            format!(
+                "common view {view:.2} at a relative yaw of {:.2} rad",
+                r.t_target_source.rotation.angle()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// No other alignment fits nearly as well (`loop.maximum_ambiguity`), unless a fresh accepted
+/// alignment tells them apart: the result is well determined where it is (translation standard
+/// deviation at most half the covariance gate's), agrees with the prediction, every alternative that
+/// fits nearly as well contradicts it, and the dense stage started at the prediction ends at the
+/// result (the prediction's own error may be metres; a street slid by as much would agree with it).
+pub fn ambiguity(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Result<(), Refusal> {
+    let lc = g.lc;
+    if !(lc.maximum_ambiguity < 1.0 && r.runner_up_overlap > lc.maximum_ambiguity * r.overlap) {
+        return Ok(());
+    }
+    let chi2 = lc.consistency_chi2;
+    let d2 = |t: &Iso2| g.distance(p, r, t, true);
+    let resolved = g.trusted(p)
+        && chi2 > 0.0
+        && translation_std(&r.covariance) <= 0.5 * lc.maximum_translation_std
+        && d2(&r.t_target_source).is_some_and(|d| d <= chi2)
+        && r.alternatives
+            .iter()
+            .filter(|a| a.1 > lc.maximum_ambiguity * r.overlap)
+            .all(|(t, _)| d2(t).is_some_and(|d| d > chi2))
+        && g.predicted(p).is_some_and(|predicted| {
+            overlap_near(p.source, p.target, &predicted, g.rc).is_ok_and(|near| {
+                near.is_some_and(|(t, _)| g.rc.same_alignment(&t, &r.t_target_source))
+            })
+        });
+    if !resolved {
+        return Err((
+            RejectReason::Ambiguous,
+            format!(
+                "another alignment has overlap {:.2} against {:.2}",
+                r.runner_up_overlap, r.overlap
+            ),
+        ));
+    }
+    log::debug!(
+        "revisit {} -> {}: another alignment has overlap {:.2} against {:.2}, but only this one agrees with the accepted alignment",
+        p.query.id,
+        p.cand.id,
+        r.runner_up_overlap,
+        r.overlap
+    );
+    Ok(())
+}
+
+/// The covariance is within `loop.maximum_translation_std` and `loop.maximum_rotation_std`.
+pub fn covariance(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal> {
+    let t_std = translation_std(&r.covariance);
+    let r_std = r.covariance[(5, 5)].max(0.0).sqrt();
+    if !(t_std <= lc.maximum_translation_std && r_std <= lc.maximum_rotation_std) {
+        return Err((
+            RejectReason::Uncertain,
+            format!("std {t_std:.3} m, {r_std:.4} rad"),
+        ));
+    }
+    Ok(())
+}
+
+/// Consistency (`loop.consistency_chi2`) with the session's accepted alignment when there is one;
+/// whether the closure agrees with a fresh one. A closure that contradicts the alignment but agrees
+/// with odometry alone (or, for another session, has nothing to contradict) may still be right and
+/// waits for confirmation, unless the alignment's prediction fits the submaps nearly as well: then
+/// the scene aliases (a street sliding along itself) and the prior decides.
+pub fn consistency(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Result<bool, Refusal> {
+    let lc = g.lc;
+    let agrees = g.trusted(p);
+    if lc.consistency_chi2 <= 0.0 {
+        return Ok(agrees);
+    }
+    let t = &r.t_target_source;
+    let aligned = g.distance(p, r, t, true);
+    if !aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
+        return Ok(agrees);
+    }
+    if let Some(predicted) = g.predicted(p) {
+        if let Ok(Some((_, o))) = overlap_near(p.source, p.target, &predicted, g.rc) {
+            if lc.maximum_ambiguity < 1.0 && o > lc.maximum_ambiguity * r.overlap {
+                return Err((
+                    RejectReason::Ambiguous,
+                    format!(
+                        "the accepted alignment's prediction fits too (overlap {o:.2} against {:.2})",
+                        r.overlap
+                    ),
+                ));
+            }
+        }
+    }
+    if let Some(d2) = g
+        .distance(p, r, t, false)
+        .filter(|&d2| d2 > lc.consistency_chi2)
+    {
+        return Err((
+            RejectReason::Inconsistent,
+            format!(
+                "squared Mahalanobis distance {d2:.1} to the odometry prediction, {:.1} to the accepted alignment's",
+                aligned.unwrap_or(f64::NAN)
+            ),
+        ));
+    }
+    Ok(false)
+}
+
+/// The prediction test of a closure that agrees with a fresh alignment and passed the other gates:
+/// the dense stage started at the alignment's prediction must end at the result, or where it ends
+/// must fit with at most `loop.maximum_ambiguity` of the result's overlap.
+pub fn prediction_test(
+    g: &Gates<'_>,
+    predicted: &Iso2,
+    c: &LoopClosure,
+    source: &PreparedSubmap,
+    target: &PreparedSubmap,
+) -> Result<(), Refusal> {
+    let t = crate::math::iso2_from_iso3(&c.t_match_query);
+    if let Ok(Some((near, o))) = overlap_near(source, target, predicted, g.rc) {
+        if !g.rc.same_alignment(&near, &t) && o > g.lc.maximum_ambiguity * c.score {
+            let d = (near.translation.vector - t.translation.vector).norm();
+            return Err((
+                RejectReason::Ambiguous,
+                format!(
+                    "started at the accepted alignment's prediction it ends {d:.2} m away with overlap {o:.2} against {:.2}",
+                    c.score
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The slide test of a closure that passed the other gates ([`slide_overlap`], stopping at the first
+/// shift above the limit).
+pub fn slide_test(
+    rc: &RegistrationConfig,
+    s: &Slide,
+    source: &PreparedSubmap,
+    target: &PreparedSubmap,
+) -> Result<(), Refusal> {
+    let limit = s.ratio * s.overlap;
+    let slid = slide_overlap(source, target, &s.t, rc, limit)
+        .map_err(|e| (RejectReason::Registration, e.to_string()))?;
+    if slid > limit {
+        return Err((
+            RejectReason::Ambiguous,
+            format!(
+                "slid along the heading it fits {} (overlap {slid:.2} against {:.2}), and no fresh accepted alignment to its session vouches for it",
+                if s.first { "too" } else { "better" },
+                s.overlap
+            ),
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Mat3, Stamp, Vec2};
+    use crate::place::{PlaceConfig, PlaceDescriptor};
+    use crate::registration::{PointSet2, covariance_ros_from_se2};
+    use rand::{RngExt, SeedableRng};
+
+    fn record(id: u64, session: u32, pose: Iso2, path: f64) -> KeyframeRecord {
+        let q = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, pose.rotation.angle());
+        KeyframeRecord {
+            id,
+            session,
+            stamp: Stamp(1_000_000_000 * (id as i64 + 1)),
+            t_odom_body: pose,
+            odom_pose: [
+                pose.translation.x,
+                pose.translation.y,
+                0.0,
+                q.i,
+                q.j,
+                q.k,
+                q.w,
+            ],
+            path_distance: path,
+            points: Vec::new(),
+            covs: Vec::new(),
+            place: PlaceDescriptor::from_points(&[], &PlaceConfig::default()),
+        }
+    }
+
+    /// A result at `t` with `sigma` m and 0.002 rad standard deviations.
+    fn result(t: Iso2, sigma: f64) -> RegistrationResult {
+        let cov = Mat3::from_diagonal(&crate::math::Vec3::new(sigma * sigma, sigma * sigma, 4e-6));
+        RegistrationResult {
+            t_target_source: t,
+            covariance: covariance_ros_from_se2(&cov),
+            converged: true,
+            iterations: 5,
+            inliers: 80,
+            candidates: 200,
+            cost: 1.0,
+            overlap: 0.8,
+            runner_up_overlap: 0.0,
+            alternatives: Vec::new(),
+        }
+    }
+
+    /// Points all round the anchor (a crossing with buildings on every side).
+    fn surroundings(seed: u64) -> PreparedSubmap {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let pts: Vec<Vec2> = (0..400)
+            .map(|_| {
+                let (r, a) = (
+                    rng.random_range(5.0..60.0),
+                    rng.random_range(-std::f64::consts::PI..std::f64::consts::PI),
+                );
+                Vec2::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        PreparedSubmap::new(
+            PointSet2::isotropic(pts, 0.15),
+            &RegistrationConfig::default(),
+        )
+        .expect("prepared")
+    }
+
+    struct Fixture {
+        lc: LoopConfig,
+        rc: RegistrationConfig,
+        alignments: BTreeMap<u32, Alignment>,
+        query: KeyframeRecord,
+        cand: KeyframeRecord,
+        map: PreparedSubmap,
+    }
+
+    /// The query keyframe 300 m of path after a candidate of the same session 2 m away.
+    fn fixture() -> Fixture {
+        Fixture {
+            lc: LoopConfig::default(),
+            rc: RegistrationConfig::default(),
+            alignments: BTreeMap::new(),
+            query: record(60, 0, Iso2::new(Vec2::new(2.0, 0.0), 0.0), 300.0),
+            cand: record(0, 0, Iso2::identity(), 0.0),
+            map: surroundings(3),
+        }
+    }
+
+    impl Fixture {
+        fn gates(&self) -> Gates<'_> {
+            Gates {
+                lc: &self.lc,
+                rc: &self.rc,
+                session: 0,
+                alignments: &self.alignments,
+            }
+        }
+        fn pair(&self) -> Pair<'_> {
+            Pair {
+                query: &self.query,
+                cand: &self.cand,
+                source: &self.map,
+                target: &self.map,
+            }
+        }
+        fn gate(&self, r: RegistrationResult) -> Result<Gated, Refusal> {
+            gate(&self.gates(), &self.pair(), Ok(r))
+        }
+    }
+
+    fn reason(r: Result<Gated, Refusal>) -> RejectReason {
+        r.expect_err("refused").0
+    }
+
+    #[test]
+    fn quality_gates_name_their_reasons() {
+        let f = fixture();
+        let t = Iso2::new(Vec2::new(2.0, 0.0), 0.0);
+        let e = gate(
+            &f.gates(),
+            &f.pair(),
+            Err(RegistrationError::TooFewPoints { have: 1, need: 10 }),
+        );
+        assert_eq!(reason(e), RejectReason::Registration);
+        let few = RegistrationResult {
+            inliers: 10,
+            ..result(t, 0.05)
+        };
+        assert_eq!(reason(f.gate(few)), RejectReason::FewInliers);
+        let stuck = RegistrationResult {
+            converged: false,
+            ..result(t, 0.05)
+        };
+        assert_eq!(reason(f.gate(stuck)), RejectReason::NotConverged);
+        let thin = RegistrationResult {
+            overlap: 0.2,
+            ..result(t, 0.05)
+        };
+        assert_eq!(reason(f.gate(thin)), RejectReason::LowOverlap);
+        assert_eq!(reason(f.gate(result(t, 0.8))), RejectReason::Uncertain);
+    }
+
+    #[test]
+    fn a_first_closure_needs_the_slide_test_and_does_not_vouch_for_itself() {
+        let f = fixture();
+        let g = f
+            .gate(result(Iso2::new(Vec2::new(2.0, 0.0), 0.0), 0.05))
+            .expect("passes");
+        assert!(!g.agrees && g.prediction.is_none());
+        let slide = g.slide.expect("first closures are slide-tested");
+        assert!(slide.first && slide.ratio == f.lc.maximum_slide_ratio);
+        assert_eq!(g.closure.query_id, 60);
+        assert_eq!(g.closure.match_id, 0);
+        assert_eq!(g.closure.score, 0.8);
+    }
+
+    #[test]
+    fn odometry_refuses_a_closure_beyond_the_drift_model() {
+        let f = fixture();
+        // 300 m of path: the drift model allows (15 + 15) / 3 = 10 m standard deviation.
+        let far = result(Iso2::new(Vec2::new(80.0, 0.0), 0.0), 0.05);
+        assert_eq!(reason(f.gate(far)), RejectReason::Inconsistent);
+        assert!(
+            f.gate(result(Iso2::new(Vec2::new(12.0, 0.0), 0.0), 0.05))
+                .is_ok()
+        );
+    }
+
+    #[test]
+    fn a_fresh_alignment_vouches_for_what_agrees_with_it() {
+        let mut f = fixture();
+        // An accepted alignment found 20 m of path ago: the odometry is off by 1 m along x.
+        let a = Iso2::new(Vec2::new(1.0, 0.0), 0.0);
+        f.alignments.insert(0, Alignment { t: a, path: 280.0 });
+        let at = Iso2::new(Vec2::new(3.0, 0.0), 0.0);
+        let g = f.gate(result(at, 0.05)).expect("agrees");
+        assert!(g.agrees && g.slide.is_none());
+        assert_eq!(g.prediction, Some(at), "the prediction test remains");
+        // 5 m from the prediction: contradicts the alignment but not odometry, so it waits.
+        let off = f
+            .gate(result(Iso2::new(Vec2::new(8.0, 0.0), 0.0), 0.05))
+            .expect("held");
+        assert!(!off.agrees);
+        let slide = off
+            .slide
+            .expect("not the first closure, still slide-tested");
+        assert!(!slide.first && slide.ratio == 1.0);
+        // An alignment too old to vouch (200 m of path back) vouches for nothing.
+        f.alignments.insert(0, Alignment { t: a, path: 100.0 });
+        assert!(!f.gate(result(at, 0.05)).expect("passes").agrees);
+    }
+
+    #[test]
+    fn an_ambiguous_result_is_refused_unless_a_fresh_alignment_resolves_it() {
+        let mut f = fixture();
+        let at = Iso2::new(Vec2::new(2.0, 0.0), 0.0);
+        let slid = Iso2::new(Vec2::new(12.0, 0.0), 0.0);
+        let ambiguous = RegistrationResult {
+            runner_up_overlap: 0.75,
+            alternatives: vec![(slid, 0.75)],
+            ..result(at, 0.05)
+        };
+        assert_eq!(reason(f.gate(ambiguous.clone())), RejectReason::Ambiguous);
+        // The session's fresh alignment predicts `at`, contradicts the alternative, and the dense
+        // stage started at the prediction ends at the result (the submap fits itself there).
+        f.query = record(60, 0, at, 300.0);
+        let at_identity = RegistrationResult {
+            t_target_source: Iso2::identity(),
+            alternatives: vec![(Iso2::new(Vec2::new(10.0, 0.0), 0.0), 0.75)],
+            ..ambiguous
+        };
+        f.alignments.insert(
+            0,
+            Alignment {
+                t: at.inverse(),
+                path: 290.0,
+            },
+        );
+        let g = f.gate(at_identity).expect("resolved by the alignment");
+        assert!(g.agrees);
+    }
+
+    #[test]
+    fn looking_the_other_way_has_no_common_view() {
+        let mut f = fixture();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let cone: Vec<Vec2> = (0..400)
+            .map(|_| {
+                let (r, a) = (rng.random_range(5.0..60.0), rng.random_range(-1.3..1.3f64));
+                Vec2::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        f.map = PreparedSubmap::new(PointSet2::isotropic(cone, 0.15), &f.rc).expect("prepared");
+        let turned = Iso2::new(Vec2::new(2.0, 0.0), std::f64::consts::PI);
+        assert_eq!(
+            reason(f.gate(result(turned, 0.05))),
+            RejectReason::NoCommonView
+        );
+        f.lc.minimum_common_view = 0.0;
+        assert_ne!(
+            f.gate(result(turned, 0.05)).err().map(|e| e.0),
+            Some(RejectReason::NoCommonView)
+        );
+    }
+
+    #[test]
+    fn the_prediction_test_refuses_a_result_the_prediction_does_not_lead_to() {
+        let f = fixture();
+        let g = f.gates();
+        let c = |t: Iso2| LoopClosure {
+            t_match_query: iso3_from_iso2(&t),
+            ..closure(&f.pair(), &result(t, 0.05))
+        };
+        // The submap fits itself at the identity: a prediction near it ends there.
+        let near = Iso2::new(Vec2::new(0.3, -0.2), 0.01);
+        assert!(prediction_test(&g, &near, &c(Iso2::identity()), &f.map, &f.map).is_ok());
+        // A result 6 m off that the prediction does not lead to is refused.
+        let off = Iso2::new(Vec2::new(6.0, 0.0), 0.0);
+        let e = prediction_test(&g, &near, &c(off), &f.map, &f.map).expect_err("refused");
+        assert_eq!(e.0, RejectReason::Ambiguous);
+    }
+
+    #[test]
+    fn the_slide_test_refuses_a_street_that_fits_when_slid() {
+        let rc = RegistrationConfig::default();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        // Bare facades 8 m either side of a 120 m street: any slide fits.
+        let street: Vec<Vec2> = (0..300)
+            .map(|k| {
+                let side = if k % 2 == 0 { -8.0 } else { 8.0 };
+                Vec2::new(
+                    rng.random_range(-60.0..60.0),
+                    side + rng.random_range(-0.1..0.1),
+                )
+            })
+            .collect();
+        let bare = PreparedSubmap::new(PointSet2::isotropic(street, 0.15), &rc).expect("bare");
+        let s = |ratio: f64| Slide {
+            t: Iso2::identity(),
+            overlap: 0.9,
+            ratio,
+            first: true,
+        };
+        let e = slide_test(&rc, &s(0.7), &bare, &bare).expect_err("slides");
+        assert_eq!(e.0, RejectReason::Ambiguous);
+        // All round, nothing fits slid along the heading.
+        let round = surroundings(4);
+        assert!(slide_test(&rc, &s(0.7), &round, &round).is_ok());
+    }
+}

@@ -1,0 +1,353 @@
+//! Loop closures: revisits of a new keyframe searched in the keyframe map, registered, gated and
+//! published, held until confirmed, or refused with a reason.
+//!
+//! Steps for each new keyframe ([`LoopCloser::search`]), in order: candidates from the keyframe map
+//! (around the odometry position under the drift model, around an accepted or held alignment, and
+//! by place descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
+//! that passes the prediction and slide tests; acceptance by the session ([`Session::accept`]:
+//! published, held, or confirmed with those it agrees with). After a confirmation, the keyframes that
+//! got nothing are searched again, a few per new keyframe ([`LoopCloser::backfill`]).
+//!
+//! Entry points: [`LoopCloser`], [`LoopClosure`], [`Decision`], [`RejectReason`], [`LoopConfig`];
+//! the state of acceptance is [`Session`], the drift model [`drift`].
+
+mod config;
+pub mod drift;
+pub mod gates;
+mod session;
+
+pub use config::LoopConfig;
+pub use session::{Alignment, QueryPlace, Session};
+
+use rayon::prelude::*;
+
+use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord};
+use crate::math::{Iso2, Iso3, Mat6, Stamp, iso2_from_iso3};
+use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
+use gates::{Gated, Gates, Pair, gate, prediction_test, slide_test};
+
+/// A verified loop closure: the query keyframe's body frame in the match keyframe's body frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopClosure {
+    /// Newer keyframe.
+    pub query_id: u64,
+    /// Older, revisited keyframe.
+    pub match_id: u64,
+    /// Query keyframe stamp.
+    pub query_stamp: Stamp,
+    /// Match keyframe stamp.
+    pub match_stamp: Stamp,
+    /// Odometry pose of the query keyframe.
+    pub query_odom_pose: Iso3,
+    /// Odometry pose of the match keyframe.
+    pub match_odom_pose: Iso3,
+    /// Query body frame in the match body frame.
+    pub t_match_query: Iso3,
+    /// Covariance of `t_match_query`, ROS order (x, y, z, rot x, rot y, rot z), right perturbation.
+    pub covariance: Mat6,
+    /// Registration inliers.
+    pub inliers: u32,
+    /// Quality score: the registration's overlap (share of points with a partner, 0..1).
+    pub score: f64,
+    /// Session of the match keyframe (an earlier drive when it came from a loaded map).
+    pub match_session: u32,
+}
+
+/// Why a candidate revisit was not published.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum RejectReason {
+    /// Registration failed (too few points or inliers, numerical failure).
+    Registration,
+    /// Fewer inliers than `loop.minimum_inliers`.
+    FewInliers,
+    /// The optimiser did not converge.
+    NotConverged,
+    /// The covariance exceeds `loop.maximum_*_std`.
+    Uncertain,
+    /// The overlap is below `loop.minimum_overlap`.
+    LowOverlap,
+    /// The closure contradicts odometry and earlier closures (`loop.consistency_chi2`).
+    Inconsistent,
+    /// Another alignment fits nearly as well (`loop.maximum_ambiguity`, `loop.maximum_slide_ratio`).
+    Ambiguous,
+    /// The two submaps look in directions too different to have seen the same things
+    /// (`loop.minimum_common_view`).
+    NoCommonView,
+}
+
+impl RejectReason {
+    /// Short snake_case name for logs and diagnostics.
+    pub fn name(self) -> &'static str {
+        match self {
+            RejectReason::Registration => "registration_failed",
+            RejectReason::FewInliers => "few_inliers",
+            RejectReason::NotConverged => "not_converged",
+            RejectReason::Uncertain => "covariance_too_large",
+            RejectReason::LowOverlap => "low_overlap",
+            RejectReason::Inconsistent => "inconsistent",
+            RejectReason::Ambiguous => "ambiguous",
+            RejectReason::NoCommonView => "no_common_view",
+        }
+    }
+}
+
+/// What the loop closer decided about a candidate revisit.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Decision {
+    /// A loop closure passed every gate and is published.
+    Published(Box<LoopClosure>),
+    /// A candidate was refused.
+    Rejected {
+        /// Query keyframe.
+        query_id: u64,
+        /// Candidate keyframe.
+        match_id: u64,
+        /// Why.
+        reason: RejectReason,
+        /// Details for the log.
+        detail: String,
+    },
+}
+
+/// The decisions of one step, and the registrations it ran.
+#[derive(Debug, Default)]
+pub struct Decisions {
+    /// In the order they were taken.
+    pub decisions: Vec<Decision>,
+    /// Registrations run.
+    pub registrations: u64,
+}
+
+impl Decisions {
+    fn reject(&mut self, query_id: u64, match_id: u64, (reason, detail): gates::Refusal) {
+        log::debug!(
+            "revisit {query_id} -> {match_id} rejected ({}): {detail}",
+            reason.name()
+        );
+        self.decisions.push(Decision::Rejected {
+            query_id,
+            match_id,
+            reason,
+            detail,
+        });
+    }
+}
+
+/// Revisit search and closure acceptance for one session.
+pub struct LoopCloser {
+    lc: LoopConfig,
+    rc: RegistrationConfig,
+    session: u32,
+    state: Session,
+}
+
+impl LoopCloser {
+    /// A loop closer for session `session` (earlier sessions are those of a loaded map).
+    pub fn new(lc: LoopConfig, rc: RegistrationConfig, session: u32) -> Self {
+        LoopCloser {
+            lc,
+            rc,
+            session,
+            state: Session::default(),
+        }
+    }
+
+    /// The state of acceptance.
+    pub fn state(&self) -> &Session {
+        &self.state
+    }
+
+    /// A new keyframe of this session (not yet in `db`): its revisits searched, its closure published
+    /// or held.
+    pub fn search(
+        &mut self,
+        db: &mut KeyframeDb,
+        query: &KeyframeRecord,
+        prepared: &PreparedSubmap,
+        out: &mut Decisions,
+    ) {
+        let horizon = self.lc.backfill_horizon;
+        self.state
+            .note_keyframe(query.id, query.path_distance, horizon);
+        if let Some((c, agrees)) = self.best_closure(db, query, prepared, out) {
+            let Some((session, a)) = closure_alignment(db, query, &c) else {
+                return;
+            };
+            let place = QueryPlace {
+                id: query.id,
+                path: query.path_distance,
+                t_odom_body: query.t_odom_body,
+            };
+            let publish = self.state.accept(&place, c, session, a, agrees, &self.lc);
+            self.publish(publish, out);
+        }
+    }
+
+    /// Searches up to `n` keyframes queued to be searched again (`loop.backfill_per_keyframe`; at the
+    /// end of the input, all of them). Only what agrees with a fresh alignment is published from here,
+    /// and the keyframes queued after this one lie further back along the path: once no alignment is
+    /// fresh enough to vouch (`loop.trusted_prior_std`), the rest are not searched.
+    pub fn backfill(&mut self, db: &mut KeyframeDb, n: usize, out: &mut Decisions) {
+        for _ in 0..n {
+            let Some(id) = self.state.next_backfill() else {
+                return;
+            };
+            let Some(rec) = db.get(id).cloned() else {
+                continue;
+            };
+            let prepared = match db.prepared(id as usize, &self.rc) {
+                Ok(p) => p,
+                Err(e) => {
+                    log::debug!("keyframe {id} not searched again: {e}");
+                    continue;
+                }
+            };
+            // Searched around the chain's alignment instead of the newest one, which is put back
+            // after.
+            let swapped = self.state.swap_in_chain();
+            let fresh = self.state.any_vouches(rec.path_distance, &self.lc);
+            let found = if fresh {
+                self.best_closure(db, &rec, &prepared, out)
+            } else {
+                None
+            };
+            self.state.restore(swapped);
+            if !fresh {
+                log::debug!(
+                    "keyframe {id} and {} older ones not searched again: no alignment is fresh enough there",
+                    self.state.backfill_len()
+                );
+                self.state.clear_backfill();
+                return;
+            }
+            // Only what agrees with the alignment that vouches is published.
+            let Some((c, true)) = found else { continue };
+            if let Some((s, a)) = closure_alignment(db, &rec, &c) {
+                let path = rec.path_distance;
+                self.state.extend_chain(s, Alignment { t: a, path });
+            }
+            self.publish(vec![c], out);
+        }
+    }
+
+    /// The best closure of `query` among its candidates, and whether it agrees with a fresh
+    /// alignment; every refused candidate goes to `out`.
+    fn best_closure(
+        &self,
+        db: &mut KeyframeDb,
+        query: &KeyframeRecord,
+        prepared: &PreparedSubmap,
+        out: &mut Decisions,
+    ) -> Option<(LoopClosure, bool)> {
+        let alignment = self.state.search_prior(self.session).map(|a| (a.t, a.path));
+        let candidates = db.candidates(
+            &CandidateQuery { query, alignment },
+            self.session,
+            &self.lc.search(),
+        );
+        let mut targets = Vec::with_capacity(candidates.len());
+        for cand in candidates {
+            let id = cand.index as u64;
+            match db.prepared(cand.index, &self.rc) {
+                Ok(t) => targets.push((id, t)),
+                Err(e) => out.reject(query.id, id, (RejectReason::Registration, e.to_string())),
+            }
+        }
+        // The registrations are independent: they run in parallel and are gated in candidate order,
+        // so the outcome is the same as one after another, sooner.
+        out.registrations += targets.len() as u64;
+        let mut cfg = self.rc.clone();
+        cfg.correlative.enabled &= self.lc.correlative_search;
+        let results: Vec<_> = targets
+            .par_iter()
+            .map(|(_, target)| register_prepared(prepared, target, &cfg))
+            .collect();
+        let g = self.gates();
+        let mut passed = Vec::new();
+        for ((id, target), res) in targets.into_iter().zip(results) {
+            let Some(cand) = db.get(id) else { continue };
+            let pair = Pair {
+                query,
+                cand,
+                source: prepared,
+                target: &target,
+            };
+            match gate(&g, &pair, res) {
+                Ok(gated) => passed.push((gated, target)),
+                Err(refusal) => out.reject(query.id, id, refusal),
+            }
+        }
+        self.first_that_passes(passed, prepared, out)
+    }
+
+    /// The best of the gated closures that passes the prediction and slide tests: those that agree
+    /// with the accepted alignment first, then by score, the earlier candidate among equals. The
+    /// tests, the costliest gates, run in that order until one passes: the same closure as testing
+    /// every one, with less work (the candidates after the winner are neither tested nor counted as
+    /// rejected).
+    fn first_that_passes(
+        &self,
+        mut passed: Vec<(Gated, std::sync::Arc<PreparedSubmap>)>,
+        prepared: &PreparedSubmap,
+        out: &mut Decisions,
+    ) -> Option<(LoopClosure, bool)> {
+        passed.sort_by(|(a, _), (b, _)| {
+            (b.agrees, b.closure.score)
+                .partial_cmp(&(a.agrees, a.closure.score))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        let g = self.gates();
+        for (gated, target) in passed {
+            let c = &gated.closure;
+            let tested = gated
+                .prediction
+                .map_or(Ok(()), |p| prediction_test(&g, &p, c, prepared, &target))
+                .and_then(|()| {
+                    gated
+                        .slide
+                        .map_or(Ok(()), |s| slide_test(&self.rc, &s, prepared, &target))
+                });
+            match tested {
+                Ok(()) => return Some((gated.closure, gated.agrees)),
+                Err(refusal) => out.reject(c.query_id, c.match_id, refusal),
+            }
+        }
+        None
+    }
+
+    fn gates(&self) -> Gates<'_> {
+        Gates {
+            lc: &self.lc,
+            rc: &self.rc,
+            session: self.session,
+            alignments: self.state.alignments(),
+        }
+    }
+
+    fn publish(&mut self, closures: Vec<LoopClosure>, out: &mut Decisions) {
+        for c in closures {
+            self.state.published(&c);
+            log::info!(
+                "loop closure {} -> {} (session {}): {} inliers, overlap {:.2}",
+                c.query_id,
+                c.match_id,
+                c.match_session,
+                c.inliers,
+                c.score
+            );
+            out.decisions.push(Decision::Published(Box::new(c)));
+        }
+    }
+}
+
+/// The session a closure goes to and the alignment of this session's odometry frame into that
+/// session's frame it implies.
+fn closure_alignment(
+    db: &KeyframeDb,
+    query: &KeyframeRecord,
+    c: &LoopClosure,
+) -> Option<(u32, Iso2)> {
+    let m = db.get(c.match_id)?;
+    let a = m.t_odom_body * iso2_from_iso3(&c.t_match_query) * query.t_odom_body.inverse();
+    Some((m.session, a))
+}

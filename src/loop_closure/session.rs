@@ -1,0 +1,443 @@
+//! The state of closure acceptance over a session ([`Session`]): the accepted alignments to earlier
+//! sessions, the closures held until another confirms them, and the keyframes to search again once
+//! a confirmation comes. Each change of state is a named operation: [`Session::note_keyframe`],
+//! [`Session::accept`] (publish, hold or confirm), [`Session::published`], and the backfill queue.
+
+use std::collections::{BTreeMap, VecDeque};
+
+use super::drift::{alignment_distance, vouches};
+use super::{LoopClosure, LoopConfig};
+use crate::math::Iso2;
+
+/// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
+const CONFIRM_CHI2: f64 = 16.27;
+
+/// An accepted alignment of this session's odometry frame into an earlier session's frame, and the
+/// path length (m of this session's odometry) at which the closure that gave it was found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Alignment {
+    /// This session's odometry frame in the other session's frame.
+    pub t: Iso2,
+    /// Path length at which it was found, m.
+    pub path: f64,
+}
+
+/// A closure waiting for confirmation, with the alignment it implies.
+#[derive(Debug, Clone, PartialEq)]
+struct Held {
+    closure: LoopClosure,
+    alignment: Alignment,
+}
+
+/// Where a closure's query keyframe lies: its id, path length and odometry pose.
+#[derive(Debug, Clone, Copy)]
+pub struct QueryPlace {
+    /// The query keyframe's id.
+    pub id: u64,
+    /// Its path length, m.
+    pub path: f64,
+    /// Its odometry pose.
+    pub t_odom_body: Iso2,
+}
+
+/// Closure acceptance over one session.
+#[derive(Debug, Clone, Default)]
+pub struct Session {
+    /// Per earlier session: the latest accepted alignment.
+    alignments: BTreeMap<u32, Alignment>,
+    /// Per session without an alignment yet: closures waiting for confirmation.
+    held: BTreeMap<u32, Vec<Held>>,
+    /// This session's keyframes of the last `loop.backfill_horizon` metres without a published
+    /// closure (id, path length).
+    unclosed: VecDeque<(u64, f64)>,
+    /// Keyframes queued to be searched again, newest first.
+    backfill: VecDeque<u64>,
+    /// The alignment the queued keyframes are searched around (its session): the confirmation's,
+    /// then each closure those searches publish.
+    chain: Option<(u32, Alignment)>,
+}
+
+impl Session {
+    /// The accepted alignments, by session.
+    pub fn alignments(&self) -> &BTreeMap<u32, Alignment> {
+        &self.alignments
+    }
+
+    /// A new keyframe of this session at `path`: it has no closure yet (keyframes farther back than
+    /// `horizon` are forgotten).
+    pub fn note_keyframe(&mut self, id: u64, path: f64, horizon: f64) {
+        self.unclosed.retain(|&(_, p)| path - p <= horizon);
+        self.unclosed.push_back((id, path));
+    }
+
+    /// The alignment a revisit search of `session` looks around: the accepted one, or before there is
+    /// one the newest held closure's (so that the closures that would confirm it are registered).
+    pub fn search_prior(&self, session: u32) -> Option<Alignment> {
+        self.alignments
+            .get(&session)
+            .copied()
+            .or_else(|| Some(self.held.get(&session)?.last()?.alignment))
+    }
+
+    /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone.
+    pub fn any_vouches(&self, path: f64, lc: &LoopConfig) -> bool {
+        self.alignments.values().any(|a| vouches(path - a.path, lc))
+    }
+
+    /// Takes a closure that passed the gates, with the alignment `a` of this session into
+    /// `session` it implies: published at once when it agrees with the session's accepted
+    /// alignment (`agrees`) or one closure confirms a session; else held until a closure from
+    /// another query keyframe agrees with it (`loop.confirmations`, `confirmation_span`,
+    /// `confirmation_overlap`, `confirmation_horizon`). Returns what to publish now, in order; on a
+    /// confirmation the keyframes that got nothing since are queued to be searched again. A
+    /// closure that contradicts the accepted alignment and is confirmed replaces it, so that one
+    /// false closure that slipped through cannot block every true one after it.
+    pub fn accept(
+        &mut self,
+        query: &QueryPlace,
+        c: LoopClosure,
+        session: u32,
+        a: Iso2,
+        agrees: bool,
+        lc: &LoopConfig,
+    ) -> Vec<LoopClosure> {
+        let alignment = Alignment {
+            t: a,
+            path: query.path,
+        };
+        let publish = if (agrees && self.alignments.contains_key(&session)) || lc.confirmations <= 1
+        {
+            vec![c]
+        } else {
+            match self.confirm(query, c, session, alignment, lc) {
+                Some(p) => p,
+                None => return Vec::new(),
+            }
+        };
+        self.alignments.insert(session, alignment);
+        publish
+    }
+
+    /// Holds `c` or, when enough held closures agree with it, returns them with it (in query order,
+    /// `c` last) and queues the keyframes since for searching again.
+    fn confirm(
+        &mut self,
+        query: &QueryPlace,
+        c: LoopClosure,
+        session: u32,
+        alignment: Alignment,
+        lc: &LoopConfig,
+    ) -> Option<Vec<LoopClosure>> {
+        let pending = self.held.entry(session).or_default();
+        // Old unconfirmed hypotheses expire before they may confirm anything.
+        pending.retain(|h| query.path - h.alignment.path <= lc.confirmation_horizon);
+        let agree: Vec<usize> = (0..pending.len())
+            .filter(|&k| {
+                let h = &pending[k];
+                h.closure.query_id != c.query_id
+                    && alignment_distance(
+                        &h.alignment.t,
+                        &alignment.t,
+                        &query.t_odom_body,
+                        query.path - h.alignment.path,
+                        lc,
+                    ) <= CONFIRM_CHI2
+            })
+            .collect();
+        let span = agree
+            .iter()
+            .map(|&k| (query.path - pending[k].alignment.path).abs())
+            .fold(0.0, f64::max);
+        let strong = c.score >= lc.confirmation_overlap
+            || agree
+                .iter()
+                .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
+        if !(agree.len() + 1 >= lc.confirmations && span >= lc.confirmation_span && strong) {
+            log::debug!(
+                "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
+                c.query_id,
+                c.match_id,
+                c.inliers,
+                c.score,
+                alignment.t.translation.x,
+                alignment.t.translation.y,
+                alignment.t.rotation.angle()
+            );
+            pending.push(Held {
+                closure: c,
+                alignment,
+            });
+            return None;
+        }
+        let mut kept = std::mem::take(pending);
+        let mut publish = Vec::new();
+        for k in agree.into_iter().rev() {
+            publish.push(kept.swap_remove(k).closure);
+        }
+        publish.sort_by_key(|p| p.query_id);
+        publish.push(c);
+        log::info!(
+            "closures to session {session} confirmed by {} agreeing matches",
+            publish.len()
+        );
+        // The keyframes before the confirmation that got nothing are searched again (not even at
+        // the end of a bag when `backfill_per_keyframe` is 0).
+        let unclosed = std::mem::take(&mut self.unclosed);
+        self.backfill = if lc.backfill_per_keyframe > 0 {
+            let done = |id: u64| id == query.id || publish.iter().any(|p| p.query_id == id);
+            unclosed
+                .iter()
+                .rev()
+                .map(|&(id, _)| id)
+                .filter(|&id| !done(id))
+                .collect()
+        } else {
+            VecDeque::new()
+        };
+        self.chain = Some((session, alignment));
+        Some(publish)
+    }
+
+    /// `c` was published: its query keyframe has a closure.
+    pub fn published(&mut self, c: &LoopClosure) {
+        self.unclosed.retain(|&(id, _)| id != c.query_id);
+    }
+
+    /// The next keyframe to search again, if any.
+    pub fn next_backfill(&mut self) -> Option<u64> {
+        self.backfill.pop_front()
+    }
+
+    /// Keyframes queued to be searched again.
+    pub fn backfill_len(&self) -> usize {
+        self.backfill.len()
+    }
+
+    /// Forgets the keyframes queued to be searched again.
+    pub fn clear_backfill(&mut self) {
+        self.backfill.clear();
+    }
+
+    /// A closure published by a search again moves the chain to the alignment it implies.
+    pub fn extend_chain(&mut self, session: u32, alignment: Alignment) {
+        self.chain = Some((session, alignment));
+    }
+
+    /// Puts the chain's alignment in place of its session's accepted one; returns what to put back
+    /// with [`Session::restore`].
+    pub fn swap_in_chain(&mut self) -> Option<(u32, Option<Alignment>)> {
+        self.chain.map(|(s, a)| (s, self.alignments.insert(s, a)))
+    }
+
+    /// Undoes [`Session::swap_in_chain`].
+    pub fn restore(&mut self, swapped: Option<(u32, Option<Alignment>)>) {
+        if let Some((s, before)) = swapped {
+            match before {
+                Some(v) => self.alignments.insert(s, v),
+                None => self.alignments.remove(&s),
+            };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Iso3, Mat6, Stamp, Vec2};
+
+    fn closure(query_id: u64, match_id: u64, score: f64) -> LoopClosure {
+        LoopClosure {
+            query_id,
+            match_id,
+            query_stamp: Stamp(0),
+            match_stamp: Stamp(0),
+            query_odom_pose: Iso3::identity(),
+            match_odom_pose: Iso3::identity(),
+            t_match_query: Iso3::identity(),
+            covariance: Mat6::identity(),
+            inliers: 50,
+            score,
+            match_session: 0,
+        }
+    }
+
+    fn place(id: u64, path: f64) -> QueryPlace {
+        QueryPlace {
+            id,
+            path,
+            t_odom_body: Iso2::new(Vec2::new(path, 0.0), 0.0),
+        }
+    }
+
+    /// The alignment to session 0 that every true closure of these tests implies.
+    fn true_alignment() -> Iso2 {
+        Iso2::new(Vec2::new(3.0, -2.0), 0.05)
+    }
+
+    /// Keyframes 0..n of this session, 10 m apart.
+    fn session_with_keyframes(n: u64, lc: &LoopConfig) -> Session {
+        let mut s = Session::default();
+        for id in 0..n {
+            s.note_keyframe(id, 10.0 * id as f64, lc.backfill_horizon);
+        }
+        s
+    }
+
+    #[test]
+    fn a_first_closure_is_held_until_another_keyframe_agrees() {
+        let lc = LoopConfig::default();
+        let mut s = session_with_keyframes(20, &lc);
+        let a = true_alignment();
+        let held = s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        assert!(held.is_empty(), "the first closure to a session waits");
+        assert!(s.alignments().is_empty());
+        assert_eq!(
+            s.search_prior(0).map(|p| p.t),
+            Some(a),
+            "searched around it"
+        );
+        // The same query keyframe does not confirm itself.
+        assert!(
+            s.accept(&place(10, 100.0), closure(10, 1, 0.7), 0, a, false, &lc)
+                .is_empty()
+        );
+        // Another keyframe 40 m on, with an agreeing alignment: both published, in query order.
+        let published = s.accept(&place(14, 140.0), closure(14, 4, 0.5), 0, a, false, &lc);
+        let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
+        assert_eq!(ids, [10, 10, 14]);
+        assert_eq!(s.alignments()[&0].t, a);
+        assert_eq!(s.alignments()[&0].path, 140.0);
+        // The keyframes before it that got nothing are queued, newest first.
+        assert_eq!(s.next_backfill(), Some(19));
+        assert_eq!(s.backfill_len(), 17, "all but 10, 14 and the one taken");
+    }
+
+    #[test]
+    fn confirmation_needs_span_strength_and_agreement() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        // Too close along the path (10 m < confirmation_span).
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        assert!(
+            s.accept(&place(11, 110.0), closure(11, 1, 0.7), 0, a, false, &lc)
+                .is_empty()
+        );
+        // Weak: no closure reaches confirmation_overlap.
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.5), 0, a, false, &lc);
+        assert!(
+            s.accept(&place(14, 140.0), closure(14, 4, 0.5), 0, a, false, &lc)
+                .is_empty()
+        );
+        // Disagreeing: an alignment 20 m off.
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        let off = Iso2::new(Vec2::new(23.0, -2.0), 0.05);
+        assert!(
+            s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, off, false, &lc)
+                .is_empty()
+        );
+        // Expired: held longer than confirmation_horizon.
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        assert!(
+            s.accept(&place(30, 300.0), closure(30, 20, 0.7), 0, a, false, &lc)
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn agreeing_closures_are_published_alone_and_one_confirmation_publishes_at_once() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
+        let one = s.accept(&place(15, 150.0), closure(15, 5, 0.4), 0, a, true, &lc);
+        assert_eq!(one.len(), 1);
+        assert_eq!(s.alignments()[&0].path, 150.0);
+        // Without an accepted alignment `agrees` alone publishes nothing.
+        assert!(
+            s.accept(&place(16, 160.0), closure(16, 6, 0.9), 1, a, true, &lc)
+                .is_empty()
+        );
+        let single = LoopConfig {
+            confirmations: 1,
+            ..lc
+        };
+        let mut s = Session::default();
+        assert_eq!(
+            s.accept(&place(10, 100.0), closure(10, 0, 0.1), 0, a, false, &single)
+                .len(),
+            1
+        );
+    }
+
+    #[test]
+    fn a_confirmed_contradiction_replaces_the_alignment() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
+        let b = Iso2::new(Vec2::new(9.0, 4.0), -0.02);
+        assert!(
+            s.accept(&place(20, 200.0), closure(20, 9, 0.7), 0, b, false, &lc)
+                .is_empty()
+        );
+        assert_eq!(s.alignments()[&0].t, a, "held, not yet taken");
+        let published = s.accept(&place(24, 240.0), closure(24, 13, 0.7), 0, b, false, &lc);
+        assert_eq!(published.len(), 2);
+        assert_eq!(s.alignments()[&0].t, b);
+    }
+
+    #[test]
+    fn no_backfill_when_switched_off_and_published_keyframes_leave_the_queue() {
+        let off = LoopConfig {
+            backfill_per_keyframe: 0,
+            ..LoopConfig::default()
+        };
+        let a = true_alignment();
+        let mut s = session_with_keyframes(20, &off);
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &off);
+        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &off);
+        assert_eq!(s.backfill_len(), 0);
+        // Keyframes beyond the horizon are forgotten; published ones leave the unclosed list.
+        let lc = LoopConfig::default();
+        let mut s = session_with_keyframes(3, &lc);
+        s.note_keyframe(3, 10.0 + lc.backfill_horizon, lc.backfill_horizon);
+        s.published(&closure(3, 0, 0.7));
+        s.accept(&place(4, 0.0), closure(4, 0, 0.7), 0, a, false, &lc);
+        s.accept(&place(8, 40.0), closure(8, 4, 0.7), 0, a, false, &lc);
+        let mut queued = Vec::new();
+        while let Some(id) = s.next_backfill() {
+            queued.push(id);
+        }
+        assert_eq!(queued, [2, 1], "keyframe 0 beyond the horizon, 3 published");
+    }
+
+    #[test]
+    fn the_chain_alignment_is_swapped_in_and_restored() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::default();
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
+        let newer = Iso2::new(Vec2::new(3.5, -2.0), 0.05);
+        s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, newer, true, &lc);
+        let chain = Alignment { t: a, path: 90.0 };
+        s.extend_chain(0, chain);
+        let swapped = s.swap_in_chain();
+        assert_eq!(s.alignments()[&0], chain);
+        assert!(s.any_vouches(100.0, &lc) && !s.any_vouches(200.0, &lc));
+        s.restore(swapped);
+        assert_eq!(s.alignments()[&0].t, newer);
+        // A chain to a session without an alignment leaves none behind.
+        s.extend_chain(7, chain);
+        let swapped = s.swap_in_chain();
+        assert!(s.alignments().contains_key(&7));
+        s.restore(swapped);
+        assert!(!s.alignments().contains_key(&7));
+    }
+}

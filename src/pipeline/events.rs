@@ -1,0 +1,147 @@
+//! What the pipeline reports: the [`Event`]s of each input, why an input was dropped
+//! ([`DropReason`]), and the counters over its life ([`PipelineStats`]).
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use crate::loop_closure::{LoopClosure, RejectReason};
+use crate::math::{Iso3, Stamp};
+use crate::submap::Submap;
+
+/// Why an input was dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum DropReason {
+    /// A cloud that could not be decoded (missing/mistyped field, truncated, bad layout).
+    BadCloud,
+    /// A cloud from a radar index that is not configured.
+    UnknownRadar,
+    /// A non-finite odometry pose.
+    BadOdometry,
+    /// A scan older than odometry history, or inside an odometry gap.
+    NoOdometry,
+    /// The pending-scan queue was full (odometry far behind).
+    QueueFull,
+    /// A stamp more than 1 s older than the newest input, not (yet) taken as a restart (see
+    /// [`super::Pipeline::set_restart_after`]).
+    StampBackwards,
+    /// A second scan of one radar with the same stamp (a re-sent or bogus message).
+    DuplicateStamp,
+}
+
+impl DropReason {
+    /// Short snake_case name for logs and diagnostics.
+    pub fn name(self) -> &'static str {
+        match self {
+            DropReason::BadCloud => "bad_cloud",
+            DropReason::UnknownRadar => "unknown_radar",
+            DropReason::BadOdometry => "bad_odometry",
+            DropReason::NoOdometry => "no_odometry",
+            DropReason::QueueFull => "queue_full",
+            DropReason::StampBackwards => "stamp_backwards",
+            DropReason::DuplicateStamp => "duplicate_stamp",
+        }
+    }
+}
+
+/// What [`super::Pipeline::push`] produced.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// A keyframe was added.
+    Keyframe {
+        /// Its id.
+        id: u64,
+        /// Its stamp.
+        stamp: Stamp,
+        /// Its odometry pose.
+        t_odom_body: Iso3,
+        /// Points in its submap.
+        points: usize,
+        /// The submap itself (shared; the database keeps a compact copy).
+        submap: Arc<Submap>,
+    },
+    /// A loop closure passed every gate.
+    Closure(Box<LoopClosure>),
+    /// A candidate revisit was rejected.
+    Rejected {
+        /// Query keyframe.
+        query_id: u64,
+        /// Candidate keyframe.
+        match_id: u64,
+        /// Why.
+        reason: RejectReason,
+        /// Details for the log.
+        detail: String,
+    },
+    /// An input was dropped.
+    Dropped {
+        /// Why.
+        reason: DropReason,
+        /// Details for the log.
+        detail: String,
+    },
+    /// A scan without a valid detection: counted (`empty_scans`) and fed on all the same (an empty
+    /// scene is possible).
+    EmptyScan {
+        /// Details for the log.
+        detail: String,
+    },
+    /// Time went backwards: odometry, scans and the rolling submap were reset; keyframes are kept.
+    TimeReset {
+        /// Newest stamp seen before.
+        previous: Stamp,
+        /// The stamp that went backwards.
+        got: Stamp,
+    },
+}
+
+/// Counters over the pipeline's life.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PipelineStats {
+    /// Radar scans processed into the submap window.
+    pub scans: u64,
+    /// Odometry samples accepted.
+    pub odometry: u64,
+    /// Detections kept / dropped as moving / invalid.
+    pub detections_kept: u64,
+    /// Detections rejected as moving objects.
+    pub detections_dynamic: u64,
+    /// Non-finite or zero-range detections skipped while decoding or compensating.
+    pub detections_invalid: u64,
+    /// Scans without a valid detection, counted before the duplicate check (fed on all the same: an
+    /// empty scene is possible).
+    pub empty_scans: u64,
+    /// Scans whose Doppler ego-motion fit failed.
+    pub doppler_fit_failures: u64,
+    /// Inputs dropped, by reason.
+    pub dropped: BTreeMap<DropReason, u64>,
+    /// Candidates rejected, by reason.
+    pub rejected: BTreeMap<RejectReason, u64>,
+    /// Time resets (stamps going backwards).
+    pub time_resets: u64,
+    /// Keyframes taken.
+    pub keyframes: u64,
+    /// Registrations run.
+    pub registrations: u64,
+    /// Closures accepted.
+    pub closures: u64,
+    /// Scans waiting for odometry now.
+    pub pending_scans: usize,
+    /// The newest keyframe's correction of the odometry's distances by the Doppler speeds
+    /// (`submap.speed_scale_bound`; `None` before one was applied): about 1 / (1 + the odometry's
+    /// scale error).
+    pub speed_scale: Option<f64>,
+    /// Keyframes whose Doppler and odometry distances disagreed beyond `submap.speed_scale_bound`
+    /// (placed with the odometry as it is).
+    pub speed_scale_refused: u64,
+}
+
+/// Counts a dropped input and reports it.
+pub(crate) fn dropped(
+    stats: &mut PipelineStats,
+    out: &mut Vec<Event>,
+    reason: DropReason,
+    detail: String,
+) {
+    *stats.dropped.entry(reason).or_default() += 1;
+    out.push(Event::Dropped { reason, detail });
+}

@@ -1,0 +1,304 @@
+//! The one pipeline every front end drives: the ROS node, the offline runner, the demo and the tests.
+//!
+//! [`Pipeline::push`] takes one [`Input`] and returns the [`Event`]s it produced; nothing calls back.
+//! Steps, in order, as data arrives:
+//! 1. the input's stamp is checked, a cloud decoded, odometry buffered ([`ingest`]);
+//! 2. each scan waits until odometry covers its stamp, then is Doppler-compensated (paper eq. 4),
+//!    given per-point covariances (eq. 6-8), cleared of moving objects and stacked into the rolling
+//!    submap ([`crate::submap::SubmapBuilder`], eq. 5);
+//! 3. after enough motion a keyframe is taken: the submap in compact form
+//!    ([`crate::keyframe_db::KeyframeRecord`]) and ready for registration;
+//! 4. its revisits are searched, registered and gated ([`crate::loop_closure::LoopCloser`]);
+//! 5. it joins the keyframe map, and keyframes queued to be searched again are searched.
+//!
+//! Entry points: [`Pipeline`], [`Config`], [`Event`], [`PipelineStats`].
+
+mod config;
+mod events;
+pub mod ingest;
+
+pub use config::{Config, KeyframeConfig};
+pub use events::{DropReason, Event, PipelineStats};
+
+use std::sync::Arc;
+
+use crate::input::Input;
+use crate::keyframe_db::{KeyframeDb, KeyframeRecord};
+use crate::loop_closure::{Decision, Decisions, LoopCloser};
+use crate::math::{Iso3, Stamp, iso2_from_iso3};
+use crate::radar::RadarScan;
+use crate::registration::PreparedSubmap;
+use crate::submap::{SpeedScale, Submap};
+use crate::validate::ConfigError;
+use events::dropped;
+use ingest::{Ingest, TimeCheck};
+
+/// The DC-Loc pipeline state.
+pub struct Pipeline {
+    cfg: Config,
+    ingest: Ingest,
+    db: KeyframeDb,
+    loops: LoopCloser,
+    session: u32,
+    /// Odometry pose of the last keyframe.
+    last_keyframe: Option<Iso3>,
+    stats: PipelineStats,
+}
+
+impl Pipeline {
+    /// A pipeline for a validated configuration, with an empty keyframe map.
+    pub fn new(cfg: Config) -> Result<Self, ConfigError> {
+        let db = KeyframeDb::new(cfg.place.clone(), cfg.map.prepared_cache);
+        Self::with_map(cfg, db)
+    }
+
+    /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
+    /// are revisit candidates, found by place descriptor (their odometry frame is another session's), and
+    /// new keyframes get the next ids and a new session.
+    pub fn with_map(cfg: Config, db: KeyframeDb) -> Result<Self, ConfigError> {
+        cfg.validate()?;
+        let session = db.last_session().map_or(0, |s| s + 1);
+        Ok(Pipeline {
+            ingest: Ingest::new(&cfg),
+            loops: LoopCloser::new(cfg.r#loop.clone(), cfg.registration.clone(), session),
+            db,
+            session,
+            last_keyframe: None,
+            stats: PipelineStats::default(),
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &PipelineStats {
+        &self.stats
+    }
+
+    /// The keyframe database (loaded map and this session's keyframes).
+    pub fn db(&self) -> &KeyframeDb {
+        &self.db
+    }
+
+    /// This session's number.
+    pub fn session(&self) -> u32 {
+        self.session
+    }
+
+    /// The current rolling submap (compensated, in the body frame at its newest scan).
+    pub fn current_submap(&self) -> Option<Submap> {
+        self.ingest.submap()
+    }
+
+    /// Index of the radar named `name` in `radar_names`.
+    pub fn radar_index(&self, name: &str) -> Option<usize> {
+        self.cfg.radar_names.iter().position(|n| n == name)
+    }
+
+    /// How many inputs in a row with stamps more than 1 s before the newest input mean a restart (a bag
+    /// replayed again, a simulator reset) rather than stale messages (default 1: the first one, as in
+    /// an offline bag; the node uses `node.restart_after`). The ones before are dropped as
+    /// [`DropReason::StampBackwards`]. Values below 1 count as 1.
+    pub fn set_restart_after(&mut self, n: usize) {
+        self.ingest.set_restart_after(n);
+    }
+
+    /// Feeds one input: the one door through which every source's data enters the pipeline. Ground
+    /// truth is not an input of the pipeline (it produces nothing).
+    pub fn push(&mut self, input: &Input) -> Vec<Event> {
+        let mut out = Vec::new();
+        match input {
+            Input::Radar { radar, cloud } => {
+                let decoded =
+                    self.ingest
+                        .decode(&self.cfg, *radar, cloud, &mut self.stats, &mut out);
+                if let Some(scan) = decoded {
+                    self.scan(scan, &mut out);
+                }
+            }
+            Input::Scan(scan) => self.scan(scan.clone(), &mut out),
+            Input::Odometry { stamp, t_odom_body } => self.odometry(*stamp, *t_odom_body, &mut out),
+            Input::GroundTruth { .. } => {}
+        }
+        out
+    }
+
+    /// End of input: searches the keyframes still queued to be searched again
+    /// (`loop.backfill_per_keyframe`), drops the scans still waiting for odometry and counts them.
+    pub fn finish(&mut self) -> Vec<Event> {
+        let mut out = Vec::new();
+        let mut decisions = Decisions::default();
+        self.loops
+            .backfill(&mut self.db, usize::MAX, &mut decisions);
+        self.report(decisions, &mut out);
+        self.ingest.finish(&mut self.stats, &mut out);
+        self.stats.pending_scans = 0;
+        out
+    }
+
+    fn time(&mut self, stamp: Stamp, what: &str, out: &mut Vec<Event>) -> bool {
+        match self.ingest.check_time(stamp, what, &mut self.stats, out) {
+            TimeCheck::Go => true,
+            TimeCheck::Dropped => false,
+            TimeCheck::Restarted => {
+                self.last_keyframe = None;
+                true
+            }
+        }
+    }
+
+    fn odometry(&mut self, stamp: Stamp, t_odom_body: Iso3, out: &mut Vec<Event>) {
+        if !self.time(stamp, "odometry", out) {
+            return;
+        }
+        if self
+            .ingest
+            .odometry(stamp, t_odom_body, &mut self.stats, out)
+        {
+            self.process_pending(out);
+        }
+    }
+
+    fn scan(&mut self, scan: RadarScan, out: &mut Vec<Event>) {
+        if scan.radar >= self.cfg.radar_names.len() {
+            let detail = format!("radar index {}", scan.radar);
+            dropped(&mut self.stats, out, DropReason::UnknownRadar, detail);
+            return;
+        }
+        if !self.time(scan.stamp, "radar scan", out) {
+            return;
+        }
+        self.ingest
+            .queue_scan(&self.cfg, scan, &mut self.stats, out);
+        self.process_pending(out);
+    }
+
+    /// Stacks every waiting scan that odometry can place now, taking keyframes as the body moves.
+    fn process_pending(&mut self, out: &mut Vec<Event>) {
+        while let Some(pose) = self.ingest.next_scan(&mut self.stats, out) {
+            self.maybe_keyframe(pose, out);
+        }
+        self.stats.pending_scans = self.ingest.pending();
+    }
+
+    /// A keyframe when the body moved `keyframe.distance` or turned `keyframe.angle` since the last
+    /// one and the submap holds `keyframe.min_points`: into the map, its revisits searched.
+    fn maybe_keyframe(&mut self, pose: Iso3, out: &mut Vec<Event>) {
+        if let Some(last) = &self.last_keyframe {
+            let rel = last.inverse() * pose;
+            let moved = rel.translation.vector.xy().norm();
+            let turned = iso2_from_iso3(&rel).rotation.angle().abs();
+            if moved < self.cfg.keyframe.distance && turned < self.cfg.keyframe.angle {
+                return;
+            }
+        }
+        let Some(submap) = self.ingest.submap() else {
+            return;
+        };
+        if submap.len() < self.cfg.keyframe.min_points {
+            return;
+        }
+        self.note_speed_scale(submap.speed_scale);
+        let id = self.db.next_id();
+        let path = self.ingest.path_distance();
+        let rec = KeyframeRecord::from_submap(
+            id,
+            self.session,
+            &submap,
+            path,
+            self.cfg.map.max_points_per_keyframe,
+            &self.cfg.place,
+        );
+        let prepared = match PreparedSubmap::new(rec.point_set(), &self.cfg.registration) {
+            Ok(p) => Arc::new(p),
+            Err(e) => {
+                log::warn!("keyframe skipped: {e}");
+                return;
+            }
+        };
+        self.last_keyframe = Some(pose);
+        self.stats.keyframes += 1;
+        log::debug!(
+            "keyframe {id} at {:.3} s: {} points",
+            rec.stamp.as_secs_f64(),
+            submap.len()
+        );
+        out.push(Event::Keyframe {
+            id,
+            stamp: submap.anchor_stamp,
+            t_odom_body: submap.t_odom_anchor,
+            points: submap.len(),
+            submap: Arc::new(submap),
+        });
+        let mut decisions = Decisions::default();
+        if self.cfg.r#loop.enabled {
+            self.loops
+                .search(&mut self.db, &rec, &prepared, &mut decisions);
+        }
+        if self.db.insert(rec) {
+            self.db.put_prepared(id as usize, prepared);
+        } else {
+            log::warn!("keyframe {id} could not be added to the database");
+        }
+        let n = self.cfg.r#loop.backfill_per_keyframe;
+        self.loops.backfill(&mut self.db, n, &mut decisions);
+        self.report(decisions, out);
+    }
+
+    /// Counts the submap's correction of the odometry's distances by the radars' Doppler speeds.
+    fn note_speed_scale(&mut self, scale: SpeedScale) {
+        match scale {
+            SpeedScale::Applied(k) => self.stats.speed_scale = Some(k),
+            SpeedScale::Refused(k) => {
+                self.stats.speed_scale_refused += 1;
+                // The first and every hundredth: a misconfigured radar would refuse every keyframe.
+                let level = if self.stats.speed_scale_refused % 100 == 1 {
+                    log::Level::Warn
+                } else {
+                    log::Level::Debug
+                };
+                log::log!(
+                    level,
+                    "the radars' Doppler speeds say the body covered {k:.3} times the distance the odometry says, beyond submap.speed_scale_bound {}: keyframe placed with the odometry as it is (check the odometry's speed and the radars' radial velocity fields; {} keyframes so far)",
+                    self.cfg.submap.speed_scale_bound,
+                    self.stats.speed_scale_refused
+                );
+            }
+            SpeedScale::Unavailable => {}
+        }
+    }
+
+    /// The loop closer's decisions as events, counted.
+    fn report(&mut self, decisions: Decisions, out: &mut Vec<Event>) {
+        self.stats.registrations += decisions.registrations;
+        for d in decisions.decisions {
+            match d {
+                Decision::Published(c) => {
+                    self.stats.closures += 1;
+                    out.push(Event::Closure(c));
+                }
+                Decision::Rejected {
+                    query_id,
+                    match_id,
+                    reason,
+                    detail,
+                } => {
+                    *self.stats.rejected.entry(reason).or_default() += 1;
+                    out.push(Event::Rejected {
+                        query_id,
+                        match_id,
+                        reason,
+                        detail,
+                    });
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

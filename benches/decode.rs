@@ -13,11 +13,11 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use dc_loc::cloud::{
     CloudLayout, DecodedCloud, decode_detections, decode_detections_into, encode_detections,
 };
-use dc_loc::config::FieldsConfig;
 use dc_loc::io::nuscenes_pcd::{nuscenes_fields_config, pcd_to_pointcloud2};
 use dc_loc::math::Vec3;
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::radar::Detection;
+use dc_loc::radar::FieldsConfig;
 use dc_loc::radar::doppler::{BodyPoint, RadarModel};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};

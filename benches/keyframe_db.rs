@@ -14,8 +14,8 @@
 use dc_loc::keyframe_db::{
     CandidateQuery, KeyframeDb, KeyframeRecord, quantise_cov, quantise_point,
 };
+use dc_loc::loop_closure::LoopConfig;
 use dc_loc::math::{Iso2, Mat2, Stamp, Vec2};
-use dc_loc::pipeline::LoopConfig;
 use dc_loc::place::{PlaceConfig, PlaceDescriptor};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};

@@ -127,7 +127,7 @@ fn the_tables_read_back_with_every_sweep_calibration_and_pose() {
                 .windows(2)
                 .all(|w| w[0].timestamp_us <= w[1].timestamp_us)
         );
-        // RADAR_BACK_LEFT's calibration: yaw +174.41 deg (FORMATS.md).
+        // RADAR_BACK_LEFT's calibration: yaw +174.41 deg (nuScenes calibrated_sensor).
         let bl = s.extrinsics()[3].unwrap();
         assert!((bl.rotation.euler_angles().2.to_degrees() - 174.41).abs() < 0.01);
     }

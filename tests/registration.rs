@@ -7,7 +7,7 @@ mod radar_scene;
 
 use dc_loc::math::se2_log;
 use dc_loc::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
-use dc_loc::registration::lm::{self, CovarianceMode, LmConfig};
+use dc_loc::registration::lm::{self, LmConfig};
 use dc_loc::registration::ransac::Correspondence;
 use dc_loc::registration::robust::{RobustKind, RobustLoss};
 use dc_loc::registration::{
@@ -480,49 +480,6 @@ fn covariance_is_consistent() {
         (wrong - 3.0).abs() > 0.9,
         "wrong-frame covariance not detected: {wrong:.3}"
     );
-}
-
-/// The measurement behind the default covariance estimator: mean NEES of each estimator with
-/// each loss and weighting. `cargo test --release --test registration -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn report_covariance_estimators() {
-    for (loss_name, robust) in [
-        ("least squares", RobustLoss::none()),
-        ("Cauchy c=3", RobustLoss::default()),
-        (
-            "Cauchy c=1",
-            RobustLoss {
-                kind: RobustKind::Cauchy,
-                scale: 1.0,
-            },
-        ),
-        (
-            "Huber c=1.5",
-            RobustLoss {
-                kind: RobustKind::Huber,
-                scale: 1.5,
-            },
-        ),
-    ] {
-        for use_uncertainty in [true, false] {
-            let mut line = format!("{loss_name:<14} U.E. {use_uncertainty:<5}");
-            for mode in [
-                CovarianceMode::Information,
-                CovarianceMode::Expected,
-                CovarianceMode::Sandwich,
-            ] {
-                let cfg = LmConfig {
-                    robust,
-                    use_uncertainty,
-                    covariance: mode,
-                    ..LmConfig::default()
-                };
-                line += &format!("  {mode:?} {:.3}", mean_nees(&cfg, 1000, 5, false));
-            }
-            println!("{line}");
-        }
-    }
 }
 
 #[test]

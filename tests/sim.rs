@@ -67,7 +67,7 @@ fn compensation_with_true_velocity_restores_the_truth() {
         }
     }
     assert!(n > 10_000, "{n} detections");
-    // At 72 km/h a static point straight ahead moves by ~0.8 m (METHOD.md).
+    // At 72 km/h a static point straight ahead moves by ~0.8 m (docs/algorithm.md, Doppler range distortion).
     assert!(max_shift > 0.75 && max_shift < 2.5, "{max_shift}");
 
     for s in default_drive().scans.iter().take(500) {

@@ -7,7 +7,7 @@
 //! [`bag_extrinsics`], [`is_foxglove_cloud`]; the input stream of such a file is
 //! `crate::io::foxglove::FoxgloveInputs`.
 //!
-//! nuscenes2mcap's layout (docs/formats.md): topics `/radar_front` ... (or `/RADAR_FRONT` in the 2022
+//! nuscenes2mcap's layout (the data formats page in docs/): topics `/radar_front` ... (or `/RADAR_FRONT` in the 2022
 //! version), frame id the channel name, point stride 43, the PCD fields in order with their packed
 //! offsets, `data` the raw PCD records; `/tf` carries `map -> base_link` (the ego pose, at every sweep)
 //! and `base_link -> radar_*` (calibrated_sensor). The ego pose is what the pipeline gets as odometry.

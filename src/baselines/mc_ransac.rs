@@ -20,7 +20,7 @@
 //! `beta v / r`), and it takes `|v|` (identical when driving forwards; we keep the sign).
 //!
 //! Generalised to a radar mounted with any extrinsic: a static point seen along the unit ray `d` has
-//! radial velocity `v_r = -d . v_radar` (METHOD.md section 1: positive = moving away), so the radar reads
+//! radial velocity `v_r = -d . v_radar` (positive = moving away), so the radar reads
 //! `r_hat = r - beta d . v_radar` and the correction is
 //!
 //! `p_radar += beta * (d . v_radar) * d`,   `v_radar = R_body_radar^T [v, 0, 0]`.
@@ -45,17 +45,12 @@
 //! what the paper's comparison attributes to MC-RANSAC.
 //!
 //! [`ForwardSpeedEstimator`] runs this on a stream of scans, registering each scan onto the one
-//! `baseline_scans` back. Measured on a simulated drive (`tests/baselines.rs`, `measure_speed_estimator`:
-//! forward radar, ~92 detections per scan, 13 Hz): single consecutive ARS408-like scans give a speed
-//! noise of 2.1 m/s (sd) at 72 and 40 km/h; stacking the previous 3 or 5 scans as the target did not
-//! reduce it (2.08 m/s, measured with a stacking variant since removed: the noise comes from the sparse
-//! current scan), while a longer baseline divides it (1.07 / 0.77 / 0.58 / 0.39 m/s at 2 / 3 / 4 / 6
-//! scans). The default, 3 scans (0.23 s), is also the
+//! `baseline_scans` back: consecutive sparse scans give a noisy speed (the noise comes from the sparse
+//! current scan), a longer baseline divides it. The default, 3 scans (0.23 s at 13 Hz), is also the
 //! interval yeti's spinning radar (4 Hz) estimates its motion over.
 //!
 //! yeti itself applies `dopplerCorrection` with the current velocity iterate inside its motion fit;
-//! estimating from uncorrected scans, as METHOD.md and the evaluation brief prescribe, is the simpler
-//! variant. Both estimate the speed from distorted data.
+//! estimating from uncorrected scans, as the paper's comparison describes, is the simpler variant. Both estimate the speed from distorted data.
 
 use super::{IcpConfig, register_icp};
 use crate::math::{Iso2, Iso3, Stamp, Vec2, Vec3, se2_exp, se2_log};

@@ -23,12 +23,9 @@
 //! Why the coarse stages are blurred: across a wall a cell's Gaussian is as thin as the point noise
 //! (0.2-0.25 m), whatever the cell size, so a point more than about 1 m off a wall contributes neither
 //! score nor gradient. Radar submaps are sparse (1 m cells rarely hold 3 points) and a guess off by 1-2 m
-//! and 5-10 degrees moves points 50 m out by up to 9 m. Measured on street-like submaps
-//! (`tests/baselines.rs`, `measure_ndt_cell_sizes`, 40 cases each, fraction within 0.3 m of the truth,
-//! same samples / resampled surfaces): the paper's NDT with one grid of 1 / 2 / 3 / 4 / 5 m cells
-//! 0 / 25 / 38 / 50 / 65 % and 0 / 2 / 20 / 15 / 52 %; coarse to fine 8, 4, 2 m without blur 95 / 82 %;
-//! with coarse stages blurred by half a cell 100 / 100 % (mean error 0.054 / 0.096 m). That is the
-//! default.
+//! and 5-10 degrees moves points 50 m out by up to 9 m. So the default runs coarse to fine (8, 4, 2 m
+//! cells) with the coarse stages blurred by half a cell, which widens the basin; one grid of fine cells
+//! loses most such guesses.
 //!
 //! Covariance: near the optimum `exp(-m/2) ~ 1 - m/2`, so `f ~ const + 1/2 sum d^T Sigma^-1 d`: the
 //! Hessian of `f` is the information of a point-to-distribution fit whose residual covariance is the cell
@@ -39,8 +36,7 @@
 //! It is then mapped from the absolute parameters `p` to the right perturbation `delta`
 //! (`dp = diag(R, 1) delta`): `Cov(delta) = diag(R, 1)^T Cov(p) diag(R, 1)`.
 //! This covariance is optimistic: it contains the noise but not the bias of approximating the surfaces by
-//! Gaussians on a grid, which dominates the error. Measured (`measure_covariance_consistency`, 60 cases):
-//! mean NEES 46 (same samples) and 220 (resampled surfaces) against 3 for a calibrated covariance.
+//! Gaussians on a grid, which dominates the error: its NEES is far above 3.
 
 use super::{check_points, check_pose, spd_inverse};
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
@@ -82,8 +78,7 @@ pub struct NdtConfig {
 }
 
 impl Default for NdtConfig {
-    /// Cell sizes 8 m, 4 m, 2 m with the coarse stages blurred by half a cell (measured: see the module
-    /// doc); the paper's 3 points per cell and eigenvalue ratio 0.001; 50 Newton iterations per stage;
+    /// Cell sizes 8 m, 4 m, 2 m with the coarse stages blurred by half a cell (see the module doc); the paper's 3 points per cell and eigenvalue ratio 0.001; 50 Newton iterations per stage;
     /// tolerances 1e-4 m and 1e-5 rad; steps of at most half a cell and 0.1 rad; at least 6 source points
     /// in cells.
     fn default() -> Self {

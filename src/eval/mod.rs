@@ -1,4 +1,4 @@
-//! The paper's evaluation protocol (section 6 of METHOD.md) on any drive with ground truth.
+//! The paper's evaluation protocol (its section IV) on any drive with ground truth.
 //!
 //! Steps, in order: drive the same [`Pipeline`] as the node over the input (revisit search off) and keep
 //! its keyframes ([`Collector`]); pair keyframes of different passes over the same place by ground truth

@@ -191,7 +191,7 @@ pub fn table_ablation(summaries: &[MethodSummary]) -> String {
     out
 }
 
-/// The paper's nuScenes numbers (METHOD.md section 6): Table 1 as (method, mean / max / median
+/// The paper's nuScenes numbers: Table 1 as (method, mean / max / median
 /// translation m when given, mean rotation rad), Table 2 as (U.E., D.C., mean translation m).
 pub const PAPER_TABLE1: [(&str, [Option<f64>; 3], f64); 5] = [
     ("ICP", [Some(0.993), None, None], 0.0536),

@@ -5,7 +5,7 @@
 //! scan into [`BodyPoint`]s in the body frame (eq. 5) carrying both the compensated and the raw position
 //! and their covariances, so every ablation row can be built from the same data.
 //!
-//! Conventions (METHOD.md section 1): `r_hat = r + beta * v_r`, `v_r` positive away from the radar, the
+//! Conventions (paper eq. 3-4): `r_hat = r + beta * v_r`, `v_r` positive away from the radar, the
 //! radial velocity itself undistorted. Elevation is ignored in the covariance (z = 0 rows), as in the paper.
 
 use crate::math::{Iso3, Mat3, Vec3};
@@ -164,7 +164,7 @@ mod tests {
             };
             let p = compensate(&det, beta);
             assert_relative_eq!(p, p_true, epsilon = 1e-12 * r.max(1.0));
-            // And the displacement is what METHOD.md states: ~0.8 m straight ahead at 20 m/s.
+            // And the displacement is the paper's: ~0.8 m straight ahead at 20 m/s with beta 0.04 s.
             if phi.abs() < 0.01 {
                 assert_relative_eq!((det.p_radar - p).norm(), 0.8, epsilon = 0.01);
             }

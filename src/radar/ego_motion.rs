@@ -1,7 +1,7 @@
 //! Ego-motion from Doppler, and moving-object rejection.
 //!
 //! A static target seen from a radar moving with velocity `v` (radar frame) has the radial velocity
-//! `v_r = -d . v`, `d` the unit ray (METHOD.md section 1). Static detections therefore fit one linear model
+//! `v_r = -d . v`, `d` the unit ray (radial velocity positive away from the radar). Static detections therefore fit one linear model
 //! and moving ones do not.
 //!
 //! Entry points: [`fit_radar_velocity`] (one radar: 2D or 3D velocity, RANSAC + least squares),

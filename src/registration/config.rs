@@ -13,67 +13,45 @@ use crate::validate::{ConfigError, Validator};
 pub struct RegistrationConfig {
     /// Fewest points a submap must have (default 10).
     pub min_points: usize,
-    /// Fewest RANSAC inliers for a result (default 30). Two unrelated synthetic submaps of about
-    /// 1000 points gave up to 18 coincidental inliers (facades line up by chance); true pairs give
-    /// 100-250 with the default matching settings.
+    /// Fewest RANSAC inliers for a result (default 30): unrelated street scenes line up by chance on
+    /// up to about 20 descriptor pairs, true pairs give a hundred and more.
     pub min_inliers: usize,
     /// Smallest standard deviation of the inlier source points along their least-spread direction, m
     /// (default 1.0). Below it the inliers lie on a line (or a point): descriptor matches can slide
     /// along it, so the registration is refused rather than reported with a covariance that lies.
     pub min_inlier_spread: f64,
-    /// After LM, candidates within this many sigma of the estimate (Mahalanobis with the LM weights)
-    /// become the inliers, one per source and per target point, and LM runs again (default 3.5:
-    /// 99.8 % of 2-D Gaussian residuals); see [`register_correspondences`]. Measured on the
-    /// synthetic scenes (mean NEES of the pipeline, ideal 3, before `covariance_scale`): 13-20
-    /// without the re-selection, 3.1-4.3 with it; keeping one pair per source point with the
-    /// smallest residual instead (measured with 500 keypoints) gave 6.5-15.6.
+    /// After LM, the candidates within this many sigma of the estimate (Mahalanobis with the LM
+    /// weights) become the inliers, one per source and per target point, and LM runs again (default
+    /// 3.5: 99.8 % of 2-D Gaussian residuals): RANSAC's metric threshold keeps residuals that agree with
+    /// its own noisy estimate, the noise model does not.
     pub reselect_gate: f64,
     /// Rounds of that re-selection; 0 = off (default 2).
     pub reselect_rounds: usize,
-    /// Factor on the reported covariance (default 1.3). LM's covariance is consistent when the
-    /// correspondences are right (tests/registration.rs, `covariance_is_consistent`); descriptor
+    /// Factor on the reported covariance (default 1.3; 1.0 for the bare estimator): descriptor
     /// association also accepts neighbouring reflectors within the gate, whose offsets bias the
-    /// estimate beyond what the residual scatter shows. On the four synthetic scenarios of
-    /// `examples/registration_variants.rs` the full pipeline's mean NEES was 3.1-4.3 (ideal 3)
-    /// without this factor, 2.4-3.3 with 1.3. Set 1.0 for the bare estimator.
+    /// estimate beyond what the residual scatter shows.
     pub covariance_scale: f64,
     /// Standard deviations added (as variances) to the reported covariance when the dense stage ran:
-    /// `[translation m (each axis), rotation rad]` (default `[0.02, 0.0005]`; zeros = off). What the
-    /// pair model leaves out does not shrink with more pairs: two passes sample each surface at
-    /// different places and parked cars change between them, so the last centimetres of a dense
-    /// alignment carry an error of their own that the pairs' scatter cannot show. Measured with
-    /// `dc_loc eval -p "registration.covariance_floor:=[T,R]"` (mean NEES over the inliers, ideal 3)
-    /// on the Gaussian / Gamma / Student-t / seed-2 demo drives: off 3.97 / 15.16 / 3.95 / 3.59;
-    /// [0.02, 0.0005] 2.90 / 2.46 / 3.04 / 2.73; [0.03, 0.0005] 2.41 / 1.77 / 2.58 / 2.32; [0.03,
-    /// 0.001] 2.25 / 1.47 / 2.43 / 2.13. No pose changes. The Gamma drive's errors are the smallest
-    /// (0.044 m mean) but its NEES without the floor the largest: a few pairs off by a few
-    /// milliradians with covariances of a tenth of that.
+    /// `[translation m (each axis), rotation rad]` (default `[0.02, 0.0005]`; zeros = off). Two passes
+    /// sample each surface at different places and parked cars change between them, so the last
+    /// centimetres of a dense alignment carry an error that the pairs' scatter cannot show and that
+    /// does not shrink with more pairs.
     pub covariance_floor: [f64; 2],
     /// RANSAC motions refined per registration (LM on their descriptor inliers, re-selection, dense
-    /// stage), the one with the largest overlap kept (default 3). They are the best of the
-    /// `screened_hypotheses` motions by coverage; one within `ambiguity_translation` /
-    /// `ambiguity_rotation` of an alignment already refined is that alignment and is not refined again.
+    /// stage), the one with the best fit score kept (default 3): the best of the
+    /// `screened_hypotheses` by coverage; one within `ambiguity_translation` / `ambiguity_rotation`
+    /// of an alignment already refined is that alignment and is not refined again.
     pub hypotheses: usize,
     /// RANSAC motions kept for screening (default 32): the best-supported motions (each explaining at
-    /// least `min_inliers` source points) that differ by more than the ambiguity distances. Each is
-    /// scored by its coverage, the share of 256 source probes landing in target grid cells (1 m,
-    /// widened by one cell), and the `hypotheses` with the largest coverage are refined. Descriptor
-    /// support does not tell a street slid along itself, or another street, from the true alignment
-    /// (on the demo drive's failed pairs the best RANSAC motion had 27-114 supporting points against
-    /// the true motion's 6-70, `examples/pair_floor.rs`); geometry does. Measured with `dc_loc eval`
-    /// on the demo drive, pairs inside 2 m: refining the best-supported motion and the best of what
-    /// its inliers left (before) 80.5 %, 16 motions ranked by their dense-stage overlap instead of
-    /// coverage (a slower variant not kept in the code) 91.1 %, 32 motions ranked by coverage 91.8 %
-    /// (this).
+    /// least `min_inliers` source points) that differ by more than the ambiguity distances, each
+    /// scored by its coverage (the share of 256 source probes landing in target grid cells of 1 m).
+    /// Descriptor support does not tell a street slid along itself, or another street, from the true
+    /// alignment; geometry does.
     pub screened_hypotheses: usize,
     /// A screened motion farther than this from the result, m, whose coverage comes near the
     /// result's is a runner-up alignment too (default 3.0): `runner_up_overlap` is at least the
     /// result's overlap times that coverage ratio. Coarser than `ambiguity_translation` because
-    /// coverage cannot resolve less (counting motions that differ in rotation only, as the refined
-    /// runner-up does, refused a third of the true closures of tests/node.rs's drive). Measured with
-    /// `dc_loc revisits` on the Gaussian and Student-t drives at 3 % drift: one radar, 47 false
-    /// closures without it, 17 with it; five radars, none either way, same-direction recall 98.6-98.8 %
-    /// without it, 96.1 % with it.
+    /// coverage cannot resolve less.
     pub screen_ambiguity_translation: f64,
     /// Two refined hypotheses farther apart than this, m, are different alignments for
     /// `runner_up_overlap` (default 1.0).
@@ -89,17 +67,11 @@ pub struct RegistrationConfig {
     /// distance to the nearest target point at the hypothesis ([`dense::fit_score`]).
     pub selection_sigma: f64,
     /// Radius of the objects the fit score counts once, m (default 2.5; 0 = every point counts
-    /// once): each source point weighs 1 / (the source points near it, itself included;
-    /// [`dense::object_weights`]), so that a pole or a building corner weighs as much as a parked car
-    /// or a stretch of facade, whatever their numbers of detections. Two passes of a street see its
-    /// facades, poles and corners again but not all its parked cars (the simulated city replaces or
-    /// removes 45 % of them between laps, on a 6 m slot grid): counted by points, a street slid by a
-    /// slot or two, which pairs the cars of one pass with other cars of the other, can fit better
-    /// than the truth, whose poles and corners fit but are few points. Measured with `dc_loc eval -p
-    /// registration.selection_object_radius:=R` on the default demo drive (the whole registration,
-    /// with the correlative search and slides as `correlative` says): 403 pairs of 416 inside 2 m
-    /// at 0, 412 at 1.5, 411 at 2.0, 412 at 2.5, 411 at 4.0. The weighted score only chooses:
-    /// `correlative.below_score` compares the plain one.
+    /// once): each source point weighs 1 / (the source points near it, itself included), so that a
+    /// pole or a building corner weighs as much as a parked car or a stretch of facade. Two passes of
+    /// a street see its facades, poles and corners again but not all its parked cars: counted by
+    /// points, a street slid by a parking slot or two can fit better than the truth. The weighted score
+    /// only chooses; `correlative.below_score` compares the plain one.
     pub selection_object_radius: f64,
     /// Correlative search beyond a weak descriptor stage (see [`correlative`]).
     pub correlative: correlative::CorrelativeConfig,
@@ -151,9 +123,8 @@ impl RegistrationConfig {
     /// screening of 32), LM with re-selection, covariance; no dense stage and no surface covariances.
     /// The same as the parameter overrides `registration.dense.enabled:=false`,
     /// `registration.dense.surface_neighbours:=0`, `registration.hypotheses:=1`,
-    /// `registration.screened_hypotheses:=1`, `registration.correlative.enabled:=false`. Measured (README): about 2.5 times faster than the
-    /// default on 1000-point pairs, and on the demo drive 0.287 / 0.211 m mean / median translation
-    /// error with 85.8 % of the pairs inside 2 m, against the default's 0.086 / 0.073 m and 91.8 %.
+    /// `registration.screened_hypotheses:=1`, `registration.correlative.enabled:=false`: about half
+    /// the time of the default on 1000-point pairs, and several times its error.
     pub fn paper_steps() -> Self {
         let mut cfg = RegistrationConfig {
             hypotheses: 1,

@@ -38,39 +38,27 @@ pub struct CorrelativeConfig {
     /// Plain fit score (`registration.selection_sigma`, every point alike) under which a result
     /// with fewer than `below_inliers` descriptor inliers is searched beyond (default 0.6): the
     /// correlative search after the descriptor stage, and the slides (`slide_shifts`) of the winner.
-    /// Measured with `dc_loc eval` on the default demo drive, pairs inside 2 m: 0.45 gave 406 of
-    /// 416, 0.55 411, 0.6 412, 0.65 412, 0.7 412 (half the pairs have a plain score below 0.61, so
-    /// the search runs for about half of them: the demo takes 14 s instead of 10.5).
+    /// About half of a drive's pairs score below 0.6, so the search runs for about half of them.
     pub below_score: f64,
     /// Shifts along the winner's own x axis (the vehicle's heading), m, from which the dense stage is
     /// run again when the winner is weak (`below_score`, `below_inliers`; default -3, 3, -6, 6, -12,
     /// 12; empty = off); a refined slide that fits better wins. Along a street lined with parked cars
     /// the descriptor stage and the correlative search can both land a slot or two (6 m) along it,
-    /// and the true alignment is then not among the alignments refined at all. Measured with `dc_loc
-    /// eval` on the default demo drive, pairs inside 2 m: none 407 of 416, these 412 (up to 6 m
-    /// only: 411).
+    /// and the true alignment is then not among the alignments refined at all.
     pub slide_shifts: Vec<f64>,
     /// Descriptor inliers at and above which a result is not searched beyond, unless its plain score
-    /// is below `rich_below_score` or its common view below `below_common_view` (default 100). Many
-    /// descriptor inliers are usually the descriptors' clear answer: the synthetic 1000-point pairs
-    /// of the registration bench have 120-128 and plain scores of 0.46-0.57 (their clutter fits
-    /// nothing), and the correlative search would take 36 ms per pair instead of 2.96
-    /// (`DC_LOC_BENCH_PARAMS="registration.correlative.below_inliers:=1000" cargo bench --bench
-    /// registration`). The demo drive's median is 72.
+    /// is below `rich_below_score` or its common view below `below_common_view` (default 100): many
+    /// descriptor inliers are usually the descriptors' clear answer, and the search costs ten times
+    /// a registration.
     pub below_inliers: usize,
     /// Plain fit score under which a result is searched beyond however many descriptor inliers back
-    /// it (default 0.4). On the Gamma demo drive (`dc_loc sim --noise gamma`) a street slid 54 m
-    /// along itself had 102 descriptor inliers and a plain score of 0.32, the truth 0.81 of its
-    /// points partnered; `dc_loc eval`, pairs inside 2 m: 409 of 416 without this test (0), 410
-    /// with it (with `submap.speed_scale_bound:=0.1`: 410 and 411).
+    /// it (default 0.4): a street slid tens of metres along itself can gather a hundred descriptor
+    /// inliers and still fit few of its points.
     pub rich_below_score: f64,
     /// Common view ([`super::common_view`]) under which a result is searched beyond however many
-    /// descriptor inliers back it (default 0.25, as `loop.minimum_common_view`). Two sides of a
-    /// street look alike turned by half a turn: on the demo drive with `submap.speed_scale_bound:=0.1`
-    /// one pair's descriptors gave 103 inliers to the half-turn, 42 m off, which the node would
-    /// refuse for its common view anyway, and the truth (plain score 0.57 against 0.49) was not
-    /// searched for; `dc_loc eval`, pairs inside 2 m: 411 of 416 without this test (0), 412 with
-    /// it. With the default settings no demo pair reaches it.
+    /// descriptor inliers back it (default 0.25, as `loop.minimum_common_view`): two sides of a
+    /// street look alike turned by half a turn, and the loop-closure gates would refuse that result
+    /// for its common view anyway.
     pub below_common_view: f64,
     /// Peaks of the direction-histogram correlation tried, each with its half-turn (default 3).
     pub rotation_peaks: usize,
@@ -95,8 +83,7 @@ pub struct CorrelativeConfig {
     pub min_inliers: usize,
     /// Smallest overlap (as `RegistrationResult::overlap`) of an alignment whose covariance comes from
     /// the dense pairs (default 0.4): without the descriptors' agreement the geometry alone must
-    /// speak clearly. On the demo drive such alignments had 0.52-0.77, true and false alike; two
-    /// unrelated synthetic scenes 0.14.
+    /// speak clearly.
     pub min_overlap: f64,
     /// Cluster size of that dense-pair covariance, m (default 5.0): pairs whose source points share a
     /// cell of this size count as one piece of evidence ([`super::lm::covariance_clustered`]).

@@ -32,24 +32,9 @@
 //! subset; a submap stacks several scans, so nearly every reflector keeps a detection) and the
 //! statistics use up to `max_support` neighbours' points (a fixed pseudo-random subset).
 //!
-//! Measured choices (`cargo run --release --example registration_variants 30`, synthetic street
-//! scenes, 30 pairs each; share of queried points whose true match is the nearest target
-//! descriptor, hit@1):
-//!
-//! | variant (R = 25 m)            | 1000 pts | 5000 pts | density 0.8/0.25 | forward 150 deg |
-//! |-------------------------------|---------:|---------:|-----------------:|----------------:|
-//! | radial 16, Hellinger          |      54% |      41% |              41% |             57% |
-//! | radial 16, raw counts         |      57% |      47% |               6% |             56% |
-//! | radial 16, min-max (authors)  |      47% |      32% |              33% |             48% |
-//! | radial 10 + spectrum 6, Hell. |      59% |      55% |              53% |             59% |
-//! | radial 10 + sectors 6, Hell.  |      41% |      39% |              31% |             43% |
-//!
-//! The spectrum is the better angular statistic (and cheaper than sectors, which need an `atan2`);
-//! Hellinger normalisation is the only one that survives a density mismatch (raw counts registered
-//! 5 of 30 pairs there); all other variants registered every pair (one miss for sectors), the
-//! better descriptors giving RANSAC a cleaner candidate set. A larger radius helps matching
-//! (R = 35 m: 66 / 65 / 61 / 55 %) at 1.5-2x the cost; a smaller support hurts (800 instead of
-//! 1500: 52 / 35 / 40 / 54 %).
+//! The defaults (10 radial rings and a 6-term bearing spectrum, Hellinger normalisation, 25 m) match the
+//! true partner more often than the radial histogram alone, most of all when the two submaps differ in
+//! density (docs/experiments.md has the comparison and its command).
 
 use super::grid::PointGrid;
 use crate::math::Vec2;
@@ -117,8 +102,7 @@ pub struct DescriptorConfig {
     /// Most points that get a descriptor (the "keypoints"): above it a fixed pseudo-random subset
     /// (default 400). A submap stacks several scans, so each reflector appears several times and
     /// a subset still holds most reflectors; this bounds the descriptor cost and the matching
-    /// database. Measured on synthetic scenes: 500 gave the same translation error at 1.2x the
-    /// cost, 1000 lowered it by up to a fifth at twice the cost, 300 raised it by up to 30 %.
+    /// database.
     pub max_keypoints: usize,
 }
 

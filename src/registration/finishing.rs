@@ -387,8 +387,7 @@ pub(super) fn reselect(ctx: &PairContext<'_>, t: &Iso2) -> Vec<usize> {
     // One pair per source point and per target point: a point shared by several pairs would give
     // them a common error that LM counts as independent. Which candidate stays is decided by the
     // indices, not by the residual or the descriptor distance: both prefer pairs whose noise
-    // happens to agree, and the covariance then claims more than the data hold (measured, see
-    // `reselect_gate`).
+    // happens to agree, and the covariance then claims more than the data hold.
     kept.sort_unstable_by_key(|e| (e.0, e.1));
     kept.dedup_by_key(|e| e.0);
     kept.sort_unstable_by_key(|e| (e.1, e.0));

@@ -135,7 +135,7 @@ mod tests {
             p
         };
         let cfg = RegistrationConfig::default();
-        // Measured: 0.90 bare (points slid off the street's ends), 0.63 with poles.
+        // The ratios here are about 0.90 bare (points slid off the street's ends), 0.63 with poles.
         for (poles, bound) in [(false, 0.85), (true, 0.7)] {
             let pts = street(poles);
             let target =

@@ -9,7 +9,7 @@
 //! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive
 //! as a rosbag2 bag with its params YAML.
 //!
-//! Physics (METHOD.md section 1): a detection at true range `r`, azimuth `phi` and radial velocity
+//! Physics (the FMCW model of the paper, section III-B): a detection at true range `r`, azimuth `phi` and radial velocity
 //! `v_r = d . (v_target - v_radar)` (with `v_radar = v_body + omega x t_body_radar`) is reported at range
 //! `r + beta v_r + n_r`, azimuth `phi + n_phi`, velocity `v_r + n_v`, `z = 0` in the radar frame, so
 //! `crate::radar::doppler::compensate` with the true `v_r` restores `(r + n_r, phi + n_phi)` exactly.

@@ -16,11 +16,31 @@ pub fn real_data() -> Option<PathBuf> {
     candidates.push(manifest.join("../../shared/data/real"));
     let found = candidates.iter().find(|p| p.is_dir()).cloned();
     if found.is_none() {
-        eprintln!(
-            "SKIPPED: real data folder not found (tried {candidates:?}); set DC_LOC_REAL_DATA to run"
-        );
+        skipped(&format!(
+            "real data folder not found (tried {candidates:?}); set DC_LOC_REAL_DATA to run"
+        ));
     }
     found
+}
+
+/// Says that the running test skipped its work and why: on stderr past the test harness's capture,
+/// and as a line of `<target>/tmp/skipped-tests.txt`, which CI counts.
+pub fn skipped(why: &str) {
+    use std::io::Write;
+    let test = std::thread::current()
+        .name()
+        .unwrap_or("a test")
+        .to_string();
+    let line = format!("SKIPPED {test}: {why}\n");
+    let _ = std::io::stderr().write_all(line.as_bytes());
+    let log = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("skipped-tests.txt");
+    if let Ok(mut f) = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(log)
+    {
+        let _ = f.write_all(line.as_bytes());
+    }
 }
 
 /// A fresh scratch directory `<target tmp>/<suite>/<name>` (emptied first).

@@ -8,7 +8,7 @@
 //! poles and signs (isolated reflectors), parked cars (clusters of 3-6 within 2 m).
 //! A view (one submap) of the world from a sensor pose: each reflector within range (and field of
 //! view) is detected with a probability, its position perturbed by its own covariance (the polar model
-//! of METHOD.md section 3: sigma_r, sigma_phi, sigma_v, beta, `Sigma = J diag(sr^2, sv^2, sphi^2) J^T`
+//! of docs/algorithm.md (per-point covariance): sigma_r, sigma_phi, sigma_v, beta, `Sigma = J diag(sr^2, sv^2, sphi^2) J^T`
 //! at its range and azimuth from the submap origin), and clutter (false alarms, no identity) is added.
 #![allow(dead_code)]
 

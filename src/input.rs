@@ -111,6 +111,47 @@ pub struct InputIssue {
     pub reason: IssueReason,
 }
 
+/// How large a cloud the pipeline takes (`node.max_cloud_points`, `node.max_cloud_bytes`, in the node
+/// and in `dc_loc run` alike): whatever a cloud's header claims, decoding it never holds more.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InputLimits {
+    /// Most points (width x height).
+    pub max_cloud_points: usize,
+    /// Most data bytes.
+    pub max_cloud_bytes: usize,
+}
+
+impl Default for InputLimits {
+    /// 200,000 points and 16 MiB: a 4D imaging radar's thousands of points fit a hundred times over.
+    fn default() -> Self {
+        InputLimits {
+            max_cloud_points: 200_000,
+            max_cloud_bytes: 16 << 20,
+        }
+    }
+}
+
+impl InputLimits {
+    /// Why `cloud` is too large, or `Ok`.
+    pub fn check(&self, cloud: &PointCloud2) -> Result<(), String> {
+        let points = u64::from(cloud.width) * u64::from(cloud.height);
+        if points > self.max_cloud_points as u64 {
+            return Err(format!(
+                "{points} points > node.max_cloud_points ({})",
+                self.max_cloud_points
+            ));
+        }
+        if cloud.data.len() > self.max_cloud_bytes {
+            return Err(format!(
+                "{} bytes > node.max_cloud_bytes ({})",
+                cloud.data.len(),
+                self.max_cloud_bytes
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// The header stamp, or `log_time` when the header stamp is zero (recorders that leave it unset).
 pub fn stamp_or_log_time(header: &Header, log_time: Stamp) -> Stamp {
     let s: Stamp = header.stamp.into();

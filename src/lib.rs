@@ -5,6 +5,7 @@
 //! ego-motion and moving-object rejection) -> submaps ([`submap`]) -> registration ([`registration`],
 //! [`baselines`]) -> results. The node, the offline runner, the demo and the tests drive the same code.
 #![warn(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod bag;
 pub mod baselines;

@@ -1,5 +1,6 @@
 //! The `dc_loc` binary: a ROS 2 node by default (`dc_loc --ros-args ...`), or one of the offline
 //! subcommands (`dc_loc sim | run | eval | demo | revisits`, see `dc_loc help`).
+#![forbid(unsafe_code)]
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

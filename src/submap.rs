@@ -11,6 +11,7 @@
 
 use crate::math::{Iso3, Mat3, Stamp, Vec3, interpolate_iso3};
 use crate::radar::RadarScan;
+use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
 use crate::radar::ego_motion::{EgoMotionConfig, FitDims, fit_radar_velocity, static_mask};
 use crate::registration::PointSet2;
@@ -70,6 +71,12 @@ pub struct OdometryConfig {
     pub max_gap: f64,
     /// How far past the newest sample a pose may be extrapolated, s (default 0.05).
     pub max_extrapolation: f64,
+    /// Fastest motion between two odometry samples that is plausible, m/s (default 100, 360 km/h):
+    /// a sample farther from the last one is dropped as an outlier (`bad_odometry`), unless a run of
+    /// samples agrees on the new place (the odometry itself was reset).
+    pub max_speed: f64,
+    /// Fastest turn between two odometry samples that is plausible, rad/s (default 5).
+    pub max_yaw_rate: f64,
 }
 
 impl Default for OdometryConfig {
@@ -79,6 +86,8 @@ impl Default for OdometryConfig {
             buffer_duration: 30.0,
             max_gap: 0.5,
             max_extrapolation: 0.05,
+            max_speed: 100.0,
+            max_yaw_rate: 5.0,
         }
     }
 }
@@ -92,6 +101,8 @@ impl OdometryConfig {
         v.positive("buffer_duration", self.buffer_duration);
         v.positive("max_gap", self.max_gap);
         v.non_negative("max_extrapolation", self.max_extrapolation);
+        v.positive("max_speed", self.max_speed);
+        v.positive("max_yaw_rate", self.max_yaw_rate);
     }
 }
 
@@ -380,6 +391,9 @@ pub struct ScanReport {
     pub invalid: usize,
     /// The Doppler ego-motion fit succeeded.
     pub doppler_fit: bool,
+    /// The radar velocity fitted from the Doppler alone against the odometry's prediction, when the
+    /// radar moved fast enough to tell ([`crate::radar::consistency`]).
+    pub doppler_check: Option<Verdict>,
 }
 
 #[derive(Debug, Clone)]
@@ -450,6 +464,13 @@ impl SubmapBuilder {
         });
         let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, prior_radar, &self.ego).ok();
         report.doppler_fit = fit.is_some();
+        // The Doppler alone, against the odometry: a check of the radar's configuration.
+        report.doppler_check = prior_radar
+            .filter(|p| p.xy().norm() >= consistency::MIN_SPEED)
+            .and_then(|p| {
+                let free = fit_radar_velocity(&scan.detections, FitDims::Planar, None, &self.ego);
+                free.ok().map(|f| consistency::compare(&f.v_radar, &p))
+            });
         let keep: Vec<bool> = match (&fit, prior_radar, self.ego.reject_dynamic) {
             (_, _, false) => vec![true; scan.detections.len()],
             (Some(f), _, true) => f.inliers.clone(),

@@ -518,7 +518,7 @@ fn shipped_params_files_equal_their_configs() {
             sim(RadarPreset::Nuscenes, "nuscenes"),
         ),
         ("params/nuscenes.yaml", {
-            // The five ARS408 radars of nuScenes with their extrinsics (FORMATS.md, as the simulator's
+            // The five ARS408 radars of nuScenes with their extrinsics (docs/interfaces.md, as the simulator's
             // preset), the raw vx/vy fields of the PCD records, nuscenes2mcap's topics and frames; every
             // other section the defaults.
             let drive = sim(RadarPreset::Nuscenes, "nuscenes").0;
@@ -531,7 +531,7 @@ fn shipped_params_files_equal_their_configs() {
                 dc_loc::io::nuscenes::nuscenes_config(&base, &[None; 5]),
                 format!(
                     "dc_loc node parameters for the five Continental ARS408-21 radars of nuScenes: extrinsics in\n\
-                     the body frame from the dataset's calibration (FORMATS.md), radial velocity from the raw\n\
+                     the body frame from the dataset's calibration (docs/interfaces.md), radial velocity from the raw\n\
                      vx, vy fields, topics /radar_<name> and frames radar_<name> as nuscenes2mcap writes them\n\
                      (remap to your own). Other sections: the defaults. {bless}"
                 ),

@@ -4,7 +4,12 @@
 //! indexes: one chunk at a time is loaded, messages come in log-time order even when chunks overlap.
 //! A file without a usable summary (a crashed recording, a truncated copy, `fastwrite` without chunks)
 //! is read from start to end, in file order; [`BagReader::open`] scans it once to list its topics.
-//! Messages of several files are merged by log time. Nothing holds a whole file in memory.
+//! A bag of several files is read file after file in time order; only files whose time ranges overlap
+//! are open together, their messages merged by log time.
+//!
+//! Memory: nothing holds a whole file. One chunk of each open file is held decompressed, and a chunk or
+//! record that declares more than 64 MiB (compressed or not) is refused as damage, whatever the file
+//! claims: a 1 KB file that declares a 1 GiB chunk costs nothing.
 //!
 //! The reader is not tied to ROS 2: every channel is listed with its message and schema encoding,
 //! and [`BagMessage::data`] gives the payload of any encoding (foxglove protobuf or JSON as well);
@@ -28,9 +33,10 @@ use super::metadata::read_metadata_yaml;
 use super::{BagError, cdr};
 use crate::math::Stamp;
 
-/// Largest record or chunk (compressed or not) the reader accepts, bytes. Guards the allocations a
-/// corrupt length field would ask for; real chunks are around 1 MiB.
-const MAX_RECORD_BYTES: usize = 1 << 30;
+/// Largest record or chunk (compressed or not) the reader accepts, bytes: the bound of what one file
+/// holds decompressed, whatever a corrupt length field asks for. Real chunks are around 1 MiB; a
+/// single radar cloud is well under 1 MiB.
+pub const MAX_RECORD_BYTES: usize = 64 << 20;
 /// Largest single read into the linear reader, bytes.
 const READ_SIZE: usize = 1 << 20;
 
@@ -129,7 +135,7 @@ struct McapFile {
 #[derive(Debug)]
 pub struct BagReader {
     path: PathBuf,
-    files: Vec<McapFile>,
+    files: Vec<Arc<McapFile>>,
     topics: Vec<TopicInfo>,
 }
 
@@ -578,9 +584,13 @@ impl Source {
     }
 }
 
-/// Iterator over the messages of a bag, merged by log time across its files (ties: earlier file
-/// first). An `Err` item reports damage in one file; that file then ends and the others go on.
+/// Iterator over the messages of a bag in log-time order: its files read one group after another
+/// (a group: files whose time ranges overlap, merged by log time; ties: earlier file first). An `Err`
+/// item reports damage in one file; that file then ends and the others go on.
 pub struct Messages {
+    /// The groups still to open, in time order.
+    groups: std::collections::VecDeque<Vec<Arc<McapFile>>>,
+    topics: Option<Vec<String>>,
     sources: Vec<Source>,
     /// Next item of each source; `None` once the source is exhausted.
     peeked: Vec<Option<Result<BagMessage, BagError>>>,
@@ -588,10 +598,80 @@ pub struct Messages {
     done: Vec<bool>,
 }
 
+impl Messages {
+    fn new(files: &[Arc<McapFile>], topics: Option<&[&str]>) -> Self {
+        // Files in time order (by index among equals); those without messages come last.
+        let mut order: Vec<usize> = (0..files.len()).collect();
+        order.sort_by_key(|&i| (files[i].time_range.map_or(u64::MAX, |r| r.0), i));
+        let mut groups: std::collections::VecDeque<Vec<Arc<McapFile>>> = Default::default();
+        let mut end = 0u64;
+        for i in order {
+            let f = &files[i];
+            let joins = f.time_range.is_some_and(|r| r.0 <= end) && !groups.is_empty();
+            if !joins {
+                groups.push_back(Vec::new());
+                end = 0;
+            }
+            end = end.max(f.time_range.map_or(0, |r| r.1));
+            if let Some(g) = groups.back_mut() {
+                g.push(f.clone());
+            }
+        }
+        // Within a group the files keep their bag order, which breaks ties between equal log times.
+        for g in &mut groups {
+            g.sort_by_key(|f| files.iter().position(|x| Arc::ptr_eq(x, f)));
+        }
+        Messages {
+            groups,
+            topics: topics.map(|t| t.iter().map(|s| s.to_string()).collect()),
+            sources: Vec::new(),
+            peeked: Vec::new(),
+            done: Vec::new(),
+        }
+    }
+
+    /// Opens the next group once every source of the current one has ended; false when none is left.
+    fn advance(&mut self) -> Result<bool, BagError> {
+        if self.done.iter().any(|d| !d) {
+            return Ok(true);
+        }
+        let Some(group) = self.groups.pop_front() else {
+            return Ok(false);
+        };
+        let topics: Option<Vec<&str>> = self
+            .topics
+            .as_ref()
+            .map(|t| t.iter().map(String::as_str).collect());
+        self.sources = group
+            .iter()
+            .map(|f| f.source(topics.as_deref()))
+            .collect::<Result<Vec<_>, _>>()?;
+        self.peeked = (0..self.sources.len()).map(|_| None).collect();
+        self.done = vec![false; self.sources.len()];
+        Ok(true)
+    }
+}
+
 impl Iterator for Messages {
     type Item = Result<BagMessage, BagError>;
 
     fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            match self.advance() {
+                Ok(false) => return None,
+                Err(e) => return Some(Err(e)),
+                Ok(true) => {}
+            }
+            if let Some(item) = self.next_in_group() {
+                return Some(item);
+            }
+        }
+    }
+}
+
+impl Messages {
+    /// The next message of the open group, or `None` when the group has ended.
+    fn next_in_group(&mut self) -> Option<Result<BagMessage, BagError>> {
         for (i, source) in self.sources.iter_mut().enumerate() {
             if self.peeked[i].is_none() && !self.done[i] {
                 self.peeked[i] = source.next();
@@ -630,7 +710,7 @@ impl BagReader {
         };
         let files = paths
             .iter()
-            .map(|p| McapFile::open(p))
+            .map(|p| McapFile::open(p).map(Arc::new))
             .collect::<Result<Vec<_>, _>>()?;
         // Topics summed over files, keyed by name, type and encoding; sorted by name.
         let mut topics: BTreeMap<(String, String, String), TopicInfo> = BTreeMap::new();
@@ -705,16 +785,6 @@ impl BagReader {
     }
 
     fn messages_filtered(&self, topics: Option<&[&str]>) -> Result<Messages, BagError> {
-        let sources = self
-            .files
-            .iter()
-            .map(|f| f.source(topics))
-            .collect::<Result<Vec<_>, _>>()?;
-        let n = sources.len();
-        Ok(Messages {
-            sources,
-            peeked: (0..n).map(|_| None).collect(),
-            done: vec![false; n],
-        })
+        Ok(Messages::new(&self.files, topics))
     }
 }

@@ -1,22 +1,25 @@
-//! The map file: `DCLOCMAP` magic, a format version, a postcard payload ([`MapFile`]), and a CRC-32 of
-//! everything before it. Written to a temporary file, synced, renamed over the old one and the
-//! directory synced: a kill at any moment leaves the previous or the new map, never a partial one. A
-//! file that is truncated, damaged, of another version or not a map at all is refused with a message
-//! saying which.
+//! The map file: `DCLOCMAP` magic, a format version, a postcard payload ([`MapFile`]: the keyframes and
+//! the settings that shaped them, [`MapShape`]), and a CRC-32 of everything before it. It is written
+//! crash-safely ([`super::storage`]). A file that is truncated, damaged, of another version or not a
+//! map at all is refused with a message saying which; one that is intact but holds nonsense (a
+//! non-finite pose, a session number out of range, a descriptor of another shape) is refused by
+//! [`check_records`].
 
-use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
 use super::KeyframeRecord;
-use crate::place::PlaceConfig;
+use super::storage::{Disk, write_atomically};
+use crate::place::{PlaceConfig, RING_KEY_DIM};
 
 /// Map file magic.
 const MAGIC: &[u8; 8] = b"DCLOCMAP";
-/// Map file format version.
-pub const MAP_FORMAT_VERSION: u32 = 2;
+/// Map file format version written (version 2, without [`MapShape`], is still read).
+pub const MAP_FORMAT_VERSION: u32 = 3;
+/// Highest session number a map may hold (a node start adds one).
+pub const MAX_SESSION: u32 = 1_000_000;
 
 /// Why a map file could not be used.
 #[derive(Debug, thiserror::Error)]
@@ -33,16 +36,16 @@ pub enum MapError {
     #[error("map file {0}: not a dc_loc keyframe map")]
     NotAMap(String),
     /// Written by another, incompatible format version.
-    #[error("map file {path}: format version {found}, this dc_loc reads version {expected}")]
+    #[error("map file {path}: format version {found}, this dc_loc reads versions 2 and {expected}")]
     Version {
         /// The file.
         path: String,
         /// Version in the file.
         found: u32,
-        /// Version supported.
+        /// Version written.
         expected: u32,
     },
-    /// Truncated or damaged (checksum or decoding failed).
+    /// Truncated, damaged, or intact but holding nonsense.
     #[error("map file {path}: corrupt ({reason})")]
     Corrupt {
         /// The file.
@@ -50,6 +53,71 @@ pub enum MapError {
         /// What was found.
         reason: String,
     },
+    /// Another process holds the map.
+    #[error("map file {path}: {reason}")]
+    Locked {
+        /// The file.
+        path: String,
+        /// Who holds it.
+        reason: String,
+    },
+}
+
+/// Where a radar sat when the map's keyframes were made.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RadarMount {
+    /// The radar's name.
+    pub name: String,
+    /// `radars.<name>.extrinsic`.
+    pub extrinsic: [f64; 6],
+    /// `radars.<name>.beta`, s.
+    pub beta: f64,
+}
+
+/// The settings that shaped a map's keyframes, stored with them and compared on load.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MapShape {
+    /// `body_frame`: the frame of every keyframe's points.
+    pub body_frame: String,
+    /// The radars and their mounts.
+    pub radars: Vec<RadarMount>,
+    /// `map.max_points_per_keyframe` (0: not recorded).
+    pub max_points_per_keyframe: usize,
+    /// The place-descriptor settings the records are described with.
+    pub place: PlaceConfig,
+}
+
+impl MapShape {
+    /// What a map made with other settings than `self` means, one note per difference; empty when
+    /// the settings are the same.
+    pub fn differences(&self, current: &MapShape) -> Vec<String> {
+        let mut notes = Vec::new();
+        if self.body_frame != current.body_frame && !self.body_frame.is_empty() {
+            notes.push(format!(
+                "its keyframes are in body frame `{}`, the configuration says `{}`",
+                self.body_frame, current.body_frame
+            ));
+        }
+        for old in &self.radars {
+            match current.radars.iter().find(|r| r.name == old.name) {
+                Some(new) if new == old => {}
+                Some(new) => notes.push(format!(
+                    "radar `{}` was mounted at {:?} (beta {}), now {:?} (beta {}): the stored points are in the body frame and are used as they are",
+                    old.name, old.extrinsic, old.beta, new.extrinsic, new.beta
+                )),
+                None => notes.push(format!("radar `{}` is no longer configured", old.name)),
+            }
+        }
+        if self.max_points_per_keyframe != 0
+            && self.max_points_per_keyframe != current.max_points_per_keyframe
+        {
+            notes.push(format!(
+                "keyframes were kept with at most {} points, now {}",
+                self.max_points_per_keyframe, current.max_points_per_keyframe
+            ));
+        }
+        notes
+    }
 }
 
 /// The map file's payload.
@@ -57,13 +125,21 @@ pub enum MapError {
 pub struct MapFile {
     /// Program and version that wrote it.
     pub written_by: String,
-    /// The place-descriptor settings the records were described with.
-    pub place: PlaceConfig,
+    /// The settings that shaped the keyframes.
+    pub shape: MapShape,
     /// The keyframes, by id.
     pub keyframes: Vec<KeyframeRecord>,
 }
 
-/// Reads and checks a map file: magic, version, checksum, payload.
+/// The payload of format version 2.
+#[derive(Deserialize)]
+struct MapFileV2 {
+    written_by: String,
+    place: PlaceConfig,
+    keyframes: Vec<KeyframeRecord>,
+}
+
+/// Reads and checks a map file: magic, version, checksum, payload, content.
 pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| MapError::Io {
@@ -84,7 +160,7 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
         )));
     }
     let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-    if version != MAP_FORMAT_VERSION {
+    if version != MAP_FORMAT_VERSION && version != 2 {
         return Err(MapError::Version {
             path: name,
             found: version,
@@ -98,61 +174,113 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
             "checksum mismatch: the file is truncated or damaged".into(),
         ));
     }
-    postcard::from_bytes(&body[12..]).map_err(|e| corrupt(e.to_string()))
+    let payload = &body[12..];
+    let file = if version == 2 {
+        let v2: MapFileV2 = postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?;
+        MapFile {
+            written_by: v2.written_by,
+            shape: MapShape {
+                body_frame: String::new(),
+                radars: Vec::new(),
+                max_points_per_keyframe: 0,
+                place: v2.place,
+            },
+            keyframes: v2.keyframes,
+        }
+    } else {
+        postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?
+    };
+    check_records(&file).map_err(corrupt)?;
+    Ok(file)
 }
 
-/// Writes records as a map file crash-safely; usable from another thread with [`KeyframeDb::snapshot`].
-pub fn save_records(
-    records: &[Arc<KeyframeRecord>],
-    place: &PlaceConfig,
-    path: &Path,
-) -> Result<(), MapError> {
-    let name = path.display().to_string();
-    let io = |source: std::io::Error| MapError::Io {
-        path: name.clone(),
-        source,
-    };
+/// The content of a map is usable: ids in order, finite poses with unit rotations, sessions and path
+/// lengths in range, points with one covariance each, place descriptors of the stored shape.
+pub fn check_records(file: &MapFile) -> Result<(), String> {
+    let place = &file.shape.place;
+    if !(8..=360).contains(&place.sectors) {
+        return Err(format!("place descriptors of {} sectors", place.sectors));
+    }
+    for (k, r) in file.keyframes.iter().enumerate() {
+        let bad = |what: &str| Err(format!("keyframe {k}: {what}"));
+        if r.id != k as u64 {
+            return bad(&format!("id {} out of order", r.id));
+        }
+        if r.session > MAX_SESSION {
+            return bad(&format!("session {} beyond {MAX_SESSION}", r.session));
+        }
+        let t = r.t_odom_body;
+        let pose_ok = t.translation.vector.iter().all(|v| v.is_finite())
+            && t.rotation.angle().is_finite()
+            && r.odom_pose.iter().all(|v| v.is_finite());
+        let q = &r.odom_pose[3..];
+        let q_norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !pose_ok || (q_norm - 1.0).abs() > 1e-3 {
+            return bad("pose not finite or rotation not a unit quaternion");
+        }
+        if !(r.path_distance.is_finite() && r.path_distance >= 0.0) {
+            return bad(&format!("path length {}", r.path_distance));
+        }
+        if r.points.len() != r.covs.len() {
+            return bad("points and covariances differ in number");
+        }
+        let d = &r.place;
+        if usize::from(d.sectors) != place.sectors
+            || d.grid.len() != RING_KEY_DIM * place.sectors
+            || !d.ring_key.iter().all(|v| v.is_finite())
+        {
+            return bad("place descriptor of another shape than the map's settings");
+        }
+    }
+    Ok(())
+}
+
+/// The bytes of a map file.
+fn encode(records: &[Arc<KeyframeRecord>], shape: &MapShape) -> Result<Vec<u8>, String> {
     let file = MapFileRef {
         written_by: concat!("dc_loc ", env!("CARGO_PKG_VERSION")),
-        place,
+        shape,
         keyframes: records.iter().map(|r| r.as_ref()).collect(),
     };
-    let payload = postcard::to_stdvec(&file).map_err(|e| MapError::Corrupt {
-        path: name.clone(),
-        reason: e.to_string(),
-    })?;
+    let payload = postcard::to_stdvec(&file).map_err(|e| e.to_string())?;
     let mut bytes = Vec::with_capacity(payload.len() + 16);
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&MAP_FORMAT_VERSION.to_le_bytes());
     bytes.extend_from_slice(&payload);
     let crc = crc32fast::hash(&bytes);
     bytes.extend_from_slice(&crc.to_le_bytes());
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(io)?;
-    let file_name = path
-        .file_name()
-        .map(|f| f.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "map".into());
-    let tmp = dir.join(format!(".{file_name}.tmp-{}", std::process::id()));
-    {
-        let mut f = std::fs::File::create(&tmp).map_err(io)?;
-        f.write_all(&bytes).map_err(io)?;
-        f.sync_all().map_err(io)?;
-    }
-    std::fs::rename(&tmp, path).map_err(io)?;
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
-    Ok(())
+    Ok(bytes)
+}
+
+/// Writes records as a map file crash-safely; usable from another thread with
+/// [`super::KeyframeDb::snapshot`].
+pub fn save_records(
+    records: &[Arc<KeyframeRecord>],
+    shape: &MapShape,
+    path: &Path,
+) -> Result<(), MapError> {
+    save_records_with(&mut Disk, records, shape, path)
+}
+
+/// [`save_records`] through the file-system steps of `storage`.
+pub fn save_records_with(
+    storage: &mut dyn super::storage::Storage,
+    records: &[Arc<KeyframeRecord>],
+    shape: &MapShape,
+    path: &Path,
+) -> Result<(), MapError> {
+    let name = path.display().to_string();
+    let bytes = encode(records, shape).map_err(|reason| MapError::Corrupt {
+        path: name.clone(),
+        reason,
+    })?;
+    write_atomically(storage, path, &bytes).map_err(|source| MapError::Io { path: name, source })
 }
 
 /// Borrowing twin of [`MapFile`] for writing without copying the records.
 #[derive(Serialize)]
 struct MapFileRef<'a> {
     written_by: &'a str,
-    place: &'a PlaceConfig,
+    shape: &'a MapShape,
     keyframes: Vec<&'a KeyframeRecord>,
 }

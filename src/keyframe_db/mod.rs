@@ -2,16 +2,20 @@
 //!
 //! Entry points: [`KeyframeRecord`] ([`record`]), [`KeyframeDb`] ([`KeyframeDb::insert`],
 //! [`KeyframeDb::candidates`], [`KeyframeDb::prepared`] with a bounded cache of registration-ready
-//! submaps), [`KeyframeDb::save`] / [`KeyframeDb::load`] (the map file, [`file`]), [`MapConfig`].
-//! Ids are positions in the database, so a loaded map keeps its ids and new keyframes continue after
-//! them.
+//! submaps), [`KeyframeDb::save`] / [`KeyframeDb::load`] (the map file, [`file`], written crash-safely
+//! by [`storage`], one writer at a time by [`lock`]), [`MapConfig`]. Ids are positions in the
+//! database, so a loaded map keeps its ids and new keyframes continue after them.
 
 mod candidates;
 pub mod file;
+pub mod lock;
 pub mod record;
+pub mod storage;
 
 pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings};
-pub use file::{MAP_FORMAT_VERSION, MapError, MapFile, save_records};
+pub use file::{
+    MAP_FORMAT_VERSION, MapError, MapFile, MapShape, RadarMount, save_records, save_records_with,
+};
 pub use record::{
     KeyframeRecord, POINT_QUANTUM, dequantise_cov, dequantise_point, quantise_cov, quantise_point,
 };
@@ -42,6 +46,11 @@ pub struct MapConfig {
     pub max_points_per_keyframe: usize,
     /// Registration-ready keyframes kept in memory (default 64).
     pub prepared_cache: usize,
+    /// Most keyframes in the map, loaded ones included (default 10000: about 300 MB at 4000 points
+    /// a keyframe). Once full, new keyframes still close loops against the map but are not added to
+    /// it (counted as `map_full`): a robot that keeps driving known streets localises in the map it
+    /// has, and its memory stays bounded.
+    pub max_keyframes: usize,
 }
 
 impl Default for MapConfig {
@@ -52,6 +61,7 @@ impl Default for MapConfig {
             save_interval: 30.0,
             max_points_per_keyframe: 4000,
             prepared_cache: 64,
+            max_keyframes: 10_000,
         }
     }
 }
@@ -60,8 +70,14 @@ impl MapConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
         v.positive("save_interval", self.save_interval);
-        v.at_least("max_points_per_keyframe", self.max_points_per_keyframe, 10);
-        v.at_least("prepared_cache", self.prepared_cache, 1);
+        v.count(
+            "max_points_per_keyframe",
+            self.max_points_per_keyframe,
+            10,
+            100_000,
+        );
+        v.count("prepared_cache", self.prepared_cache, 1, 100_000);
+        v.count("max_keyframes", self.max_keyframes, 1, 10_000_000);
     }
 }
 
@@ -73,7 +89,8 @@ pub struct KeyframeDb {
     /// Place-descriptor columns by id ([`PlaceDescriptor::columns`]), for fast ranking.
     place_columns: Vec<Vec<u32>>,
     place: PlaceIndex,
-    place_cfg: PlaceConfig,
+    /// The settings that shaped the keyframes (stored with the map).
+    shape: MapShape,
     cache: VecDeque<(usize, Arc<PreparedSubmap>)>,
     cache_size: usize,
 }
@@ -86,7 +103,12 @@ impl KeyframeDb {
             positions: GrowingIndex::default(),
             place_columns: Vec::new(),
             place: PlaceIndex::default(),
-            place_cfg,
+            shape: MapShape {
+                body_frame: String::new(),
+                radars: Vec::new(),
+                max_points_per_keyframe: 0,
+                place: place_cfg,
+            },
             cache: VecDeque::new(),
             cache_size: cache_size.max(1),
         }
@@ -187,29 +209,46 @@ impl KeyframeDb {
         self.records.clone()
     }
 
-    /// Writes the map file crash-safely (temporary file, sync, rename, directory sync).
-    pub fn save(&self, path: &Path) -> Result<(), MapError> {
-        save_records(&self.snapshot(), &self.place_cfg, path)
+    /// The settings that shaped the keyframes: as loaded from a map file, or as set.
+    pub fn shape(&self) -> &MapShape {
+        &self.shape
     }
 
-    /// Reads a map file. Place descriptors made with other settings than `place_cfg` are recomputed.
+    /// Records the settings that shape the keyframes added from now on (saved with the map).
+    pub fn set_shape(&mut self, shape: MapShape) {
+        self.shape = shape;
+    }
+
+    /// Writes the map file crash-safely (temporary file, sync, rename, directory sync).
+    pub fn save(&self, path: &Path) -> Result<(), MapError> {
+        save_records(&self.snapshot(), &self.shape, path)
+    }
+
+    /// Reads and checks a map file. Place descriptors made with other settings than `place_cfg` are
+    /// recomputed; [`KeyframeDb::shape`] is the file's.
     pub fn load(path: &Path, place_cfg: PlaceConfig, cache_size: usize) -> Result<Self, MapError> {
         let file = file::read_map(path)?;
-        let corrupt = |reason: String| MapError::Corrupt {
-            path: path.display().to_string(),
-            reason,
-        };
         let mut db = KeyframeDb::new(place_cfg.clone(), cache_size);
-        let recompute = file.place != place_cfg;
+        let recompute = file.shape.place != place_cfg;
+        if recompute {
+            log::info!(
+                "map file {}: place descriptors made with other `place.*` settings are recomputed",
+                path.display()
+            );
+        }
+        db.shape = MapShape {
+            place: place_cfg.clone(),
+            ..file.shape
+        };
         for (k, mut rec) in file.keyframes.into_iter().enumerate() {
-            if rec.id != k as u64 || rec.points.len() != rec.covs.len() {
-                return Err(corrupt(format!("keyframe {k} is inconsistent")));
-            }
             if recompute {
                 rec.place = PlaceDescriptor::from_points(&rec.planar_points(), &place_cfg);
             }
             if !db.insert(rec) {
-                return Err(corrupt(format!("keyframe {k} could not be indexed")));
+                return Err(MapError::Corrupt {
+                    path: path.display().to_string(),
+                    reason: format!("keyframe {k} could not be indexed"),
+                });
             }
         }
         Ok(db)

@@ -3,7 +3,7 @@
 //! ([`KeyframeConfig`]). [`Config::validate`] rejects nonsense with a message naming the parameter (it
 //! never clamps). Every `Default` is written by hand; units are SI unless a name says otherwise.
 
-use crate::keyframe_db::MapConfig;
+use crate::keyframe_db::{MapConfig, MapShape, RadarMount};
 use crate::loop_closure::LoopConfig;
 use crate::place::PlaceConfig;
 use crate::radar::RadarConfig;
@@ -101,6 +101,24 @@ impl Config {
             .iter()
             .filter_map(|n| self.radars.get(n).map(|r| (n.as_str(), r)))
             .collect()
+    }
+
+    /// The settings that shape the keyframes of a map (stored with it).
+    pub fn map_shape(&self) -> MapShape {
+        MapShape {
+            body_frame: self.body_frame.clone(),
+            radars: self
+                .radar_list()
+                .into_iter()
+                .map(|(name, r)| RadarMount {
+                    name: name.to_string(),
+                    extrinsic: r.extrinsic,
+                    beta: r.beta,
+                })
+                .collect(),
+            max_points_per_keyframe: self.map.max_points_per_keyframe,
+            place: self.place.clone(),
+        }
     }
 
     /// Rejects values that cannot work; the error names the parameter.

@@ -13,6 +13,8 @@ use crate::submap::Submap;
 pub enum DropReason {
     /// A cloud that could not be decoded (missing/mistyped field, truncated, bad layout).
     BadCloud,
+    /// A cloud larger than the input limits (`node.max_cloud_points`, `node.max_cloud_bytes`).
+    CloudTooLarge,
     /// A cloud from a radar index that is not configured.
     UnknownRadar,
     /// A non-finite odometry pose.
@@ -24,6 +26,9 @@ pub enum DropReason {
     /// A stamp more than 1 s older than the newest input, not (yet) taken as a restart (see
     /// [`super::Pipeline::set_restart_after`]).
     StampBackwards,
+    /// A stamp more than 10 s after the newest input, not (yet) taken as a jump (see
+    /// [`super::Pipeline::set_restart_after`]).
+    StampAhead,
     /// A second scan of one radar with the same stamp (a re-sent or bogus message).
     DuplicateStamp,
 }
@@ -33,11 +38,13 @@ impl DropReason {
     pub fn name(self) -> &'static str {
         match self {
             DropReason::BadCloud => "bad_cloud",
+            DropReason::CloudTooLarge => "cloud_too_large",
             DropReason::UnknownRadar => "unknown_radar",
             DropReason::BadOdometry => "bad_odometry",
             DropReason::NoOdometry => "no_odometry",
             DropReason::QueueFull => "queue_full",
             DropReason::StampBackwards => "stamp_backwards",
+            DropReason::StampAhead => "stamp_ahead",
             DropReason::DuplicateStamp => "duplicate_stamp",
         }
     }
@@ -112,14 +119,23 @@ pub struct PipelineStats {
     pub empty_scans: u64,
     /// Scans whose Doppler ego-motion fit failed.
     pub doppler_fit_failures: u64,
+    /// Per radar index: scans whose Doppler velocity disagreed with the odometry's.
+    pub doppler_disagreements: BTreeMap<usize, u64>,
+    /// Per radar index: the likely misconfiguration, once its Doppler persistently disagrees with the
+    /// odometry, and the stamp of the scan that showed it.
+    pub doppler_warnings: BTreeMap<usize, (Stamp, String)>,
     /// Inputs dropped, by reason.
     pub dropped: BTreeMap<DropReason, u64>,
     /// Candidates rejected, by reason.
     pub rejected: BTreeMap<RejectReason, u64>,
     /// Time resets (stamps going backwards).
     pub time_resets: u64,
+    /// New odometry tracks (the odometry jumped and stayed there).
+    pub odometry_resets: u64,
     /// Keyframes taken.
     pub keyframes: u64,
+    /// Keyframes not added because the map was full (`map.max_keyframes`).
+    pub map_full: u64,
     /// Registrations run.
     pub registrations: u64,
     /// Closures accepted.

@@ -7,16 +7,52 @@ use std::collections::{BTreeMap, VecDeque};
 use super::Config;
 use super::events::{DropReason, Event, PipelineStats, dropped};
 use crate::cloud::decode_detections;
+use crate::input::InputLimits;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::radar::RadarScan;
+use crate::radar::consistency::{DopplerMonitor, Verdict};
 use crate::radar::doppler::RadarModel;
-use crate::submap::{OdometryBuffer, OdometryError, Submap, SubmapBuilder};
+use crate::submap::{OdometryBuffer, OdometryConfig, OdometryError, Submap, SubmapBuilder};
 
 /// Most scans held while waiting for odometry to cover their stamps.
 const MAX_PENDING: usize = 256;
 /// A stamp this much older than the newest input counts as time going backwards, s.
 const BACKWARDS_TOLERANCE: f64 = 1.0;
+/// A stamp this much newer than the newest input counts as a jump ahead, s.
+const AHEAD_TOLERANCE: f64 = 10.0;
+
+/// Consecutive implausible odometry samples, plausible among themselves, that are the odometry's own
+/// reset (a new track) rather than outliers: 10, a fraction of a second at odometry rates.
+const ODOMETRY_RESET_AFTER: usize = 10;
+/// Slack on the plausible motion between two odometry samples, m and rad.
+const JUMP_SLACK: (f64, f64) = (1.0, 0.2);
+
+/// Why the body cannot have moved from `a` to `b` (`odometry.max_speed`, `max_yaw_rate`).
+fn implausible(a: &(Stamp, Iso3), b: &(Stamp, Iso3), cfg: &OdometryConfig) -> Result<(), String> {
+    let dt = b.0.secs_since(a.0).abs();
+    let moved = (b.1.translation.vector - a.1.translation.vector).norm();
+    let turned = a.1.rotation.angle_to(&b.1.rotation);
+    if moved <= cfg.max_speed * dt + JUMP_SLACK.0 && turned <= cfg.max_yaw_rate * dt + JUMP_SLACK.1
+    {
+        return Ok(());
+    }
+    Err(format!(
+        "odometry moved {moved:.3e} m and turned {turned:.2} rad in {dt:.3} s (odometry.max_speed {}, max_yaw_rate {})",
+        cfg.max_speed, cfg.max_yaw_rate
+    ))
+}
+
+/// What [`Ingest::odometry`] did with a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OdometryCheck {
+    /// Buffered.
+    Accepted,
+    /// Dropped (implausible, out of order).
+    Dropped,
+    /// Buffered as the first sample of a new track (the odometry jumped for good).
+    Reset,
+}
 
 /// What [`Ingest::check_time`] decided about an input's stamp.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,13 +72,19 @@ pub struct Ingest {
     pending: VecDeque<RadarScan>,
     /// Odometry path length so far, m.
     path_distance: f64,
-    last_odom: Option<Iso3>,
+    /// The last accepted odometry sample.
+    last_odom: Option<(Stamp, Iso3)>,
+    /// The newest implausible odometry sample and how many in a row agreed with it.
+    jump: Option<((Stamp, Iso3), usize)>,
     newest_input: Option<Stamp>,
-    /// Inputs in a row with stamps going backwards, and how many make a restart.
-    backwards_run: usize,
+    /// Inputs in a row with stamps out of line (ahead or not, how many), and how many make a restart.
+    out_of_line: Option<(bool, usize)>,
     restart_after: usize,
     /// Newest scan stamp per radar (duplicates are dropped).
     last_scan_stamp: BTreeMap<usize, Stamp>,
+    limits: InputLimits,
+    /// The radars' Doppler against the odometry.
+    doppler: DopplerMonitor,
 }
 
 impl Ingest {
@@ -59,11 +101,19 @@ impl Ingest {
             pending: VecDeque::new(),
             path_distance: 0.0,
             last_odom: None,
+            jump: None,
             newest_input: None,
-            backwards_run: 0,
+            out_of_line: None,
             restart_after: 1,
             last_scan_stamp: BTreeMap::new(),
+            limits: InputLimits::default(),
+            doppler: DopplerMonitor::default(),
         }
+    }
+
+    /// See [`super::Pipeline::set_input_limits`].
+    pub fn set_input_limits(&mut self, limits: InputLimits) {
+        self.limits = limits;
     }
 
     /// See [`super::Pipeline::set_restart_after`].
@@ -86,9 +136,11 @@ impl Ingest {
         self.builder.build()
     }
 
-    /// Whether an input at `stamp` may go on: its stamp is not too far back, or a run of them is
-    /// taken as a restart (then odometry, the waiting scans and the rolling submap are reset,
-    /// [`Event::TimeReset`]).
+    /// Whether an input at `stamp` may go on. A stamp out of line with the newest input (more than
+    /// 1 s before it, or 10 s after it) is dropped and counted, and the newest stamp stays: one bad
+    /// stamp costs no other input. A run of `restart_after` of them in one direction is taken as the
+    /// truth: going back, a restart (odometry, the waiting scans and the rolling submap are reset,
+    /// [`Event::TimeReset`]); going ahead, a jump after an outage.
     pub fn check_time(
         &mut self,
         stamp: Stamp,
@@ -100,22 +152,45 @@ impl Ingest {
             self.newest_input = Some(stamp);
             return TimeCheck::Go;
         };
-        if prev.secs_since(stamp) <= BACKWARDS_TOLERANCE {
-            self.backwards_run = 0;
+        let ahead = stamp.secs_since(prev) > AHEAD_TOLERANCE;
+        if prev.secs_since(stamp) <= BACKWARDS_TOLERANCE && !ahead {
+            self.out_of_line = None;
             self.newest_input = Some(prev.max(stamp));
             return TimeCheck::Go;
         }
-        self.backwards_run += 1;
-        if self.backwards_run < self.restart_after {
-            let detail = format!(
-                "{what} at {:.3} s, {:.3} s before the newest input",
-                stamp.as_secs_f64(),
-                prev.secs_since(stamp)
-            );
-            dropped(stats, out, DropReason::StampBackwards, detail);
+        let run = match self.out_of_line {
+            Some((dir, n)) if dir == ahead => n + 1,
+            _ => 1,
+        };
+        self.out_of_line = Some((ahead, run));
+        if run < self.restart_after {
+            let (reason, detail) = if ahead {
+                let d = stamp.secs_since(prev);
+                (
+                    DropReason::StampAhead,
+                    format!("{d:.3} s after the newest input"),
+                )
+            } else {
+                let d = prev.secs_since(stamp);
+                (
+                    DropReason::StampBackwards,
+                    format!("{d:.3} s before the newest input"),
+                )
+            };
+            let detail = format!("{what} at {:.3} s, {detail}", stamp.as_secs_f64());
+            dropped(stats, out, reason, detail);
             return TimeCheck::Dropped;
         }
-        self.backwards_run = 0;
+        self.out_of_line = None;
+        self.newest_input = Some(stamp);
+        if ahead {
+            log::info!(
+                "time jumped ahead ({:.3} s -> {:.3} s)",
+                prev.as_secs_f64(),
+                stamp.as_secs_f64()
+            );
+            return TimeCheck::Go;
+        }
         log::warn!(
             "time went backwards ({:.3} s -> {:.3} s): resetting odometry and the rolling submap, keeping the keyframes",
             prev.as_secs_f64(),
@@ -126,7 +201,6 @@ impl Ingest {
         self.pending.clear();
         self.last_odom = None;
         self.last_scan_stamp.clear();
-        self.newest_input = Some(stamp);
         stats.time_resets += 1;
         out.push(Event::TimeReset {
             previous: prev,
@@ -135,33 +209,65 @@ impl Ingest {
         TimeCheck::Restarted
     }
 
-    /// Buffers one odometry sample; false when it was dropped.
+    /// Buffers one odometry sample unless it is implausible: a pose the last one could not have
+    /// moved to (`odometry.max_speed`, `odometry.max_yaw_rate`) is an outlier, dropped and counted,
+    /// unless it starts a run of plausible samples long enough to be the odometry's own reset (then
+    /// a new track starts, with the rolling submap reset and the path length kept).
     pub fn odometry(
         &mut self,
+        cfg: &OdometryConfig,
         stamp: Stamp,
         t_odom_body: Iso3,
         stats: &mut PipelineStats,
         out: &mut Vec<Event>,
-    ) -> bool {
+    ) -> OdometryCheck {
+        let sample = (stamp, t_odom_body);
+        let mut reset = false;
+        if let Some(last) = self.last_odom.filter(|l| stamp > l.0) {
+            if let Err(why) = implausible(&last, &sample, cfg) {
+                let run = match self.jump {
+                    Some((prev, n)) if implausible(&prev, &sample, cfg).is_ok() => n + 1,
+                    _ => 1,
+                };
+                if run < ODOMETRY_RESET_AFTER {
+                    self.jump = Some((sample, run));
+                    dropped(stats, out, DropReason::BadOdometry, why);
+                    return OdometryCheck::Dropped;
+                }
+                log::warn!(
+                    "odometry jumped and stayed there for {run} samples ({why}): a new odometry track, the rolling submap reset"
+                );
+                self.odom.clear();
+                self.builder.clear();
+                self.last_odom = None;
+                stats.odometry_resets += 1;
+                reset = true;
+            }
+        }
+        self.jump = None;
         match self.odom.push(stamp, t_odom_body) {
             Ok(()) => {}
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
                 // Within the tolerance: an out-of-order sample, not a restart.
                 let detail = format!("odometry out of order: {got:?} after {newest:?}");
                 dropped(stats, out, DropReason::BadOdometry, detail);
-                return false;
+                return OdometryCheck::Dropped;
             }
             Err(e) => {
                 dropped(stats, out, DropReason::BadOdometry, e.to_string());
-                return false;
+                return OdometryCheck::Dropped;
             }
         }
         stats.odometry += 1;
-        if let Some(prev) = self.last_odom {
+        if let Some((_, prev)) = self.last_odom {
             self.path_distance += (t_odom_body.translation.vector - prev.translation.vector).norm();
         }
-        self.last_odom = Some(t_odom_body);
-        true
+        self.last_odom = Some(sample);
+        if reset {
+            OdometryCheck::Reset
+        } else {
+            OdometryCheck::Accepted
+        }
     }
 
     /// Decodes a cloud of radar `radar` (index in `radar_names`) with its configured fields.
@@ -191,6 +297,11 @@ impl Ingest {
             );
             return None;
         };
+        if let Err(e) = self.limits.check(cloud) {
+            let detail = format!("radar `{name}`: {e}");
+            dropped(stats, out, DropReason::CloudTooLarge, detail);
+            return None;
+        }
         match decode_detections(cloud, &rc.fields) {
             Ok(decoded) => {
                 stats.detections_invalid +=
@@ -254,7 +365,12 @@ impl Ingest {
     /// Stacks the oldest waiting scan that odometry can place now into the rolling submap, and returns
     /// the body pose at its stamp; `None` when no waiting scan can be placed yet. Scans odometry cannot
     /// place at all (older than its history, inside a gap) are dropped on the way.
-    pub fn next_scan(&mut self, stats: &mut PipelineStats, out: &mut Vec<Event>) -> Option<Iso3> {
+    pub fn next_scan(
+        &mut self,
+        cfg: &Config,
+        stats: &mut PipelineStats,
+        out: &mut Vec<Event>,
+    ) -> Option<Iso3> {
         while let Some(scan) = self.pending.front() {
             let pose = match self.odom.pose_at(scan.stamp) {
                 Ok(p) => p,
@@ -279,6 +395,7 @@ impl Ingest {
             if !rep.doppler_fit {
                 stats.doppler_fit_failures += 1;
             }
+            self.check_doppler(cfg, &scan, rep.doppler_check, stats);
             log::debug!(
                 "scan radar {} at {:.3} s: {} kept, {} moving, {} invalid",
                 scan.radar,
@@ -290,6 +407,28 @@ impl Ingest {
             return Some(pose);
         }
         None
+    }
+
+    /// Counts a scan's Doppler disagreeing with the odometry, and warns once per radar whose Doppler
+    /// disagrees persistently, with the likely cause.
+    fn check_doppler(
+        &mut self,
+        cfg: &Config,
+        scan: &RadarScan,
+        verdict: Option<Verdict>,
+        stats: &mut PipelineStats,
+    ) {
+        let Some(verdict) = verdict else { return };
+        if verdict != Verdict::Agrees {
+            *stats.doppler_disagreements.entry(scan.radar).or_default() += 1;
+        }
+        if let Some(cause) = self.doppler.observe(scan.radar, verdict) {
+            let name = cfg.radar_names.get(scan.radar).map_or("?", String::as_str);
+            log::warn!("radar `{name}`: {cause}");
+            stats
+                .doppler_warnings
+                .insert(scan.radar, (scan.stamp, cause));
+        }
     }
 
     /// End of input: the scans still waiting for odometry are dropped and counted.

@@ -22,7 +22,7 @@ pub use events::{DropReason, Event, PipelineStats};
 
 use std::sync::Arc;
 
-use crate::input::Input;
+use crate::input::{Input, InputLimits};
 use crate::keyframe_db::{KeyframeDb, KeyframeRecord};
 use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
@@ -31,7 +31,7 @@ use crate::registration::PreparedSubmap;
 use crate::submap::{SpeedScale, Submap};
 use crate::validate::ConfigError;
 use events::dropped;
-use ingest::{Ingest, TimeCheck};
+use ingest::{Ingest, OdometryCheck, TimeCheck};
 
 /// The DC-Loc pipeline state.
 pub struct Pipeline {
@@ -40,6 +40,8 @@ pub struct Pipeline {
     db: KeyframeDb,
     loops: LoopCloser,
     session: u32,
+    /// The next keyframe's id (positions in the map while it is not full).
+    next_id: u64,
     /// Odometry pose of the last keyframe.
     last_keyframe: Option<Iso3>,
     stats: PipelineStats,
@@ -61,6 +63,7 @@ impl Pipeline {
         Ok(Pipeline {
             ingest: Ingest::new(&cfg),
             loops: LoopCloser::new(cfg.r#loop.clone(), cfg.registration.clone(), session),
+            next_id: db.next_id(),
             db,
             session,
             last_keyframe: None,
@@ -99,12 +102,19 @@ impl Pipeline {
         self.cfg.radar_names.iter().position(|n| n == name)
     }
 
-    /// How many inputs in a row with stamps more than 1 s before the newest input mean a restart (a bag
-    /// replayed again, a simulator reset) rather than stale messages (default 1: the first one, as in
-    /// an offline bag; the node uses `node.restart_after`). The ones before are dropped as
-    /// [`DropReason::StampBackwards`]. Values below 1 count as 1.
+    /// How many inputs in a row with stamps out of line with the newest input (more than 1 s before it:
+    /// a bag replayed again, a simulator reset; more than 10 s after it: a jump after an outage) are
+    /// taken as the new time rather than bad stamps (default 1: the first one, as in an offline bag;
+    /// the node uses `node.restart_after`). The ones before are dropped as
+    /// [`DropReason::StampBackwards`] or [`DropReason::StampAhead`]. Values below 1 count as 1.
     pub fn set_restart_after(&mut self, n: usize) {
         self.ingest.set_restart_after(n);
+    }
+
+    /// The largest cloud the pipeline decodes (default [`InputLimits::default`]); larger ones are
+    /// dropped as [`DropReason::CloudTooLarge`].
+    pub fn set_input_limits(&mut self, limits: InputLimits) {
+        self.ingest.set_input_limits(limits);
     }
 
     /// Feeds one input: the one door through which every source's data enters the pipeline. Ground
@@ -155,12 +165,16 @@ impl Pipeline {
         if !self.time(stamp, "odometry", out) {
             return;
         }
-        if self
+        let odometry = &self.cfg.odometry;
+        match self
             .ingest
-            .odometry(stamp, t_odom_body, &mut self.stats, out)
+            .odometry(odometry, stamp, t_odom_body, &mut self.stats, out)
         {
-            self.process_pending(out);
+            OdometryCheck::Dropped => return,
+            OdometryCheck::Reset => self.last_keyframe = None,
+            OdometryCheck::Accepted => {}
         }
+        self.process_pending(out);
     }
 
     fn scan(&mut self, scan: RadarScan, out: &mut Vec<Event>) {
@@ -179,7 +193,7 @@ impl Pipeline {
 
     /// Stacks every waiting scan that odometry can place now, taking keyframes as the body moves.
     fn process_pending(&mut self, out: &mut Vec<Event>) {
-        while let Some(pose) = self.ingest.next_scan(&mut self.stats, out) {
+        while let Some(pose) = self.ingest.next_scan(&self.cfg, &mut self.stats, out) {
             self.maybe_keyframe(pose, out);
         }
         self.stats.pending_scans = self.ingest.pending();
@@ -203,7 +217,7 @@ impl Pipeline {
             return;
         }
         self.note_speed_scale(submap.speed_scale);
-        let id = self.db.next_id();
+        let id = self.next_id;
         let path = self.ingest.path_distance();
         let rec = KeyframeRecord::from_submap(
             id,
@@ -221,6 +235,7 @@ impl Pipeline {
             }
         };
         self.last_keyframe = Some(pose);
+        self.next_id += 1;
         self.stats.keyframes += 1;
         log::debug!(
             "keyframe {id} at {:.3} s: {} points",
@@ -239,14 +254,30 @@ impl Pipeline {
             self.loops
                 .search(&mut self.db, &rec, &prepared, &mut decisions);
         }
+        self.store(rec, prepared);
+        let n = self.cfg.r#loop.backfill_per_keyframe;
+        self.loops.backfill(&mut self.db, n, &mut decisions);
+        self.report(decisions, out);
+    }
+
+    /// Adds a keyframe to the map, unless the map is full (`map.max_keyframes`).
+    fn store(&mut self, rec: KeyframeRecord, prepared: Arc<PreparedSubmap>) {
+        let id = rec.id;
+        if self.db.len() >= self.cfg.map.max_keyframes {
+            self.stats.map_full += 1;
+            if self.stats.map_full == 1 {
+                log::warn!(
+                    "the keyframe map holds map.max_keyframes ({}): new keyframes close loops against it but are not added",
+                    self.cfg.map.max_keyframes
+                );
+            }
+            return;
+        }
         if self.db.insert(rec) {
             self.db.put_prepared(id as usize, prepared);
         } else {
             log::warn!("keyframe {id} could not be added to the database");
         }
-        let n = self.cfg.r#loop.backfill_per_keyframe;
-        self.loops.backfill(&mut self.db, n, &mut decisions);
-        self.report(decisions, out);
     }
 
     /// Counts the submap's correction of the odometry's distances by the radars' Doppler speeds.

@@ -5,6 +5,7 @@
 //! moving-object rejection).
 
 pub mod config;
+pub mod consistency;
 pub mod doppler;
 pub mod ego_motion;
 
@@ -16,7 +17,7 @@ use serde::{Deserialize, Serialize};
 /// One detection as the radar reports it, in the radar frame (x along the boresight, y left, z up).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Detection {
-    /// Measured position, m. Its range carries the Doppler distortion `beta * v_r` (METHOD.md section 1).
+    /// Measured position, m. Its range carries the Doppler distortion `beta * v_r` (paper eq. 3).
     pub p_radar: Vec3,
     /// Measured radial velocity, m/s, positive when the target moves away from the radar.
     pub v_r: f64,

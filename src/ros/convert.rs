@@ -150,6 +150,8 @@ impl DiagnosticStatus {
     pub const OK: u8 = 0;
     /// WARN
     pub const WARN: u8 = 1;
+    /// ERROR
+    pub const ERROR: u8 = 2;
 }
 
 /// diagnostic_msgs/msg/DiagnosticArray

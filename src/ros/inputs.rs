@@ -1,0 +1,168 @@
+//! The reception side: one task per subscription takes messages off DDS, gives a zero stamp the
+//! receive time, does the cheap checks (frame id, size, finite pose) and hands the input to the
+//! worker through the bounded queue ([`take`]); reception never waits for registration. Each message
+//! that is not used is counted by reason.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+use ros2_client::{Node, Subscription};
+use serde::de::DeserializeOwned;
+
+use super::shared::{Inbox, Shared, Work, lock, receive_time};
+use crate::input::{Input, InputLimits, odometry_pose};
+use crate::math::Stamp;
+use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::rosgraph_msgs::Clock;
+use crate::msgs::sensor_msgs::PointCloud2;
+use crate::msgs::std_msgs::Header;
+
+/// A message whose zero `header.stamp` the receive time replaces (drivers that leave it unset), as
+/// `dc_loc run` takes a bag's log time.
+pub trait Stamped {
+    /// The message's header.
+    fn header_mut(&mut self) -> &mut Header;
+}
+
+impl Stamped for PointCloud2 {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Stamped for Odometry {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// Why a message is not used: the counter's name and a detail for the warning.
+pub type Refusal = (&'static str, String);
+
+/// Where a subscription's messages go, and what the reception counts.
+#[derive(Clone)]
+pub struct Reception {
+    /// The counters.
+    pub shared: Arc<Shared>,
+    /// The worker's queue.
+    pub inbox: Inbox,
+    /// Stamps from `/clock`.
+    pub use_sim_time: bool,
+}
+
+/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: a zero stamp becomes the
+/// receive time, `convert` turns the message into an input or a refusal (counted), and the input goes
+/// to the worker.
+pub async fn take<M, F>(topic: &str, sub: &Subscription<M>, r: Reception, mut convert: F)
+where
+    M: Stamped + DeserializeOwned + 'static,
+    F: FnMut(M) -> Result<(Input, Option<String>), Refusal>,
+{
+    let mut stream = std::pin::pin!(sub.async_stream());
+    while let Some(item) = stream.next().await {
+        let arrived = Instant::now();
+        let mut msg = match item {
+            Ok((m, _)) => m,
+            Err(e) => {
+                r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
+                continue;
+            }
+        };
+        let header = msg.header_mut();
+        if Stamp::from(header.stamp) == Stamp(0) {
+            header.stamp = receive_time(&r.shared, r.use_sim_time).into();
+        }
+        match convert(msg) {
+            Ok((input, odom_frame)) => r.inbox.send(Work::Input {
+                input: Box::new(input),
+                odom_frame,
+                arrived,
+            }),
+            Err((reason, detail)) => r.shared.drop_msg(reason, &detail),
+        }
+    }
+}
+
+/// The radars on one topic: (index in `radar_names`, name, expected `frame_id`; empty accepts any).
+pub type TopicRadars = Vec<(usize, String, String)>;
+
+/// A cloud of `topic` as the input of the radar its `frame_id` names (several radars may share a
+/// topic), refused when no configured radar has that frame or it is larger than `limits`.
+pub fn radar_input(
+    topic: &str,
+    radars: &TopicRadars,
+    limits: &InputLimits,
+    shared: &Shared,
+    cloud: PointCloud2,
+) -> Result<(Input, Option<String>), Refusal> {
+    let got = &cloud.header.frame_id;
+    let Some((radar, name, _)) = radars
+        .iter()
+        .find(|(_, _, frame)| frame.is_empty() || frame == got)
+    else {
+        return Err((
+            "unknown_frame",
+            format!("{topic}: frame_id `{got}` is not a configured radar frame"),
+        ));
+    };
+    shared.count_received(name);
+    // Refused before the queue, so that huge clouds never wait in it.
+    if let Err(e) = limits.check(&cloud) {
+        return Err(("cloud_too_large", format!("{topic}: {e}")));
+    }
+    let input = Input::Radar {
+        radar: *radar,
+        cloud,
+    };
+    Ok((input, None))
+}
+
+/// An odometry message as the input, refused when its pose is not finite.
+pub fn odometry_input(
+    topic: &str,
+    shared: &Shared,
+    odom: Odometry,
+) -> Result<(Input, Option<String>), Refusal> {
+    shared.count_received("odometry");
+    let Some((stamp, t_odom_body)) = odometry_pose(&odom) else {
+        return Err((
+            "bad_odometry",
+            format!("{topic}: pose not finite or zero quaternion"),
+        ));
+    };
+    let input = Input::Odometry { stamp, t_odom_body };
+    Ok((input, Some(odom.header.frame_id)))
+}
+
+/// `/clock` into the shared clock (sim time).
+pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
+    let mut stream = std::pin::pin!(sub.async_stream());
+    while let Some(r) = stream.next().await {
+        if let Ok((c, _)) = r {
+            let s: Stamp = c.clock.into();
+            shared.clock_ns.store(s.0, Ordering::SeqCst);
+        }
+    }
+}
+
+/// Matched publishers per input, every 250 ms, for `/diagnostics` (a user or test waits for them
+/// before sending).
+pub async fn publisher_counts(
+    node: &Node,
+    radars: &[(String, TopicRadars, Subscription<PointCloud2>)],
+    odometry: &Subscription<Odometry>,
+    shared: Arc<Shared>,
+) {
+    loop {
+        let mut counts = Vec::new();
+        for (_, topic_radars, sub) in radars {
+            let n = sub.get_publisher_count(node);
+            counts.extend(topic_radars.iter().map(|(_, name, _)| (name.clone(), n)));
+        }
+        counts.push(("odometry".to_string(), odometry.get_publisher_count(node)));
+        lock(&shared.publishers).extend(counts);
+        smol::Timer::after(Duration::from_millis(250)).await;
+    }
+}

@@ -1,0 +1,288 @@
+//! The node's own settings (`use_sim_time` and `node.*`, not part of the pipeline's [`Config`], which
+//! the offline tools share), and the parameters as ROS 2 declares them.
+
+use serde_json::Value;
+
+use crate::input::InputLimits;
+use crate::params::{ParamError, ParamSet, flatten_config};
+use crate::pipeline::Config;
+use crate::validate::{Range, Validator};
+
+/// The node's own settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeSettings {
+    /// `use_sim_time`: stamp outputs with `/clock` (rosgraph_msgs/Clock) time.
+    pub use_sim_time: bool,
+    /// `node.queue_size`: messages waiting for the worker; beyond, new ones are dropped.
+    pub queue_size: usize,
+    /// `node.diagnostics_period`: seconds between `/diagnostics` messages.
+    pub diagnostics_period: f64,
+    /// `node.max_cloud_points` and `node.max_cloud_bytes`: larger clouds are refused.
+    pub limits: InputLimits,
+    /// `node.warn_interval`: seconds between warnings of one kind.
+    pub warn_interval: f64,
+    /// `node.sync_timeout`: longest wait, s, for the other inputs to reach a message's stamp before it
+    /// is processed anyway.
+    pub sync_timeout: f64,
+    /// `node.restart_after`: consecutive inputs with stamps out of line that mean a restart.
+    pub restart_after: usize,
+    /// `node.shutdown_timeout`: longest time, s, the worker takes at shutdown to process the queue
+    /// after the map is saved.
+    pub shutdown_timeout: f64,
+}
+
+impl Default for NodeSettings {
+    fn default() -> Self {
+        NodeSettings {
+            use_sim_time: false,
+            queue_size: 2000,
+            diagnostics_period: 1.0,
+            limits: InputLimits::default(),
+            warn_interval: 5.0,
+            sync_timeout: 0.2,
+            restart_after: 20,
+            shutdown_timeout: 5.0,
+        }
+    }
+}
+
+/// One of the node's own parameters: its name and what it does (the reference lists it).
+pub struct NodeParam {
+    /// Dotted name.
+    pub name: &'static str,
+    /// What it does, its unit and why.
+    pub doc: &'static str,
+}
+
+/// The node's own parameters, documented.
+pub const NODE_PARAMS: &[NodeParam] = &[
+    NodeParam {
+        name: "use_sim_time",
+        doc: "Stamp outputs with `/clock` (rosgraph_msgs/Clock) time instead of the system clock.",
+    },
+    NodeParam {
+        name: "node.queue_size",
+        doc: "Messages waiting between DDS reception and the worker; a full queue drops new messages \
+              (`reception_queue_full`).",
+    },
+    NodeParam {
+        name: "node.diagnostics_period",
+        doc: "Seconds between `/diagnostics` messages.",
+    },
+    NodeParam {
+        name: "node.max_cloud_points",
+        doc: "Clouds with more points (width x height) are refused (`cloud_too_large`), here and in \
+              `dc_loc run`.",
+    },
+    NodeParam {
+        name: "node.max_cloud_bytes",
+        doc: "Clouds with more data bytes are refused (`cloud_too_large`), here and in `dc_loc run`: \
+              with the point count, the decoder's memory stays bounded whatever a cloud claims.",
+    },
+    NodeParam {
+        name: "node.warn_interval",
+        doc: "Seconds between two warnings of one kind (the suppressed ones are counted in the next).",
+    },
+    NodeParam {
+        name: "node.sync_timeout",
+        doc: "Longest wait, s (wall time), for the other inputs to reach a message's stamp before it is \
+              processed anyway (inputs are processed in stamp order, as `dc_loc run` reads a bag).",
+    },
+    NodeParam {
+        name: "node.restart_after",
+        doc: "Consecutive inputs whose stamps are out of line with the newest input (more than 1 s \
+              back or 10 s ahead) that mean a restart or a jump (bag replayed again, simulator reset, \
+              a long outage) rather than bad stamps; the ones before are dropped and counted.",
+    },
+    NodeParam {
+        name: "node.shutdown_timeout",
+        doc: "Seconds the worker may take at SIGINT/SIGTERM to process what is queued, after saving \
+              the map first; what is left then is dropped, so that a supervisor's kill timeout never \
+              ends the process before the map is saved.",
+    },
+];
+
+impl NodeSettings {
+    /// The settings as `(name, value)` parameters.
+    pub fn as_params(&self) -> Vec<(String, Value)> {
+        vec![
+            ("use_sim_time".into(), Value::Bool(self.use_sim_time)),
+            ("node.queue_size".into(), Value::from(self.queue_size)),
+            (
+                "node.diagnostics_period".into(),
+                Value::from(self.diagnostics_period),
+            ),
+            (
+                "node.max_cloud_points".into(),
+                Value::from(self.limits.max_cloud_points),
+            ),
+            (
+                "node.max_cloud_bytes".into(),
+                Value::from(self.limits.max_cloud_bytes),
+            ),
+            ("node.warn_interval".into(), Value::from(self.warn_interval)),
+            ("node.sync_timeout".into(), Value::from(self.sync_timeout)),
+            ("node.restart_after".into(), Value::from(self.restart_after)),
+            (
+                "node.shutdown_timeout".into(),
+                Value::from(self.shutdown_timeout),
+            ),
+        ]
+    }
+
+    /// Declares each setting's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.count("node.queue_size", self.queue_size, 1, 1_000_000);
+        v.range(
+            "node.diagnostics_period",
+            self.diagnostics_period,
+            Range::POSITIVE.up_to(3600.0),
+        );
+        v.count(
+            "node.max_cloud_points",
+            self.limits.max_cloud_points,
+            1,
+            10_000_000,
+        );
+        v.count(
+            "node.max_cloud_bytes",
+            self.limits.max_cloud_bytes,
+            1,
+            1 << 30,
+        );
+        v.range(
+            "node.warn_interval",
+            self.warn_interval,
+            Range::POSITIVE.up_to(86_400.0),
+        );
+        v.range(
+            "node.sync_timeout",
+            self.sync_timeout,
+            Range::POSITIVE.up_to(60.0),
+        );
+        v.count("node.restart_after", self.restart_after, 1, 100_000);
+        v.range(
+            "node.shutdown_timeout",
+            self.shutdown_timeout,
+            Range::POSITIVE.up_to(600.0),
+        );
+    }
+
+    /// Splits the node's own parameters off `params` and checks their ranges; the rest go to
+    /// [`crate::params::apply`].
+    pub fn take_from(params: &ParamSet) -> Result<(Self, ParamSet), ParamError> {
+        let mut s = NodeSettings::default();
+        let mut rest = ParamSet::default();
+        for (name, v) in params.entries() {
+            match name.as_str() {
+                "use_sim_time" => {
+                    s.use_sim_time = v
+                        .as_bool()
+                        .ok_or_else(|| type_error(name, "a boolean", v))?
+                }
+                "node.queue_size" => s.queue_size = count(name, v)?,
+                "node.max_cloud_points" => s.limits.max_cloud_points = count(name, v)?,
+                "node.max_cloud_bytes" => s.limits.max_cloud_bytes = count(name, v)?,
+                "node.restart_after" => s.restart_after = count(name, v)?,
+                "node.diagnostics_period" => s.diagnostics_period = number(name, v)?,
+                "node.warn_interval" => s.warn_interval = number(name, v)?,
+                "node.sync_timeout" => s.sync_timeout = number(name, v)?,
+                "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
+                n if n.starts_with("node.") => return Err(ParamError::Unknown(name.clone())),
+                _ => rest.set(name.clone(), v.clone()),
+            }
+        }
+        let mut v = Validator::new();
+        s.check(&mut v);
+        v.finish()?;
+        Ok((s, rest))
+    }
+}
+
+fn type_error(name: &str, expected: &'static str, v: &Value) -> ParamError {
+    ParamError::Type {
+        name: name.to_string(),
+        expected,
+        got: v.to_string(),
+    }
+}
+
+/// A non-negative integer (its range is checked with the others).
+fn count(name: &str, v: &Value) -> Result<usize, ParamError> {
+    v.as_u64()
+        .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
+        .ok_or_else(|| type_error(name, "a non-negative integer", v))
+}
+
+/// A number (its range is checked with the others).
+fn number(name: &str, v: &Value) -> Result<f64, ParamError> {
+    v.as_f64().ok_or_else(|| type_error(name, "a number", v))
+}
+
+/// Every parameter of the node (the pipeline's and the node's own), sorted by name.
+pub fn all_params(cfg: &Config, settings: &NodeSettings) -> Vec<(String, Value)> {
+    let mut all = flatten_config(cfg);
+    all.extend(settings.as_params());
+    all.sort_by(|a, b| a.0.cmp(&b.0));
+    all
+}
+
+/// The effective configuration, one `name: value` per line.
+pub fn describe(cfg: &Config, settings: &NodeSettings) -> String {
+    all_params(cfg, settings)
+        .iter()
+        .map(|(n, v)| format!("  {n}: {v}"))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn node_settings_split_and_checked() {
+        let mut set = ParamSet::default();
+        set.set_override("node.queue_size:=10").unwrap();
+        set.set_override("use_sim_time:=true").unwrap();
+        set.set_override("submap.size:=4").unwrap();
+        let (s, rest) = NodeSettings::take_from(&set).unwrap();
+        assert_eq!(s.queue_size, 10);
+        assert!(s.use_sim_time);
+        assert_eq!(rest.entries().len(), 1);
+        let mut bad = ParamSet::default();
+        bad.set_override("node.queue_size:=0").unwrap();
+        assert!(
+            matches!(NodeSettings::take_from(&bad), Err(ParamError::Invalid(e)) if e.name == "node.queue_size")
+        );
+        // Every node setting refuses absurd values with its name (never a panic or an allocation).
+        for (name, value) in NodeSettings::default().as_params() {
+            if !name.starts_with("node.") {
+                continue;
+            }
+            let huge = if value.is_f64() {
+                "1e20"
+            } else {
+                "18446744073709551615"
+            };
+            let mut bad = ParamSet::default();
+            bad.set_override(&format!("{name}:={huge}")).unwrap();
+            assert!(
+                matches!(NodeSettings::take_from(&bad), Err(ParamError::Invalid(ref e)) if e.name == name),
+                "{name}:={huge} accepted"
+            );
+        }
+        let mut bad = ParamSet::default();
+        bad.set_override("node.queue:=3").unwrap();
+        assert_eq!(
+            NodeSettings::take_from(&bad).err(),
+            Some(ParamError::Unknown("node.queue".into()))
+        );
+        let mut bad = ParamSet::default();
+        bad.set_override("use_sim_time:=1").unwrap();
+        assert!(matches!(
+            NodeSettings::take_from(&bad),
+            Err(ParamError::Type { .. })
+        ));
+    }
+}

@@ -1,0 +1,351 @@
+//! The worker thread: owns the [`Pipeline`], takes the queued inputs in stamp order across topics
+//! ([`StampMerger`], at most `node.sync_timeout` of waiting) so that the pipeline sees the sequence
+//! `dc_loc run` reads from a bag, and publishes closures, markers and the submap as they come,
+//! diagnostics every `node.diagnostics_period`; the map is saved by [`MapSaver`].
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use ros2_client::Publisher;
+
+use super::convert::{DiagnosticArray, MarkerArray, MarkerPoint, markers, submap_cloud};
+use super::diagnostics::{Diagnostics, Measures, Report};
+use super::map_store::MapSaver;
+use super::merge::StampMerger;
+use super::settings::NodeSettings;
+use super::shared::{Shared, Work, receive_time};
+use crate::input::Input;
+use crate::loop_closure::LoopClosure;
+use crate::math::{Iso3, Stamp};
+use crate::msgs::builtin_interfaces::Time;
+use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
+use crate::msgs::sensor_msgs::PointCloud2;
+use crate::output::loop_closure_msg;
+use crate::pipeline::{Event, Pipeline};
+
+/// The node's publishers, owned by the worker thread.
+pub struct Outputs {
+    /// `~/loop_closures`.
+    pub closures: Publisher<LoopClosureMsg>,
+    /// `~/markers`.
+    pub markers: Publisher<MarkerArray>,
+    /// `~/submap`.
+    pub submap: Publisher<PointCloud2>,
+    /// `/diagnostics`.
+    pub diagnostics: Publisher<DiagnosticArray>,
+}
+
+/// This session's keyframe positions (odometry frame) and closure edges, for `~/markers`.
+struct Markers {
+    frame: String,
+    points: BTreeMap<u64, MarkerPoint>,
+    edges: Vec<(MarkerPoint, MarkerPoint)>,
+}
+
+impl Markers {
+    fn keyframe(&mut self, id: u64, t_odom_body: &Iso3) {
+        let p = t_odom_body.translation.vector;
+        self.points.insert(id, MarkerPoint { x: p.x, y: p.y });
+    }
+
+    /// An edge between two keyframes of this session's odometry frame (a loaded map's keyframes are
+    /// in another frame).
+    fn closure(&mut self, c: &LoopClosure) {
+        if let (Some(a), Some(b)) = (self.points.get(&c.query_id), self.points.get(&c.match_id)) {
+            self.edges.push((*a, *b));
+        }
+    }
+
+    fn message(&self, now: Time) -> MarkerArray {
+        let kfs: Vec<MarkerPoint> = self.points.values().copied().collect();
+        markers(now, &self.frame, &kfs, &self.edges)
+    }
+}
+
+/// The pipeline and everything that reports on it.
+pub struct Worker {
+    pipeline: Pipeline,
+    out: Outputs,
+    shared: Arc<Shared>,
+    settings: NodeSettings,
+    body_frame: String,
+    markers: Markers,
+    measures: Measures,
+    diagnostics: Diagnostics,
+    saver: Option<MapSaver>,
+}
+
+impl Worker {
+    /// A worker for `pipeline` (with its map loaded) publishing on `out`.
+    pub fn new(
+        mut pipeline: Pipeline,
+        out: Outputs,
+        shared: Arc<Shared>,
+        settings: NodeSettings,
+        saver: Option<MapSaver>,
+        hardware_id: String,
+    ) -> Self {
+        let mut markers = Markers {
+            frame: "odom".into(),
+            points: BTreeMap::new(),
+            edges: Vec::new(),
+        };
+        for r in pipeline.db().records() {
+            if r.session == pipeline.session() {
+                markers.keyframe(r.id, &r.odom_pose_iso3());
+            }
+        }
+        pipeline.set_restart_after(settings.restart_after);
+        pipeline.set_input_limits(settings.limits);
+        Worker {
+            body_frame: pipeline.config().body_frame.clone(),
+            pipeline,
+            out,
+            shared,
+            settings,
+            markers,
+            measures: Measures::default(),
+            diagnostics: Diagnostics::new(hardware_id),
+            saver,
+        }
+    }
+
+    fn now(&self) -> Time {
+        receive_time(&self.shared, self.settings.use_sim_time).into()
+    }
+
+    /// Processes the queue until a shutdown: then saves the map first, processes what is queued up
+    /// to [`Work::Stop`] for at most `node.shutdown_timeout` (the rest is dropped and counted), saves
+    /// the map again and returns the final save's error, if any.
+    pub fn run(mut self, rx: Receiver<Work>) -> Result<(), String> {
+        let period = self.settings.diagnostics_period;
+        let n_radars = self.pipeline.config().radar_names.len();
+        // Streams: each radar, then odometry.
+        let mut merger: StampMerger<Work> = StampMerger::new(
+            n_radars + 1,
+            Duration::from_secs_f64(self.settings.sync_timeout),
+            Duration::from_secs(1),
+        );
+        let mut deadline: Option<Instant> = None;
+        loop {
+            let now = Instant::now();
+            if deadline.is_none() && self.shared.stopping.load(Ordering::SeqCst) {
+                self.save_first();
+                let timeout = Duration::from_secs_f64(self.settings.shutdown_timeout);
+                deadline = Some(Instant::now() + timeout);
+            }
+            if deadline.is_some_and(|d| now >= d) {
+                self.drop_rest(&rx);
+                break;
+            }
+            let since = self.diagnostics.since_last();
+            let mut wait = Duration::from_secs_f64((period - since).max(0.0));
+            if let Some(d) = merger.deadline().into_iter().chain(deadline).min() {
+                wait = wait.min(d.saturating_duration_since(now));
+            }
+            match rx.recv_timeout(wait) {
+                Err(RecvTimeoutError::Disconnected) => break,
+                Ok(w) => {
+                    self.shared.queued.fetch_sub(1, Ordering::SeqCst);
+                    if matches!(w, Work::Stop) {
+                        break;
+                    }
+                    let (stream, stamp) = stream_of(&w, n_radars);
+                    merger.push(stream, stamp, Instant::now(), w);
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+            }
+            while let Some(w) = merger.pop_ready(Instant::now()) {
+                self.handle(w);
+            }
+            self.shared.held.store(merger.len(), Ordering::SeqCst);
+            if self.diagnostics.since_last() >= period {
+                self.publish_diagnostics();
+            }
+            if let Some(s) = &mut self.saver {
+                s.maybe_save(self.pipeline.db());
+            }
+        }
+        self.shutdown(merger)
+    }
+
+    /// The map saved before the queue is drained, so that a supervisor's kill timeout cannot lose it.
+    fn save_first(&mut self) {
+        if let Some(s) = &mut self.saver {
+            s.save_now(self.pipeline.db());
+        }
+    }
+
+    /// What is still queued when the shutdown's time is up: dropped and counted.
+    fn drop_rest(&mut self, rx: &Receiver<Work>) {
+        let mut n = 0u64;
+        while let Ok(w) = rx.try_recv() {
+            self.shared.queued.fetch_sub(1, Ordering::SeqCst);
+            if matches!(w, Work::Input { .. }) {
+                n += 1;
+            }
+        }
+        if n > 0 {
+            log::warn!(
+                "node.shutdown_timeout ({} s) passed: {n} queued messages not processed",
+                self.settings.shutdown_timeout
+            );
+            *super::shared::lock(&self.shared.dropped)
+                .entry("shutdown_timeout".into())
+                .or_default() += n;
+        }
+    }
+
+    /// The held inputs and the pipeline's last events, the final diagnostics and map save.
+    fn shutdown(mut self, mut merger: StampMerger<Work>) -> Result<(), String> {
+        while let Some(w) = merger.pop_any() {
+            self.handle(w);
+        }
+        self.shared.held.store(0, Ordering::SeqCst);
+        let events = self.pipeline.finish();
+        self.handle_events(events, None);
+        self.publish_diagnostics();
+        let saved = match self.saver.take() {
+            Some(s) => s.finish(self.pipeline.db()).map_or(Ok(()), Err),
+            None => Ok(()),
+        };
+        let published = self.measures.closures_published;
+        log::info!(
+            "stopped: {} keyframes, {published} closures published",
+            self.pipeline.stats().keyframes,
+        );
+        // Give reliable readers a moment to fetch the last samples before the writers go away.
+        if published > 0 {
+            std::thread::sleep(Duration::from_millis(300));
+        }
+        saved
+    }
+
+    /// One input through the pipeline's input path (the one `dc_loc run` uses): decoding, stamps going
+    /// backwards, duplicate stamps and odometry gaps are checked and counted there.
+    fn handle(&mut self, w: Work) {
+        let Work::Input {
+            input,
+            odom_frame,
+            arrived,
+        } = w
+        else {
+            return;
+        };
+        let t0 = Instant::now();
+        let events = self.pipeline.push(&input);
+        let accepted = !events.iter().any(|e| matches!(e, Event::Dropped { .. }));
+        if let Some(frame) = odom_frame.filter(|f| accepted && !f.is_empty()) {
+            self.markers.frame = frame;
+        }
+        let keyframe = events.iter().any(|e| matches!(e, Event::Keyframe { .. }));
+        self.handle_events(events, Some(arrived));
+        if keyframe {
+            self.measures.keyframe_time.push(t0.elapsed().as_secs_f64());
+        }
+        self.measures
+            .input_latency
+            .push(arrived.elapsed().as_secs_f64());
+    }
+
+    fn handle_events(&mut self, events: Vec<Event>, arrived: Option<Instant>) {
+        let mut changed = false;
+        for e in events {
+            match e {
+                Event::Keyframe {
+                    id, t_odom_body, ..
+                } => {
+                    self.markers.keyframe(id, &t_odom_body);
+                    changed = true;
+                }
+                Event::Closure(c) => {
+                    self.publish_closure(&c, arrived);
+                    self.markers.closure(&c);
+                    changed = true;
+                }
+                Event::Rejected { .. } => {}
+                // Counted in the pipeline's stats; warned here, rate-limited.
+                Event::Dropped { reason, detail } => self.shared.warn(reason.name(), &detail),
+                Event::EmptyScan { detail } => self.shared.warn("empty_cloud", &detail),
+                Event::TimeReset { previous, got } => self.shared.warn(
+                    "time_reset",
+                    &format!(
+                        "time went back from {:.3} s to {:.3} s: pipeline reset, keyframes kept",
+                        previous.as_secs_f64(),
+                        got.as_secs_f64()
+                    ),
+                ),
+            }
+        }
+        if changed {
+            self.publish_map_views();
+        }
+    }
+
+    fn publish_closure(&mut self, c: &LoopClosure, arrived: Option<Instant>) {
+        let msg = loop_closure_msg(c, &self.body_frame);
+        match self.out.closures.publish(msg) {
+            Ok(()) => self.measures.closures_published += 1,
+            Err(e) => log::error!(
+                "loop closure {} -> {}: publish failed: {e:?}",
+                c.query_id,
+                c.match_id
+            ),
+        }
+        if let Some(a) = arrived {
+            self.measures
+                .closure_latency
+                .push(a.elapsed().as_secs_f64());
+        }
+        log::debug!(
+            "published loop closure {} -> {} ({} inliers, overlap {:.2})",
+            c.query_id,
+            c.match_id,
+            c.inliers,
+            c.score
+        );
+    }
+
+    /// The markers and the current submap.
+    fn publish_map_views(&mut self) {
+        if let Err(e) = self.out.markers.publish(self.markers.message(self.now())) {
+            log::debug!("markers: {e:?}");
+        }
+        if let Some(s) = self.pipeline.current_submap() {
+            if let Err(e) = self.out.submap.publish(submap_cloud(&s, &self.body_frame)) {
+                log::debug!("submap: {e:?}");
+            }
+        }
+    }
+
+    fn publish_diagnostics(&mut self) {
+        let report = Report {
+            now: self.now(),
+            stats: self.pipeline.stats(),
+            map_keyframes: self.pipeline.db().len(),
+            queue_size: self.settings.queue_size,
+            measures: &self.measures,
+            map_save: self.saver.as_ref().map(|s| s.status()),
+            radar_names: &self.pipeline.config().radar_names,
+        };
+        let msg = self.diagnostics.message(&self.shared, &report);
+        if let Err(e) = self.out.diagnostics.publish(msg) {
+            log::debug!("diagnostics: {e:?}");
+        }
+    }
+}
+
+/// The merger's stream of an input (each radar, then odometry) and its stamp.
+fn stream_of(w: &Work, n_radars: usize) -> (usize, Stamp) {
+    match w {
+        Work::Input { input, .. } => match input.as_ref() {
+            Input::Radar { radar, .. } => (*radar, input.stamp()),
+            Input::Scan(scan) => (scan.radar, scan.stamp),
+            _ => (n_radars, input.stamp()),
+        },
+        Work::Stop => (n_radars, Stamp(0)),
+    }
+}

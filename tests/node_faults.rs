@@ -1,0 +1,166 @@
+//! The node's start-up refusals and its map file as an operator meets them: out-of-range node
+//! settings and DDS security requests stop the start with exit code 2 and the cause; a map another
+//! node holds is refused naming the holder, and the holder keeps and saves it; files a killed writer
+//! left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
+//! `<map>.new.1`, never over an earlier session. No Python here: the node runs alone on a domain of
+//! its own, on loopback.
+
+mod common;
+use common::text;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const DOMAIN: &str = "87";
+
+fn node() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_dc_loc"));
+    c.env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        .env("ROS_DOMAIN_ID", DOMAIN)
+        .env_remove("ROS_SECURITY_ENABLE")
+        .env_remove("ROS_SECURITY_STRATEGY");
+    c
+}
+
+fn run(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut c = node();
+    c.args(args);
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    c.output().expect("cannot start dc_loc")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    common::scratch("node_faults", name)
+}
+
+/// A node on `map`, started and running (it printed that it runs, after its signal handler is in
+/// place); stderr is kept for the end.
+fn start(map: &Path, extra: &[&str]) -> Child {
+    let mut args = vec!["--ros-args".to_string(), "-p".into()];
+    args.push(format!("map.file:={}", map.display()));
+    for e in extra {
+        args.push((*e).into());
+    }
+    let mut child = node()
+        .args(&args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("cannot start dc_loc");
+    let stdout = child.stdout.take().unwrap();
+    let mut lines = BufReader::new(stdout).lines();
+    let running = lines.any(|l| l.is_ok_and(|l| l.contains("running")));
+    if !running {
+        let out = child.wait_with_output().unwrap();
+        panic!("the node ended ({}): {}", out.status, text(&out.stderr));
+    }
+    // Whatever else it prints is read, so that it never writes to a closed pipe.
+    std::thread::spawn(move || lines.for_each(drop));
+    child
+}
+
+/// SIGINT, then the node's exit code and stderr (killed after 30 s).
+fn interrupt(mut child: Child) -> (Option<i32>, String) {
+    let pid = child.id().to_string();
+    let sent = Command::new("kill").args(["-INT", &pid]).status().unwrap();
+    assert!(sent.success());
+    let t0 = Instant::now();
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        if t0.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            panic!("the node did not end within 30 s of SIGINT");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().unwrap();
+    (out.status.code(), text(&out.stderr))
+}
+
+#[test]
+fn out_of_range_node_settings_stop_the_start() {
+    for (p, name) in [
+        ("node.queue_size:=100000000000000000000", "node.queue_size"),
+        ("node.shutdown_timeout:=1e20", "node.shutdown_timeout"),
+        ("node.max_cloud_points:=-5", "node.max_cloud_points"),
+        ("node.diagnostics_period:=0.0", "node.diagnostics_period"),
+    ] {
+        let out = run(&["--ros-args", "-p", p], &[]);
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{p}: {err}");
+        assert!(err.contains(name), "{p}: the message does not name {name}: {err}");
+    }
+}
+
+#[test]
+fn dds_security_is_refused_not_ignored() {
+    let out = run(&["--ros-args", "--enclave", "/dc_loc"], &[]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.to_lowercase().contains("security"), "{err}");
+    let out = run(
+        &["--ros-args"],
+        &[
+            ("ROS_SECURITY_ENABLE", "true"),
+            ("ROS_SECURITY_STRATEGY", "Enforce"),
+        ],
+    );
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("ROS_SECURITY"), "{err}");
+}
+
+#[test]
+fn a_map_in_use_is_refused_and_its_holder_keeps_it() {
+    let dir = scratch("in_use");
+    let map = dir.join("map.bin");
+    // A temporary file a killed writer left behind.
+    let stale = dir.join(".map.bin.tmp-999999");
+    std::fs::write(&stale, b"half a map").unwrap();
+    let first = start(&map, &[]);
+    assert!(!stale.exists(), "the killed writer's temporary file is still there");
+
+    let second = run(
+        &["--ros-args", "-p", &format!("map.file:={}", map.display())],
+        &[],
+    );
+    let err = text(&second.stderr);
+    assert_eq!(second.status.code(), Some(2), "{err}");
+    assert!(err.contains("in use"), "{err}");
+    assert!(err.contains(&first.id().to_string()), "the holder's pid: {err}");
+
+    let (code, err) = interrupt(first);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(map.exists(), "the holder did not save its map: {err}");
+    // The saved map loads.
+    dc_loc::keyframe_db::KeyframeDb::load(&map, Default::default(), 4).expect("saved map");
+}
+
+#[test]
+fn a_refused_map_is_never_overwritten_and_fallbacks_are_numbered() {
+    let dir = scratch("fallback");
+    let map = dir.join("map.bin");
+    let garbage = b"not a dc_loc map at all".to_vec();
+    std::fs::write(&map, &garbage).unwrap();
+
+    let out = run(
+        &["--ros-args", "-p", &format!("map.file:={}", map.display())],
+        &[],
+    );
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("map.file"), "{err}");
+
+    for expected in ["map.bin.new", "map.bin.new.1"] {
+        let child = start(&map, &["-p", "map.start_empty_on_error:=true"]);
+        let (code, err) = interrupt(child);
+        assert_eq!(code, Some(0), "{err}");
+        assert!(dir.join(expected).exists(), "{expected} not written: {err}");
+        assert_eq!(std::fs::read(&map).unwrap(), garbage, "the refused map changed");
+    }
+}

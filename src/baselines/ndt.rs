@@ -371,83 +371,12 @@ pub fn register_ndt(
     let mut map = None;
     for (stage, &cell) in config.cell_sizes.iter().enumerate() {
         // Step 1: the transform of the target at this cell size.
-        let blur = if stage + 1 < config.cell_sizes.len() {
-            (config.coarse_sigma_ratio * cell).powi(2)
-        } else {
-            0.0
-        };
-        let m = NdtMap::new(
-            &target.points,
-            cell,
-            config.min_points_per_cell,
-            config.min_eigenvalue_ratio,
-            blur,
-        );
+        let m = stage_map(target, config, stage, cell);
         if m.cells() == 0 {
             return Err(RegistrationError::TooFewInliers { have: 0, need });
         }
         // Step 2: Newton's method with a trust region and a backtracking line search.
-        converged = false;
-        for _ in 0..config.max_iterations {
-            iterations += 1;
-            let obj = m.objective(&source.points, &p);
-            if obj.points_in_cells < need {
-                return Err(RegistrationError::TooFewInliers {
-                    have: obj.points_in_cells,
-                    need,
-                });
-            }
-            let h = make_positive_definite(&obj.hessian);
-            let Some(step) = h.cholesky().map(|ch| -ch.solve(&obj.gradient)) else {
-                return Err(RegistrationError::Numerical(
-                    "NDT Hessian could not be made positive definite".into(),
-                ));
-            };
-            if !step.iter().all(|v| v.is_finite()) {
-                return Err(RegistrationError::Numerical(
-                    "NDT Newton step is not finite".into(),
-                ));
-            }
-            let max_t = config.max_step_cells * cell;
-            let shrink = (max_t / step.xy().norm())
-                .min(config.max_step_rotation / step.z.abs())
-                .min(1.0);
-            let step = step * shrink;
-            let slope = obj.gradient.dot(&step);
-            let small = |s: &Vec3| {
-                s.xy().norm() < config.translation_tolerance
-                    && s.z.abs() < config.rotation_tolerance
-            };
-            // Halving 60 times takes any finite step below the tolerances: the loop ends.
-            let mut alpha = 1.0;
-            let mut accepted = None;
-            for _ in 0..60 {
-                let trial = p + step * alpha;
-                if m.value(&source.points, &pose(&trial)) <= obj.value + 1e-4 * alpha * slope {
-                    accepted = Some(step * alpha);
-                    break;
-                }
-                if small(&(step * alpha)) {
-                    break;
-                }
-                alpha *= 0.5;
-            }
-            match accepted {
-                Some(s) => {
-                    p += s;
-                    p.z = crate::math::wrap_angle(p.z);
-                    if small(&s) {
-                        converged = true;
-                        break;
-                    }
-                }
-                // No descent even at the tolerance scale: a (local) minimum.
-                None => {
-                    converged = true;
-                    break;
-                }
-            }
-        }
+        converged = newton_stage(&m, source, &mut p, config, &mut iterations)?;
         log::debug!(
             "ndt: stage {cell} m ({} cells) done after {iterations} iterations (converged: {converged})",
             m.cells()
@@ -457,9 +386,129 @@ pub fn register_ndt(
     let Some(map) = map else {
         return Err(RegistrationError::Numerical("no NDT stage ran".into()));
     };
-
     // Step 3: covariance from the Hessian at the optimum (see the module doc).
-    let obj = map.objective(&source.points, &p);
+    ndt_result(&map, source, &p, config, converged, iterations)
+}
+
+/// The transform of the target for stage `stage` (cell size `cell`, m); coarse stages blurred.
+fn stage_map(target: &PointSet2, config: &NdtConfig, stage: usize, cell: f64) -> NdtMap {
+    let blur = if stage + 1 < config.cell_sizes.len() {
+        (config.coarse_sigma_ratio * cell).powi(2)
+    } else {
+        0.0
+    };
+    NdtMap::new(
+        &target.points,
+        cell,
+        config.min_points_per_cell,
+        config.min_eigenvalue_ratio,
+        blur,
+    )
+}
+
+/// The accepted step `s` is below the convergence tolerances.
+fn small_step(s: &Vec3, config: &NdtConfig) -> bool {
+    s.xy().norm() < config.translation_tolerance && s.z.abs() < config.rotation_tolerance
+}
+
+/// Newton's method over one stage's map from `p` (updated in place), counting into `iterations`;
+/// returns whether it converged within the iteration limit.
+fn newton_stage(
+    m: &NdtMap,
+    source: &PointSet2,
+    p: &mut Vec3,
+    config: &NdtConfig,
+    iterations: &mut usize,
+) -> Result<bool, RegistrationError> {
+    let need = config.min_points_in_cells;
+    for _ in 0..config.max_iterations {
+        *iterations += 1;
+        let obj = m.objective(&source.points, p);
+        if obj.points_in_cells < need {
+            return Err(RegistrationError::TooFewInliers {
+                have: obj.points_in_cells,
+                need,
+            });
+        }
+        let step = newton_step(&obj, config, m.cell_size())?;
+        match line_search(m, source, p, &obj, &step, config) {
+            Some(s) => {
+                *p += s;
+                p.z = crate::math::wrap_angle(p.z);
+                if small_step(&s, config) {
+                    return Ok(true);
+                }
+            }
+            // No descent even at the tolerance scale: a (local) minimum.
+            None => return Ok(true),
+        }
+    }
+    Ok(false)
+}
+
+/// The Newton step of `obj` on its Hessian made positive definite, clipped to the trust region
+/// (`max_step_cells` cells of `cell` m, `max_step_rotation`).
+fn newton_step(
+    obj: &NdtObjective,
+    config: &NdtConfig,
+    cell: f64,
+) -> Result<Vec3, RegistrationError> {
+    let h = make_positive_definite(&obj.hessian);
+    let Some(step) = h.cholesky().map(|ch| -ch.solve(&obj.gradient)) else {
+        return Err(RegistrationError::Numerical(
+            "NDT Hessian could not be made positive definite".into(),
+        ));
+    };
+    if !step.iter().all(|v| v.is_finite()) {
+        return Err(RegistrationError::Numerical(
+            "NDT Newton step is not finite".into(),
+        ));
+    }
+    let max_t = config.max_step_cells * cell;
+    let shrink = (max_t / step.xy().norm())
+        .min(config.max_step_rotation / step.z.abs())
+        .min(1.0);
+    Ok(step * shrink)
+}
+
+/// Backtracking (Armijo) line search along `step` from `p`: the first halving of the step that
+/// decreases `f` enough, or `None` once the step is below the tolerances. Halving 60 times takes any
+/// finite step below the tolerances: the search ends.
+fn line_search(
+    m: &NdtMap,
+    source: &PointSet2,
+    p: &Vec3,
+    obj: &NdtObjective,
+    step: &Vec3,
+    config: &NdtConfig,
+) -> Option<Vec3> {
+    let slope = obj.gradient.dot(step);
+    let mut alpha = 1.0;
+    for _ in 0..60 {
+        let trial = p + step * alpha;
+        if m.value(&source.points, &pose(&trial)) <= obj.value + 1e-4 * alpha * slope {
+            return Some(step * alpha);
+        }
+        if small_step(&(step * alpha), config) {
+            return None;
+        }
+        alpha *= 0.5;
+    }
+    None
+}
+
+/// The registration result at the optimum `p` of the last stage's map, with the covariance of the
+/// module documentation.
+fn ndt_result(
+    map: &NdtMap,
+    source: &PointSet2,
+    p: &Vec3,
+    config: &NdtConfig,
+    converged: bool,
+    iterations: usize,
+) -> Result<RegistrationResult, RegistrationError> {
+    let need = config.min_points_in_cells;
+    let obj = map.objective(&source.points, p);
     if obj.points_in_cells < need {
         return Err(RegistrationError::TooFewInliers {
             have: obj.points_in_cells,
@@ -481,7 +530,7 @@ pub fn register_ndt(
     let g = Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
     let cov_delta = g.transpose() * cov_p * g;
     Ok(RegistrationResult {
-        t_target_source: pose(&p),
+        t_target_source: pose(p),
         covariance: covariance_ros_from_se2(&cov_delta),
         converged,
         iterations,

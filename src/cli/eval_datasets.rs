@@ -19,14 +19,19 @@ use std::path::Path;
 use super::eval::{EvalArgs, eval_config, methods, write_and_print};
 use super::source::{open_nuscenes, select_scenes, vod_sequences};
 use super::{CliError, progress};
-use crate::eval::Collector;
 use crate::eval::drives::{CrossDriveEval, DriveInfo, PairRecord};
 use crate::eval::report;
+use crate::eval::{Collector, EvalConfig};
 use crate::input::{Input, InputIssue};
-use crate::io::nuscenes::{NuscenesScene, OdometryDrift, SceneInputs, nuscenes_config};
+use crate::io::nuscenes::{
+    NuscenesDb, NuscenesScene, OdometryDrift, RadarSweep, SceneInputs, nuscenes_config,
+};
+use crate::io::nuscenes_pcd::NuscenesRadarFilter;
 use crate::io::vod_sequence::{VodInputs, vod_config};
 use crate::math::iso2_from_iso3;
-use crate::pipeline::Config;
+use crate::pipeline::{Config, PipelineStats};
+use indicatif::ProgressBar;
+use std::collections::BTreeMap;
 
 /// Runs `dc_loc eval --nuscenes DIR --version V`.
 pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
@@ -36,20 +41,7 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
     };
     let base = src.dataset_config(&nuscenes_config(&Config::default(), &[None; 5]))?;
     let filter = src.radar_filter()?;
-    let drift = OdometryDrift {
-        scale_error: args.odometry_scale_error,
-        yaw_rate_bias: args.odometry_yaw_bias_deg.to_radians(),
-    };
-    if !(drift.scale_error.is_finite() && drift.scale_error.abs() < 0.5) {
-        return Err(CliError::Usage(
-            "--odometry-scale-error must be in (-0.5, 0.5)".into(),
-        ));
-    }
-    if !drift.yaw_rate_bias.is_finite() {
-        return Err(CliError::Usage(
-            "--odometry-yaw-bias-deg must be finite".into(),
-        ));
-    }
+    let drift = odometry_drift(args)?;
     let mut eval = eval_config(args);
     // Pairs are across scenes: no pass within one scene counts.
     eval.min_pass_gap = f64::MAX;
@@ -61,21 +53,7 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
         .into_iter()
         .map(|i| &db.scenes[i])
         .collect();
-    let drives: Vec<DriveInfo> = scenes
-        .iter()
-        .map(|s| DriveInfo {
-            name: s.name.clone(),
-            location: s.location.clone(),
-            trajectory: s
-                .sweeps
-                .iter()
-                .map(|w| {
-                    let t = iso2_from_iso3(&w.t_global_ego);
-                    (t.translation.vector, t.rotation.angle())
-                })
-                .collect(),
-        })
-        .collect();
+    let drives = scene_drives(&scenes);
     let sweeps: usize = scenes.iter().map(|s| s.sweeps.len()).sum();
     log::info!(
         "{} {}: {} scenes, {} radar sweeps",
@@ -95,9 +73,118 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
         sweeps as u64,
         "{elapsed_precise} [{wide_bar}] {pos}/{len} sweeps, {msg} ({eta} left)",
     );
-    // Every sweep file of the scenes to be read must be there: say so now, not hours into the run.
+    let load = scenes_to_load(args, &db, &scenes, &cross)?;
+    let run = SceneRun {
+        db: &db,
+        base: &base,
+        eval: &eval,
+        filter: &filter,
+        drift,
+    };
+    let totals = run.read(&scenes, &load, &mut cross, &progress)?;
+    progress::clear(&progress);
+    if cross.records.is_empty() {
+        return Err(CliError::Usage(format!(
+            "no keyframe pairs: no two of the {} scenes pass within {} m of each other{}",
+            scenes.len(),
+            eval.pair_radius,
+            if args.any_heading {
+                ""
+            } else {
+                " in the same direction (try --any-heading)"
+            }
+        )));
+    }
+    log::info!(
+        "{} radar sweeps into the pipeline; dropped: {}",
+        totals.scans,
+        if totals.dropped.is_empty() {
+            "none".to_string()
+        } else {
+            totals
+                .dropped
+                .iter()
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    );
+    let summaries = report::summarize(&cross.results, &methods, &eval);
+    let intro = format!(
+        "nuScenes {} in {}: {} scenes ({} meet another scene and were read), {} keyframes, {} pairs \
+         across scenes (ground truth within {} m), at most {} keyframes ({:.1} MB of submap points) held \
+         at once, outlier threshold {} m\n",
+        src.version,
+        root.display(),
+        scenes.len(),
+        totals.loaded,
+        totals.keyframes,
+        cross.records.len(),
+        eval.pair_radius,
+        cross.max_retained,
+        (cross.max_points * std::mem::size_of::<crate::submap::SubmapPoint>()) as f64 / 1e6,
+        eval.outlier_threshold
+    );
+    write_and_print(
+        &summaries,
+        &eval,
+        &methods,
+        &args.out_dir,
+        |path| write_records(path, cross.drives(), &cross.records),
+        &intro,
+    )?;
+    Ok(())
+}
+
+/// The odometry drift of `--odometry-scale-error` and `--odometry-yaw-bias-deg`, checked.
+fn odometry_drift(args: &EvalArgs) -> Result<OdometryDrift, CliError> {
+    let drift = OdometryDrift {
+        scale_error: args.odometry_scale_error,
+        yaw_rate_bias: args.odometry_yaw_bias_deg.to_radians(),
+    };
+    if !(drift.scale_error.is_finite() && drift.scale_error.abs() < 0.5) {
+        return Err(CliError::Usage(
+            "--odometry-scale-error must be in (-0.5, 0.5)".into(),
+        ));
+    }
+    if !drift.yaw_rate_bias.is_finite() {
+        return Err(CliError::Usage(
+            "--odometry-yaw-bias-deg must be finite".into(),
+        ));
+    }
+    Ok(drift)
+}
+
+/// Each scene as a drive: its name, location and the planar ego poses of its sweeps.
+fn scene_drives(scenes: &[&NuscenesScene]) -> Vec<DriveInfo> {
+    scenes
+        .iter()
+        .map(|s| DriveInfo {
+            name: s.name.clone(),
+            location: s.location.clone(),
+            trajectory: s
+                .sweeps
+                .iter()
+                .map(|w| {
+                    let t = iso2_from_iso3(&w.t_global_ego);
+                    (t.translation.vector, t.rotation.angle())
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+/// Which scenes to read: those that meet another scene. Every sweep file of those must be there (said
+/// now, not hours into the run); with `--skip-incomplete-scenes` the scenes missing some are skipped
+/// instead.
+fn scenes_to_load(
+    args: &EvalArgs,
+    db: &NuscenesDb,
+    scenes: &[&NuscenesScene],
+    cross: &CrossDriveEval,
+) -> Result<Vec<bool>, CliError> {
     let mut load: Vec<bool> = (0..scenes.len()).map(|d| cross.needs_loading(d)).collect();
-    let mut missing: Vec<(usize, &crate::io::nuscenes::RadarSweep)> = Vec::new();
+    let mut missing: Vec<(usize, &RadarSweep)> = Vec::new();
     for (d, scene) in scenes.iter().enumerate().filter(|(d, _)| load[*d]) {
         missing.extend(
             scene
@@ -121,7 +208,7 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
                 first.token,
                 scenes[d].name,
                 db.dataroot.display(),
-                src.version
+                args.source.version
             )));
         }
         for &d in &incomplete {
@@ -129,96 +216,65 @@ pub fn eval_nuscenes(args: &EvalArgs) -> Result<(), CliError> {
             load[d] = false;
         }
     }
-    let (mut keyframes, mut loaded, mut scans) = (0usize, 0usize, 0u64);
-    let mut dropped: std::collections::BTreeMap<&str, u64> = Default::default();
-    for (d, scene) in scenes.iter().enumerate() {
-        if !load[d] {
-            progress.inc(scene.sweeps.len() as u64);
-            continue;
-        }
-        loaded += 1;
-        let cfg = nuscenes_config(&base, &scene.extrinsics());
-        let mut collector =
-            Collector::new(&cfg, &eval).map_err(|e| CliError::Usage(e.to_string()))?;
-        for input in SceneInputs::new(&db.dataroot, scene, filter.clone(), drift) {
-            match input {
-                Ok(input) => {
-                    if matches!(input, Input::Radar { .. }) {
-                        progress.inc(1);
-                    }
-                    collector.push(&input);
-                }
-                Err(issue) => {
-                    progress.inc(1);
-                    log::warn!("skipped: {issue}");
-                }
+    Ok(load)
+}
+
+/// What every scene is read with.
+struct SceneRun<'a> {
+    db: &'a NuscenesDb,
+    base: &'a Config,
+    eval: &'a EvalConfig,
+    filter: &'a NuscenesRadarFilter,
+    drift: OdometryDrift,
+}
+
+/// What reading the scenes gave.
+#[derive(Default)]
+struct SceneTotals {
+    keyframes: usize,
+    loaded: usize,
+    scans: u64,
+    dropped: BTreeMap<&'static str, u64>,
+}
+
+impl SceneRun<'_> {
+    /// Drives each scene to load through a [`Collector`] (its own extrinsics) and pairs its keyframes
+    /// with the earlier scenes' as it finishes; the progress bar counts the sweeps, skipped scenes'
+    /// included.
+    fn read(
+        &self,
+        scenes: &[&NuscenesScene],
+        load: &[bool],
+        cross: &mut CrossDriveEval,
+        progress: &ProgressBar,
+    ) -> Result<SceneTotals, CliError> {
+        let mut totals = SceneTotals::default();
+        for (d, scene) in scenes.iter().enumerate() {
+            if !load[d] {
+                progress.inc(scene.sweeps.len() as u64);
+                continue;
             }
-        }
-        let (kfs, stats) = collector.finish();
-        scans += stats.scans;
-        for (reason, n) in &stats.dropped {
-            *dropped.entry(reason.name()).or_default() += n;
-        }
-        keyframes += kfs.len();
-        let n = cross.add_drive(d, kfs);
-        progress.set_message(format!(
-            "{}: {} pairs so far, {} keyframes held",
-            scene.name,
-            cross.records.len(),
-            cross.retained()
-        ));
-        log::debug!("{}: {n} pairs", scene.name);
-    }
-    progress::clear(&progress);
-    if cross.records.is_empty() {
-        return Err(CliError::Usage(format!(
-            "no keyframe pairs: no two of the {} scenes pass within {} m of each other{}",
-            scenes.len(),
-            eval.pair_radius,
-            if args.any_heading {
-                ""
-            } else {
-                " in the same direction (try --any-heading)"
+            totals.loaded += 1;
+            let cfg = nuscenes_config(self.base, &scene.extrinsics());
+            let inputs =
+                SceneInputs::new(&self.db.dataroot, scene, self.filter.clone(), self.drift);
+            let (kfs, stats) = collect_drive(&cfg, self.eval, inputs, || progress.inc(1))?;
+            totals.scans += stats.scans;
+            for (reason, n) in &stats.dropped {
+                *totals.dropped.entry(reason.name()).or_default() += n;
             }
-        )));
-    }
-    log::info!(
-        "{scans} radar sweeps into the pipeline; dropped: {}",
-        if dropped.is_empty() {
-            "none".to_string()
-        } else {
-            dropped
-                .iter()
-                .map(|(k, v)| format!("{k} {v}"))
-                .collect::<Vec<_>>()
-                .join(", ")
+            totals.keyframes += kfs.len();
+            let n = cross.add_drive(d, kfs);
+            progress.set_message(format!(
+                "{}: {} pairs so far, {} keyframes held",
+                scene.name,
+                cross.records.len(),
+                cross.retained()
+            ));
+            log::debug!("{}: {n} pairs", scene.name);
         }
-    );
-    let summaries = report::summarize(&cross.results, &methods, &eval);
-    let intro = format!(
-        "nuScenes {} in {}: {} scenes ({} meet another scene and were read), {} keyframes, {} pairs \
-         across scenes (ground truth within {} m), at most {} keyframes ({:.1} MB of submap points) held \
-         at once, outlier threshold {} m\n",
-        src.version,
-        root.display(),
-        scenes.len(),
-        loaded,
-        keyframes,
-        cross.records.len(),
-        eval.pair_radius,
-        cross.max_retained,
-        (cross.max_points * std::mem::size_of::<crate::submap::SubmapPoint>()) as f64 / 1e6,
-        eval.outlier_threshold
-    );
-    write_and_print(
-        &summaries,
-        &eval,
-        &methods,
-        &args.out_dir,
-        |path| write_records(path, cross.drives(), &cross.records),
-        &intro,
-    )?;
-    Ok(())
+        Ok(totals)
+    }
 }
 
 /// The per-pair JSON lines of a cross-drive evaluation (one line per pair and method).
@@ -253,13 +309,13 @@ pub fn write_records(
 }
 
 /// Drives a fresh [`Collector`] for `cfg` over `inputs`; skipped messages are warned about. `tick` is
-/// called per radar message.
+/// called per radar message and per skipped message. Returns the keyframes and the pipeline's counts.
 fn collect_drive(
     cfg: &Config,
-    eval: &crate::eval::EvalConfig,
+    eval: &EvalConfig,
     inputs: impl Iterator<Item = Result<Input, InputIssue>>,
     mut tick: impl FnMut(),
-) -> Result<Vec<crate::eval::EvalKeyframe>, CliError> {
+) -> Result<(Vec<crate::eval::EvalKeyframe>, PipelineStats), CliError> {
     let mut collector = Collector::new(cfg, eval).map_err(|e| CliError::Usage(e.to_string()))?;
     for input in inputs {
         match input {
@@ -275,7 +331,7 @@ fn collect_drive(
             }
         }
     }
-    Ok(collector.finish().0)
+    Ok(collector.finish())
 }
 
 /// Runs `dc_loc eval --vod DIR`: every run of consecutive frames is a drive (all in VoD's one map
@@ -321,7 +377,7 @@ pub fn eval_vod(args: &EvalArgs) -> Result<(), CliError> {
     );
     let mut keyframes = 0;
     for (d, seq) in sequences.iter().enumerate() {
-        let kfs = collect_drive(&cfg, &eval, VodInputs::new(seq, src.frame_rate), || {
+        let (kfs, _) = collect_drive(&cfg, &eval, VodInputs::new(seq, src.frame_rate), || {
             progress.inc(1)
         })?;
         keyframes += kfs.len();

@@ -235,6 +235,7 @@ pub fn feed(drive: &SimDrive, p: &mut Pipeline, mut sink: impl FnMut(Vec<Event>)
     }
 }
 
+/// The ground truth of one keyframe.
 struct KfTruth {
     pose: Iso2,
     heading: f64,
@@ -242,6 +243,8 @@ struct KfTruth {
     turning: bool,
 }
 
+/// Judges the published closures against the ground truth of their keyframes and counts the revisit
+/// opportunities closed and missed (see the module documentation).
 fn judge(
     drive: &SimDrive,
     keyframes: &[(u64, Stamp)],
@@ -249,7 +252,33 @@ fn judge(
     rejections: &[(u64, String)],
     stats: &PipelineStats,
 ) -> RevisitReport {
-    let truth: BTreeMap<u64, KfTruth> = keyframes
+    let truth = keyframe_truth(drive, keyframes);
+    let reverse_radius = SAME_RADIUS + 2.0 * drive.setup.config.world.street.ego_lane_offset();
+    let opportunity = opportunities(&truth, reverse_radius);
+    let mut report = RevisitReport {
+        scenario: String::new(),
+        keyframes: stats.keyframes,
+        measured_drift: measured_drift(drive),
+        same: DirectionCounts::default(),
+        reverse: DirectionCounts::default(),
+        max_error: (0.0, 0.0),
+        rejected: stats
+            .rejected
+            .iter()
+            .map(|(r, n)| (r.name().to_string(), *n))
+            .collect(),
+        closures: Vec::new(),
+        missed: BTreeMap::new(),
+        missed_ids: Vec::new(),
+    };
+    let closed = judge_closures(&mut report, &truth, closures);
+    count_opportunities(&mut report, &opportunity, &closed, rejections);
+    report
+}
+
+/// The ground truth of each keyframe, by id.
+fn keyframe_truth(drive: &SimDrive, keyframes: &[(u64, Stamp)]) -> BTreeMap<u64, KfTruth> {
+    keyframes
         .iter()
         .map(|&(id, stamp)| {
             let s = drive.state_at(stamp);
@@ -263,15 +292,20 @@ fn judge(
                 },
             )
         })
-        .collect();
-    let reverse_radius = SAME_RADIUS + 2.0 * drive.setup.config.world.street.ego_lane_offset();
-    let is_reverse = |a: &KfTruth, b: &KfTruth| {
-        wrap_angle(a.heading - b.heading).abs() > 0.5 * std::f64::consts::PI
-    };
+        .collect()
+}
 
-    // Opportunities: the nearest earlier-lap keyframe per direction.
+/// The two keyframes were driven in opposite directions.
+fn is_reverse(a: &KfTruth, b: &KfTruth) -> bool {
+    wrap_angle(a.heading - b.heading).abs() > 0.5 * std::f64::consts::PI
+}
+
+/// Opportunities: keyframes on a later lap (not turning) with an earlier-lap keyframe within
+/// [`SAME_RADIUS`] in the same direction (value `false`) or else within `reverse_radius` in the opposite
+/// direction (value `true`).
+fn opportunities(truth: &BTreeMap<u64, KfTruth>, reverse_radius: f64) -> BTreeMap<u64, bool> {
     let mut opportunity: BTreeMap<u64, bool> = BTreeMap::new();
-    for (&q, tq) in &truth {
+    for (&q, tq) in truth {
         if tq.lap == 0 || tq.turning {
             continue;
         }
@@ -293,23 +327,16 @@ fn judge(
             opportunity.insert(q, true);
         }
     }
+    opportunity
+}
 
-    let mut report = RevisitReport {
-        scenario: String::new(),
-        keyframes: stats.keyframes,
-        measured_drift: measured_drift(drive),
-        same: DirectionCounts::default(),
-        reverse: DirectionCounts::default(),
-        max_error: (0.0, 0.0),
-        rejected: stats
-            .rejected
-            .iter()
-            .map(|(r, n)| (r.name().to_string(), *n))
-            .collect(),
-        closures: Vec::new(),
-        missed: BTreeMap::new(),
-        missed_ids: Vec::new(),
-    };
+/// Judges each closure between known keyframes into the report's counts, errors and closure list;
+/// returns the query keyframes closed by a correct closure.
+fn judge_closures(
+    report: &mut RevisitReport,
+    truth: &BTreeMap<u64, KfTruth>,
+    closures: &[LoopClosure],
+) -> BTreeMap<u64, bool> {
     let mut closed: BTreeMap<u64, bool> = BTreeMap::new();
     for c in closures {
         let (Some(tq), Some(tm)) = (truth.get(&c.query_id), truth.get(&c.match_id)) else {
@@ -347,7 +374,18 @@ fn judge(
             score: c.score,
         });
     }
-    for (q, rev) in &opportunity {
+    closed
+}
+
+/// Counts the opportunities and those closed per direction; each missed one is counted under the
+/// reasons its candidates were rejected for (see [`RevisitReport::missed`]).
+fn count_opportunities(
+    report: &mut RevisitReport,
+    opportunity: &BTreeMap<u64, bool>,
+    closed: &BTreeMap<u64, bool>,
+    rejections: &[(u64, String)],
+) {
+    for (q, rev) in opportunity {
         let counts = if *rev {
             &mut report.reverse
         } else {
@@ -377,7 +415,6 @@ fn judge(
             *report.missed.entry(w.to_string()).or_default() += 1;
         }
     }
-    report
 }
 
 /// Odometry position error at the end of the first lap over the ground-truth path driven.

@@ -67,103 +67,153 @@ impl KeyframeDb {
         session: u32,
         s: &SearchSettings,
     ) -> Vec<Candidate> {
-        let query = q.query;
-        let mut found: Vec<(usize, CandidateSource)> = Vec::new();
-        let eligible = |r: &KeyframeRecord| {
-            r.session != session || query.path_distance - r.path_distance >= s.min_path_gap
+        let search = Search {
+            db: self,
+            query: q.query,
+            session,
+            s,
         };
         // 1. Odometry, drift-tolerant: |p_q - p_i| <= radius + drift_rate * (path_q - path_i), and, once a
         //    closure aligned this session, the same around the corrected position with the drift since then.
-        let p = query.t_odom_body.translation.vector;
-        let outer = (s.radius + s.drift_rate * query.path_distance.max(0.0)).min(s.max_radius);
+        let p = q.query.t_odom_body.translation.vector;
         let corrected = q.alignment.map(|(a, path_a)| {
             let c = (a * nalgebra::Point2::from(p)).coords;
             (
                 c,
-                (s.radius + s.drift_rate * (query.path_distance - path_a).abs()).min(s.max_radius),
+                (s.radius + s.drift_rate * (q.query.path_distance - path_a).abs())
+                    .min(s.max_radius),
             )
         });
-        let around = |centre: Vec2,
-                      r: f64,
-                      found: &mut Vec<(usize, CandidateSource)>,
-                      drift_radius: bool| {
-            let mut visit = |i: usize, d2: f64| {
-                let Some(rec) = self.records.get(i) else {
-                    return;
-                };
-                if rec.session != session || !eligible(rec) {
-                    return;
-                }
-                if drift_radius {
-                    let allowed = (s.radius
-                        + s.drift_rate * (query.path_distance - rec.path_distance))
-                        .min(s.max_radius);
-                    if d2.sqrt() > allowed {
-                        return;
-                    }
-                }
-                found.push((i, CandidateSource::Odometry));
-            };
-            self.positions.within(&[centre.x, centre.y], r, &mut visit);
-        };
-        around(p, outer, &mut found, true);
+        let centre = corrected.map_or(p, |(c, _)| c);
+        let mut found = search.odometry_hits(p, corrected);
+        // 2. Place descriptors, any session.
+        search.add_place_hits(&mut found);
+        let all = search.scored(merge_sources(found));
+        search.interleave(&all, centre)
+    }
+}
+
+/// One candidate search: the database, the query, its session and the settings.
+struct Search<'a> {
+    db: &'a KeyframeDb,
+    query: &'a KeyframeRecord,
+    session: u32,
+    s: &'a SearchSettings,
+}
+
+impl Search<'_> {
+    /// Another session's keyframe, or one at least `min_path_gap` of path before the query.
+    fn eligible(&self, r: &KeyframeRecord) -> bool {
+        r.session != self.session
+            || self.query.path_distance - r.path_distance >= self.s.min_path_gap
+    }
+
+    /// This session's keyframes around the odometry position `p` within the drift radius and, given
+    /// `corrected` (the corrected position and its radius), around that; only the hits nearest the
+    /// (corrected) predicted position are kept for ranking: a long drive makes the drift radius hold
+    /// hundreds of keyframes, and comparing place descriptors with all of them would dominate the
+    /// query (the place retrieval still sees every keyframe).
+    fn odometry_hits(
+        &self,
+        p: Vec2,
+        corrected: Option<(Vec2, f64)>,
+    ) -> Vec<(usize, CandidateSource)> {
+        let (query, s) = (self.query, self.s);
+        let mut found: Vec<(usize, CandidateSource)> = Vec::new();
+        let outer = (s.radius + s.drift_rate * query.path_distance.max(0.0)).min(s.max_radius);
+        self.around(p, outer, &mut found, true);
         if let Some((c, r)) = corrected {
-            around(c, r, &mut found, false);
+            self.around(c, r, &mut found, false);
         }
-        // Only the odometry hits nearest the (corrected) predicted position are ranked further: a long
-        // drive makes the drift radius hold hundreds of keyframes, and comparing place descriptors with
-        // all of them would dominate the query (the place retrieval below still sees every keyframe).
         let keep = (4 * s.max_candidates).max(16);
         if found.len() > keep {
             let centre = corrected.map_or(p, |(c, _)| c);
-            let d2 =
-                |i: usize| (self.records[i].t_odom_body.translation.vector - centre).norm_squared();
+            let d2 = |i: usize| {
+                (self.db.records[i].t_odom_body.translation.vector - centre).norm_squared()
+            };
             found.sort_by(|a, b| d2(a.0).total_cmp(&d2(b.0)).then(a.0.cmp(&b.0)));
             found.dedup_by_key(|f| f.0);
             found.truncate(keep);
         }
-        // 2. Place descriptors, any session.
-        for (item, _) in self.place.nearest(&query.place, s.place_retrieve) {
+        found
+    }
+
+    /// This session's eligible keyframes within `r` of `centre`, and with `drift_radius` also within
+    /// the drift radius of the path driven since each.
+    fn around(
+        &self,
+        centre: Vec2,
+        r: f64,
+        found: &mut Vec<(usize, CandidateSource)>,
+        drift_radius: bool,
+    ) {
+        let (query, s) = (self.query, self.s);
+        let mut visit = |i: usize, d2: f64| {
+            let Some(rec) = self.db.records.get(i) else {
+                return;
+            };
+            if rec.session != self.session || !self.eligible(rec) {
+                return;
+            }
+            if drift_radius {
+                let allowed = (s.radius + s.drift_rate * (query.path_distance - rec.path_distance))
+                    .min(s.max_radius);
+                if d2.sqrt() > allowed {
+                    return;
+                }
+            }
+            found.push((i, CandidateSource::Odometry));
+        };
+        self.db
+            .positions
+            .within(&[centre.x, centre.y], r, &mut visit);
+    }
+
+    /// The eligible keyframes of any session among the `place_retrieve` nearest place descriptors.
+    fn add_place_hits(&self, found: &mut Vec<(usize, CandidateSource)>) {
+        for (item, _) in self
+            .db
+            .place
+            .nearest(&self.query.place, self.s.place_retrieve)
+        {
             let i = item as usize;
-            if self.records.get(i).is_some_and(|r| eligible(r)) {
+            if self.db.records.get(i).is_some_and(|r| self.eligible(r)) {
                 found.push((i, CandidateSource::Place));
             }
         }
-        found.sort_by_key(|f| f.0);
-        let mut merged: Vec<(usize, CandidateSource)> = Vec::with_capacity(found.len());
-        for (i, src) in found {
-            match merged.last_mut() {
-                Some(last) if last.0 == i => {
-                    if last.1 != src {
-                        last.1 = CandidateSource::Both;
-                    }
-                }
-                _ => merged.push((i, src)),
-            }
-        }
+    }
+
+    /// Each candidate with its place distance; place-only candidates beyond `place_max_distance`
+    /// dropped.
+    fn scored(&self, merged: Vec<(usize, CandidateSource)>) -> Vec<Candidate> {
+        let query = self.query;
         let query_columns = query.place.columns();
-        let all: Vec<Candidate> = merged
+        merged
             .into_iter()
             .filter_map(|(index, source)| {
-                let place_distance = if query.place.sectors == self.records[index].place.sectors {
-                    column_distance(&query_columns, &self.place_columns[index]).0
+                let place_distance = if query.place.sectors == self.db.records[index].place.sectors
+                {
+                    column_distance(&query_columns, &self.db.place_columns[index]).0
                 } else {
                     1.0
                 };
                 let keep =
-                    source != CandidateSource::Place || place_distance <= s.place_max_distance;
+                    source != CandidateSource::Place || place_distance <= self.s.place_max_distance;
                 keep.then_some(Candidate {
                     index,
                     source,
                     place_distance,
                 })
             })
-            .collect();
-        // Two rankings, interleaved: odometry candidates nearest to the (corrected) predicted position
-        // first (right when drift is small), and every candidate by place distance (right when the
-        // odometry has drifted or the keyframe is another session's).
-        let centre = corrected.map_or(p, |(c, _)| c);
-        let metric = |i: usize| (self.records[i].t_odom_body.translation.vector - centre).norm();
+            .collect()
+    }
+
+    /// Two rankings, interleaved: odometry candidates nearest to the (corrected) predicted position
+    /// `centre` first (right when drift is small), and every candidate by place distance (right when
+    /// the odometry has drifted or the keyframe is another session's); at most `max_candidates`.
+    fn interleave(&self, all: &[Candidate], centre: Vec2) -> Vec<Candidate> {
+        let max_candidates = self.s.max_candidates;
+        let metric = |i: usize| (self.db.records[i].t_odom_body.translation.vector - centre).norm();
         let mut by_position: Vec<&Candidate> = all
             .iter()
             .filter(|c| c.source != CandidateSource::Place)
@@ -179,19 +229,36 @@ impl KeyframeDb {
                 .total_cmp(&b.place_distance)
                 .then(a.index.cmp(&b.index))
         });
-        let mut out: Vec<Candidate> = Vec::with_capacity(s.max_candidates);
+        let mut out: Vec<Candidate> = Vec::with_capacity(max_candidates);
         let (mut a, mut b) = (by_position.into_iter(), by_place.into_iter());
-        while out.len() < s.max_candidates {
+        while out.len() < max_candidates {
             let next = [a.next(), b.next()];
             if next.iter().all(Option::is_none) {
                 break;
             }
             for c in next.into_iter().flatten() {
-                if out.len() < s.max_candidates && !out.iter().any(|o| o.index == c.index) {
+                if out.len() < max_candidates && !out.iter().any(|o| o.index == c.index) {
                     out.push(*c);
                 }
             }
         }
         out
     }
+}
+
+/// The hits by keyframe, each once: from the odometry, from the place descriptor, or both.
+fn merge_sources(mut found: Vec<(usize, CandidateSource)>) -> Vec<(usize, CandidateSource)> {
+    found.sort_by_key(|f| f.0);
+    let mut merged: Vec<(usize, CandidateSource)> = Vec::with_capacity(found.len());
+    for (i, src) in found {
+        match merged.last_mut() {
+            Some(last) if last.0 == i => {
+                if last.1 != src {
+                    last.1 = CandidateSource::Both;
+                }
+            }
+            _ => merged.push((i, src)),
+        }
+    }
+    merged
 }

@@ -108,6 +108,49 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), NuscenesExportError> {
     })
 }
 
+/// Token kinds: the first eight hex digits of a token name its table.
+const SENSOR: u32 = 1;
+const CALIB: u32 = 2;
+const LOG: u32 = 3;
+const SCENE: u32 = 4;
+const SAMPLE: u32 = 5;
+const DATA: u32 = 6;
+const EGO: u32 = 7;
+
+/// The one log all scenes belong to.
+const LOGFILE: &str = "sim-2026-01-01-00-00-00+0000";
+
+/// A stamp in microseconds, as the tables and file names have it.
+fn us(s: Stamp) -> i64 {
+    s.0.div_euclid(1000)
+}
+
+/// The rows of the seven tables.
+#[derive(Default)]
+struct Tables {
+    sensors: Vec<Value>,
+    calibs: Vec<Value>,
+    logs: Vec<Value>,
+    scenes: Vec<Value>,
+    samples: Vec<Value>,
+    data: Vec<Value>,
+    egos: Vec<Value>,
+}
+
+/// The samples of one scene: every 0.5 s from its first scan, numbered from `first` in the sample table.
+struct SceneSamples {
+    first: usize,
+    count: usize,
+    t0_us: i64,
+}
+
+impl SceneSamples {
+    /// Timestamp of the scene's sample `j`, microseconds.
+    fn time(&self, j: usize) -> i64 {
+        self.t0_us + (j as i64) * 500_000
+    }
+}
+
 /// Writes `drive` as a nuScenes dataset under `dataroot` (tables in `dataroot/version`), one scene per
 /// lap, all scenes in one log at `location`.
 pub fn export_nuscenes(
@@ -120,35 +163,50 @@ pub fn export_nuscenes(
     if drive.setup.config.radar_preset != RadarPreset::Nuscenes || radars.len() != 5 {
         return Err(NuscenesExportError::NotNuscenesRadars);
     }
-    const SENSOR: u32 = 1;
-    const CALIB: u32 = 2;
-    const LOG: u32 = 3;
-    const SCENE: u32 = 4;
-    const SAMPLE: u32 = 5;
-    const DATA: u32 = 6;
-    const EGO: u32 = 7;
-    let logfile = "sim-2026-01-01-00-00-00+0000";
-    let us = |s: Stamp| s.0.div_euclid(1000);
+    let mut tables = Tables::default();
+    add_sensors(radars, &mut tables);
+    tables.logs = vec![
+        json!({"token": token(LOG, 0), "logfile": LOGFILE, "vehicle": "sim",
+        "date_captured": "2026-01-01", "location": location}),
+    ];
+    // Scenes: one per lap, the scans of that lap.
+    let mut names = Vec::new();
+    let mut keyframes = 0;
+    for (k, scans) in scans_by_lap(drive)
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| !v.is_empty())
+    {
+        let (name, samples) = add_scene(k, scans, &mut tables);
+        names.push(name);
+        keyframes += add_sweeps(drive, dataroot, scans, &samples, &mut tables)?;
+    }
+    let sweeps = tables.data.len();
+    write_tables(&dataroot.join(version), tables)?;
+    Ok(NuscenesExport {
+        scenes: names,
+        sweeps,
+        keyframes,
+    })
+}
 
-    let mut sensors = Vec::new();
-    let mut calibs = Vec::new();
+/// The sensor and calibrated_sensor rows of the five radars.
+fn add_sensors(radars: &[crate::sim::SimRadarConfig], tables: &mut Tables) {
     for (i, r) in radars.iter().enumerate() {
-        sensors.push(
+        tables.sensors.push(
             json!({"token": token(SENSOR, i), "channel": RADAR_CHANNELS[i], "modality": "radar"}),
         );
         let [x, y, z, roll, pitch, yaw] = r.extrinsic;
         let (t, q) = pose_json(&crate::math::iso3_from_xyz_rpy(x, y, z, roll, pitch, yaw));
-        calibs.push(
+        tables.calibs.push(
             json!({"token": token(CALIB, i), "sensor_token": token(SENSOR, i),
             "translation": t, "rotation": q, "camera_intrinsic": []}),
         );
     }
-    let logs = vec![
-        json!({"token": token(LOG, 0), "logfile": logfile, "vehicle": "sim",
-        "date_captured": "2026-01-01", "location": location}),
-    ];
+}
 
-    // Scenes: one per lap, the scans of that lap.
+/// The drive's scans by lap (laps without scans left empty).
+fn scans_by_lap(drive: &SimDrive) -> Vec<Vec<&crate::sim::SimScan>> {
     let mut lap_scans: Vec<Vec<&crate::sim::SimScan>> = Vec::new();
     for s in &drive.scans {
         let lap = s.lap.lap;
@@ -157,79 +215,105 @@ pub fn export_nuscenes(
         }
         lap_scans[lap].push(s);
     }
-    let (mut scenes, mut samples, mut data, mut egos) = (vec![], vec![], vec![], vec![]);
-    let mut names = Vec::new();
-    let mut keyframes = 0;
-    for (k, scans) in lap_scans.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
-        let (t0, t1) = (scans[0].scan.stamp, scans[scans.len() - 1].scan.stamp);
-        // Samples every 0.5 s; sample j is keyed by the first scan of each radar at or after its time.
-        let n_samples = ((t1.secs_since(t0) / 0.5).floor() as usize) + 1;
-        let first_sample = samples.len();
-        let sample_time = |j: usize| us(t0) + (j as i64) * 500_000;
-        for j in 0..n_samples {
-            let idx = first_sample + j;
-            samples.push(
-                json!({"token": token(SAMPLE, idx), "timestamp": sample_time(j),
-                "scene_token": token(SCENE, k),
-                "prev": if j == 0 { String::new() } else { token(SAMPLE, idx - 1) },
-                "next": if j + 1 == n_samples { String::new() } else { token(SAMPLE, idx + 1) }}),
-            );
-        }
-        let name = format!("scene-{:04}", k + 1);
-        scenes.push(json!({"token": token(SCENE, k), "log_token": token(LOG, 0),
-            "nbr_samples": n_samples, "first_sample_token": token(SAMPLE, first_sample),
-            "last_sample_token": token(SAMPLE, first_sample + n_samples - 1),
-            "name": name, "description": format!("simulated lap {}", k + 1)}));
-        names.push(name);
-        let mut next_key = [0usize; 5];
-        for s in scans {
-            let r = s.scan.radar;
-            let ts = us(s.scan.stamp);
-            // The sample this sweep belongs to: the next one at or after it (the last one at the end).
-            let j = (0..n_samples)
-                .find(|&j| sample_time(j) >= ts)
-                .unwrap_or(n_samples - 1);
-            let is_key = next_key[r] < n_samples && ts >= sample_time(next_key[r]);
-            let sample_j = if is_key { next_key[r] } else { j };
-            if is_key {
-                while next_key[r] < n_samples && sample_time(next_key[r]) <= ts {
-                    next_key[r] += 1;
-                }
-                keyframes += 1;
-            }
-            let channel = RADAR_CHANNELS[r];
-            let folder = if is_key { "samples" } else { "sweeps" };
-            let filename = format!("{folder}/{channel}/{logfile}__{channel}__{ts}.pcd");
-            write(&dataroot.join(&filename), &pcd_bytes(s))?;
-            let i = data.len();
-            let t_map_body = iso3_from_iso2(&drive.state_at(s.scan.stamp).t_map_body);
-            let (t, q) = pose_json(&t_map_body);
-            egos.push(
-                json!({"token": token(EGO, i), "timestamp": ts, "rotation": q, "translation": t}),
-            );
-            data.push(json!({"token": token(DATA, i), "sample_token": token(SAMPLE, first_sample + sample_j),
-                "ego_pose_token": token(EGO, i), "calibrated_sensor_token": token(CALIB, r),
-                "timestamp": ts, "fileformat": "pcd", "is_key_frame": is_key, "height": 0, "width": 0,
-                "filename": filename, "prev": "", "next": ""}));
-        }
+    lap_scans
+}
+
+/// The scene row of lap `k` and its sample rows (every 0.5 s over its scans); returns the scene's name
+/// and its samples.
+fn add_scene(
+    k: usize,
+    scans: &[&crate::sim::SimScan],
+    tables: &mut Tables,
+) -> (String, SceneSamples) {
+    let (t0, t1) = (scans[0].scan.stamp, scans[scans.len() - 1].scan.stamp);
+    // Samples every 0.5 s; sample j is keyed by the first scan of each radar at or after its time.
+    let n_samples = ((t1.secs_since(t0) / 0.5).floor() as usize) + 1;
+    let first_sample = tables.samples.len();
+    let samples = SceneSamples {
+        first: first_sample,
+        count: n_samples,
+        t0_us: us(t0),
+    };
+    for j in 0..n_samples {
+        let idx = first_sample + j;
+        tables.samples.push(
+            json!({"token": token(SAMPLE, idx), "timestamp": samples.time(j),
+            "scene_token": token(SCENE, k),
+            "prev": if j == 0 { String::new() } else { token(SAMPLE, idx - 1) },
+            "next": if j + 1 == n_samples { String::new() } else { token(SAMPLE, idx + 1) }}),
+        );
     }
-    let sweeps = data.len();
-    let dir = dataroot.join(version);
+    let name = format!("scene-{:04}", k + 1);
+    tables
+        .scenes
+        .push(json!({"token": token(SCENE, k), "log_token": token(LOG, 0),
+        "nbr_samples": n_samples, "first_sample_token": token(SAMPLE, first_sample),
+        "last_sample_token": token(SAMPLE, first_sample + n_samples - 1),
+        "name": name, "description": format!("simulated lap {}", k + 1)}));
+    (name, samples)
+}
+
+/// Writes the PCD file of each scan of a scene and adds its sample_data and ego_pose rows: the first
+/// scan of each radar at or after a sample's time is that sample's keyframe, the others are sweeps of
+/// the next sample. Returns the number of keyframes.
+fn add_sweeps(
+    drive: &SimDrive,
+    dataroot: &Path,
+    scans: &[&crate::sim::SimScan],
+    samples: &SceneSamples,
+    tables: &mut Tables,
+) -> Result<usize, NuscenesExportError> {
+    let n_samples = samples.count;
+    let mut keyframes = 0;
+    let mut next_key = [0usize; 5];
+    for s in scans {
+        let r = s.scan.radar;
+        let ts = us(s.scan.stamp);
+        // The sample this sweep belongs to: the next one at or after it (the last one at the end).
+        let j = (0..n_samples)
+            .find(|&j| samples.time(j) >= ts)
+            .unwrap_or(n_samples - 1);
+        let is_key = next_key[r] < n_samples && ts >= samples.time(next_key[r]);
+        let sample_j = if is_key { next_key[r] } else { j };
+        if is_key {
+            while next_key[r] < n_samples && samples.time(next_key[r]) <= ts {
+                next_key[r] += 1;
+            }
+            keyframes += 1;
+        }
+        let channel = RADAR_CHANNELS[r];
+        let folder = if is_key { "samples" } else { "sweeps" };
+        let filename = format!("{folder}/{channel}/{LOGFILE}__{channel}__{ts}.pcd");
+        write(&dataroot.join(&filename), &pcd_bytes(s))?;
+        let i = tables.data.len();
+        let t_map_body = iso3_from_iso2(&drive.state_at(s.scan.stamp).t_map_body);
+        let (t, q) = pose_json(&t_map_body);
+        tables.egos.push(
+            json!({"token": token(EGO, i), "timestamp": ts, "rotation": q, "translation": t}),
+        );
+        tables.data.push(
+            json!({"token": token(DATA, i), "sample_token": token(SAMPLE, samples.first + sample_j),
+            "ego_pose_token": token(EGO, i), "calibrated_sensor_token": token(CALIB, r),
+            "timestamp": ts, "fileformat": "pcd", "is_key_frame": is_key, "height": 0, "width": 0,
+            "filename": filename, "prev": "", "next": ""}),
+        );
+    }
+    Ok(keyframes)
+}
+
+/// Writes each table as `<dir>/<table>.json`.
+fn write_tables(dir: &Path, tables: Tables) -> Result<(), NuscenesExportError> {
     for (name, rows) in [
-        ("sensor", sensors),
-        ("calibrated_sensor", calibs),
-        ("log", logs),
-        ("scene", scenes),
-        ("sample", samples),
-        ("sample_data", data),
-        ("ego_pose", egos),
+        ("sensor", tables.sensors),
+        ("calibrated_sensor", tables.calibs),
+        ("log", tables.logs),
+        ("scene", tables.scenes),
+        ("sample", tables.samples),
+        ("sample_data", tables.data),
+        ("ego_pose", tables.egos),
     ] {
         let text = serde_json::to_string_pretty(&Value::Array(rows)).unwrap_or_default();
         write(&dir.join(format!("{name}.json")), text.as_bytes())?;
     }
-    Ok(NuscenesExport {
-        scenes: names,
-        sweeps,
-        keyframes,
-    })
+    Ok(())
 }

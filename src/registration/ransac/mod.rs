@@ -16,10 +16,15 @@
 //! enter the kept set. A motion that does is locally optimised (LO-RANSAC, Chum et al. 2003).
 //! [`ransac_hypotheses`] keeps the best distinct motions for the caller to judge geometrically. The
 //! random generator is seeded from the configuration: the same input gives the same output.
+//!
+//! Parts: `columns` (the inlier test and support count over blocks of pairs).
+
+mod columns;
 
 use crate::math::{Iso2, Mat2, Vec2};
 use crate::registration::{PointSet2, RegistrationError};
 use crate::validate::{Range, Validator};
+use columns::{Columns, Scorer};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
@@ -213,38 +218,108 @@ pub fn ransac_hypotheses(
     if n < 2 {
         return Err(RegistrationError::TooFewInliers { have: n, need: 2 });
     }
-    // Gather the pairs contiguously (cache-friendly scoring) and the per-pair squared inlier radius.
-    let mut xs = Vec::with_capacity(n);
-    let mut ys = Vec::with_capacity(n);
-    let mut thr2 = Vec::with_capacity(n);
-    let maha = cfg.mahalanobis_gate > 0.0;
-    for c in correspondences {
-        let (i, j) = (c.source as usize, c.target as usize);
-        let (Some(x), Some(y)) = (source.points.get(i), target.points.get(j)) else {
-            return Err(RegistrationError::Numerical(format!(
-                "correspondence ({i}, {j}) out of range ({} source, {} target points)",
-                source.len(),
-                target.len()
-            )));
-        };
-        if !(x.iter().all(|v| v.is_finite()) && y.iter().all(|v| v.is_finite())) {
-            return Err(RegistrationError::Numerical(format!(
-                "non-finite point in correspondence ({i}, {j})"
-            )));
-        }
-        xs.push(*x);
-        ys.push(*y);
-        thr2.push(if maha {
-            let (Some(sx), Some(sy)) = (source.covs.get(i), target.covs.get(j)) else {
-                return Err(RegistrationError::Numerical(
-                    "point set has fewer covariances than points".into(),
-                ));
-            };
-            cfg.mahalanobis_gate * cfg.mahalanobis_gate * (lambda_max(sx) + lambda_max(sy))
-        } else {
-            cfg.inlier_threshold * cfg.inlier_threshold
+    let pairs = Pairs::gather(source, target, correspondences, cfg)?;
+    let search = search(&pairs, correspondences, cfg, distinct);
+    if search.kept.is_empty() {
+        return Err(RegistrationError::TooFewInliers { have: 0, need: 2 });
+    }
+    // Final least-squares refits of each kept motion: inliers of the current motion, then refit,
+    // until stable.
+    let inliers_of = |t: &Iso2| {
+        classify(
+            source,
+            target,
+            correspondences,
+            &pairs.xs,
+            &pairs.ys,
+            &pairs.thr2,
+            t,
+            cfg,
+        )
+    };
+    let mut out = Vec::with_capacity(search.kept.len());
+    for (_, t) in search.kept {
+        let (t, inliers) = refit(t, &pairs, cfg, &inliers_of);
+        out.push(RansacResult {
+            t_target_source: t,
+            inliers,
+            iterations: search.iterations,
+            hypotheses: search.hypotheses,
         });
     }
+    Ok(out)
+}
+
+/// The correspondences' points gathered contiguously (cache-friendly scoring) with each pair's squared
+/// inlier radius.
+struct Pairs {
+    xs: Vec<Vec2>,
+    ys: Vec<Vec2>,
+    thr2: Vec<f64>,
+}
+
+impl Pairs {
+    /// Errors for an index out of range, a non-finite point or missing covariances (as [`ransac`]).
+    fn gather(
+        source: &PointSet2,
+        target: &PointSet2,
+        correspondences: &[Correspondence],
+        cfg: &RansacConfig,
+    ) -> Result<Self, RegistrationError> {
+        let n = correspondences.len();
+        let mut xs = Vec::with_capacity(n);
+        let mut ys = Vec::with_capacity(n);
+        let mut thr2 = Vec::with_capacity(n);
+        let maha = cfg.mahalanobis_gate > 0.0;
+        for c in correspondences {
+            let (i, j) = (c.source as usize, c.target as usize);
+            let (Some(x), Some(y)) = (source.points.get(i), target.points.get(j)) else {
+                return Err(RegistrationError::Numerical(format!(
+                    "correspondence ({i}, {j}) out of range ({} source, {} target points)",
+                    source.len(),
+                    target.len()
+                )));
+            };
+            if !(x.iter().all(|v| v.is_finite()) && y.iter().all(|v| v.is_finite())) {
+                return Err(RegistrationError::Numerical(format!(
+                    "non-finite point in correspondence ({i}, {j})"
+                )));
+            }
+            xs.push(*x);
+            ys.push(*y);
+            thr2.push(if maha {
+                let (Some(sx), Some(sy)) = (source.covs.get(i), target.covs.get(j)) else {
+                    return Err(RegistrationError::Numerical(
+                        "point set has fewer covariances than points".into(),
+                    ));
+                };
+                cfg.mahalanobis_gate * cfg.mahalanobis_gate * (lambda_max(sx) + lambda_max(sy))
+            } else {
+                cfg.inlier_threshold * cfg.inlier_threshold
+            });
+        }
+        Ok(Pairs { xs, ys, thr2 })
+    }
+}
+
+/// What the sampling kept: motions (support, motion), best first, with the pairs drawn and the
+/// hypotheses scored.
+struct Search {
+    kept: Vec<(usize, Iso2)>,
+    iterations: usize,
+    hypotheses: usize,
+}
+
+/// The sampling loop: draws minimal sets until the adaptive stopping rule (or `max_iterations`) is met,
+/// scores each motion that passes the cheap checks, locally optimises those that enter the kept set.
+fn search(
+    pairs: &Pairs,
+    correspondences: &[Correspondence],
+    cfg: &RansacConfig,
+    distinct: &Distinct,
+) -> Search {
+    let n = correspondences.len();
+    let (xs, ys, thr2) = (&pairs.xs, &pairs.ys, &pairs.thr2);
     // Source slot of each pair (dense ids): a motion is scored by the source points it explains, not
     // by its pairs, as the final inliers are counted (one per source point).
     let mut slot_of: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
@@ -255,14 +330,9 @@ pub fn ransac_hypotheses(
             *slot_of.entry(c.source).or_insert(next)
         })
         .collect();
-    let cols = Columns::new(&xs, &ys, &thr2);
+    let cols = Columns::new(xs, ys, thr2);
     let mut ids = Vec::with_capacity(n);
-    let mut score = Scorer {
-        cols: &cols,
-        slots: &slots,
-        seen: vec![0; slot_of.len()],
-        stamp: 0,
-    };
+    let mut score = Scorer::new(&cols, &slots, slot_of.len());
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
     let min_sep2 = cfg.min_sample_separation * cfg.min_sample_separation;
@@ -276,26 +346,10 @@ pub fn ransac_hypotheses(
         iterations += 1;
         let a = rng.random_range(0..n);
         let b = rng.random_range(0..n);
-        let (ca, cb) = (&correspondences[a], &correspondences[b]);
-        if ca.source == cb.source || ca.target == cb.target {
+        let Some(t) = minimal_motion(pairs, correspondences, a, b, min_sep2) else {
             continue;
-        }
-        let u = xs[b] - xs[a];
-        let v = ys[b] - ys[a];
-        let (lu2, lv2) = (u.norm_squared(), v.norm_squared());
-        if lu2 < min_sep2 || lu2 <= 1e-18 {
-            continue;
-        }
-        // Rigidity: ||u| - |v|| can be at most the sum of the two inlier radii.
-        let slack = thr2[a].sqrt() + thr2[b].sqrt();
-        if (lu2.sqrt() - lv2.sqrt()).abs() > slack {
-            continue;
-        }
+        };
         hypotheses += 1;
-        let rot = nalgebra::UnitComplex::new((u.x * v.y - u.y * v.x).atan2(u.dot(&v)));
-        let mid_x = 0.5 * (xs[a] + xs[b]);
-        let mid_y = 0.5 * (ys[a] + ys[b]);
-        let t = Iso2::from_parts((mid_y - rot * mid_x).into(), rot);
         // The support a motion needs to enter the kept list.
         let bar = match kept.last() {
             None => 0,
@@ -306,78 +360,126 @@ pub fn ransac_hypotheses(
         if count <= bar {
             continue;
         }
-        // Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points,
-        // which cuts far inliers off; refit on the inliers and rescore while the support grows.
-        let (mut count, mut t) = (count, t);
-        for _ in 0..LOCAL_ROUNDS {
-            cols.inliers_into(&t, &mut ids);
-            let Some(t_fit) = cols.fit(&ids) else {
-                break;
-            };
-            let c_fit = score.count(&t_fit, 0);
-            if c_fit <= count {
-                break;
-            }
-            count = c_fit;
-            t = t_fit;
-        }
+        let (count, t) = local_optimisation(&cols, &mut score, &mut ids, count, t);
         let best_before = kept.first().map_or(0, |k| k.0);
         insert_distinct(&mut kept, (count, t), keep, distinct);
         if count > best_before {
-            let w = count as f64 / n as f64;
-            let p_good = w * w;
-            needed = if p_good >= 1.0 {
-                iterations
-            } else {
-                let k = (log_fail / (1.0 - p_good).ln()).ceil();
-                if k.is_finite() {
-                    (k as usize).clamp(1, cfg.max_iterations)
-                } else {
-                    cfg.max_iterations
-                }
-            };
+            needed = iterations_needed(count, n, log_fail, iterations, cfg);
         }
     }
-    if kept.is_empty() {
-        return Err(RegistrationError::TooFewInliers { have: 0, need: 2 });
+    Search {
+        kept,
+        iterations,
+        hypotheses,
     }
-    // Final least-squares refits of each kept motion: inliers of the current motion, then refit,
-    // until stable.
-    let mut out = Vec::with_capacity(kept.len());
-    for (_, mut t) in kept {
-        let mut inliers = classify(source, target, correspondences, &xs, &ys, &thr2, &t, cfg);
-        for _ in 0..cfg.refit_rounds {
-            let Some(t_new) = fit_rigid(inliers.iter().map(|&k| (xs[k], ys[k]))) else {
-                break;
-            };
-            let new_inliers = classify(
-                source,
-                target,
-                correspondences,
-                &xs,
-                &ys,
-                &thr2,
-                &t_new,
-                cfg,
-            );
-            if new_inliers.len() < inliers.len() {
-                break;
-            }
-            let same = new_inliers == inliers;
-            t = t_new;
-            inliers = new_inliers;
-            if same {
-                break;
-            }
+}
+
+/// The motion of the minimal set of pairs `a` and `b`, or `None` when the set is rejected before
+/// scoring: a point shared, source points closer than `min_sample_separation` (squared: `min_sep2`), or
+/// distances that no rigid motion can make both inliers.
+fn minimal_motion(
+    pairs: &Pairs,
+    correspondences: &[Correspondence],
+    a: usize,
+    b: usize,
+    min_sep2: f64,
+) -> Option<Iso2> {
+    let (xs, ys, thr2) = (&pairs.xs, &pairs.ys, &pairs.thr2);
+    let (ca, cb) = (&correspondences[a], &correspondences[b]);
+    if ca.source == cb.source || ca.target == cb.target {
+        return None;
+    }
+    let u = xs[b] - xs[a];
+    let v = ys[b] - ys[a];
+    let (lu2, lv2) = (u.norm_squared(), v.norm_squared());
+    if lu2 < min_sep2 || lu2 <= 1e-18 {
+        return None;
+    }
+    // Rigidity: ||u| - |v|| can be at most the sum of the two inlier radii.
+    let slack = thr2[a].sqrt() + thr2[b].sqrt();
+    if (lu2.sqrt() - lv2.sqrt()).abs() > slack {
+        return None;
+    }
+    let rot = nalgebra::UnitComplex::new((u.x * v.y - u.y * v.x).atan2(u.dot(&v)));
+    let mid_x = 0.5 * (xs[a] + xs[b]);
+    let mid_y = 0.5 * (ys[a] + ys[b]);
+    Some(Iso2::from_parts((mid_y - rot * mid_x).into(), rot))
+}
+
+/// Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points, which cuts
+/// far inliers off; refit on the inliers and rescore while the support grows. Returns the final
+/// (support, motion).
+fn local_optimisation(
+    cols: &Columns,
+    score: &mut Scorer<'_>,
+    ids: &mut Vec<usize>,
+    count: usize,
+    t: Iso2,
+) -> (usize, Iso2) {
+    let (mut count, mut t) = (count, t);
+    for _ in 0..LOCAL_ROUNDS {
+        cols.inliers_into(&t, ids);
+        let Some(t_fit) = cols.fit(ids) else {
+            break;
+        };
+        let c_fit = score.count(&t_fit, 0);
+        if c_fit <= count {
+            break;
         }
-        out.push(RansacResult {
-            t_target_source: t,
-            inliers,
-            iterations,
-            hypotheses,
-        });
+        count = c_fit;
+        t = t_fit;
     }
-    Ok(out)
+    (count, t)
+}
+
+/// The adaptive stopping rule `N = ln(1 - p) / ln(1 - w^2)` for a best support of `count` of `n` pairs,
+/// clamped to `1..=max_iterations` (`iterations`, the pairs drawn so far, when every pair is an inlier).
+fn iterations_needed(
+    count: usize,
+    n: usize,
+    log_fail: f64,
+    iterations: usize,
+    cfg: &RansacConfig,
+) -> usize {
+    let w = count as f64 / n as f64;
+    let p_good = w * w;
+    if p_good >= 1.0 {
+        iterations
+    } else {
+        let k = (log_fail / (1.0 - p_good).ln()).ceil();
+        if k.is_finite() {
+            (k as usize).clamp(1, cfg.max_iterations)
+        } else {
+            cfg.max_iterations
+        }
+    }
+}
+
+/// Least-squares refits of motion `t` on its inliers (`inliers_of`) until they are stable, at most
+/// `refit_rounds`; a refit that loses inliers is not taken. Returns the motion and its inliers.
+fn refit(
+    mut t: Iso2,
+    pairs: &Pairs,
+    cfg: &RansacConfig,
+    inliers_of: &dyn Fn(&Iso2) -> Vec<usize>,
+) -> (Iso2, Vec<usize>) {
+    let mut inliers = inliers_of(&t);
+    for _ in 0..cfg.refit_rounds {
+        let Some(t_new) = fit_rigid(inliers.iter().map(|&k| (pairs.xs[k], pairs.ys[k]))) else {
+            break;
+        };
+        let new_inliers = inliers_of(&t_new);
+        if new_inliers.len() < inliers.len() {
+            break;
+        }
+        let same = new_inliers == inliers;
+        t = t_new;
+        inliers = new_inliers;
+        if same {
+            break;
+        }
+    }
+    (t, inliers)
 }
 
 /// Inserts `h` into `kept` (best first, at most `keep`): it replaces a kept motion that is the same
@@ -392,148 +494,6 @@ fn insert_distinct(kept: &mut Vec<(usize, Iso2)>, h: (usize, Iso2), keep: usize,
     let at = kept.partition_point(|k| k.0 >= h.0);
     kept.insert(at, h);
     kept.truncate(keep);
-}
-
-/// Pairs per block of the inlier test.
-const BLOCK: usize = 64;
-
-/// The pairs as columns (source x, y, target x, y, squared radius): the inlier test runs branch-free
-/// over a block of pairs at a time (it vectorises), and only the pairs it marks are visited.
-///
-/// The test runs in f32 (twice the vector width of f64): the coordinates are taken relative to the
-/// pairs' centroids, so a submap's tens to hundreds of metres keep about 10 micrometres of
-/// resolution, far below any inlier radius; the motion's translation is re-expressed for them.
-struct Columns {
-    sx: Vec<f32>,
-    sy: Vec<f32>,
-    tx: Vec<f32>,
-    ty: Vec<f32>,
-    thr2: Vec<f32>,
-    /// The centroids subtracted from the source and target coordinates.
-    source_centre: Vec2,
-    target_centre: Vec2,
-    /// The full-precision coordinates, for the least-squares fits.
-    xs: Vec<Vec2>,
-    ys: Vec<Vec2>,
-}
-
-impl Columns {
-    fn new(xs: &[Vec2], ys: &[Vec2], thr2: &[f64]) -> Self {
-        let centre = |v: &[Vec2]| v.iter().sum::<Vec2>() / v.len().max(1) as f64;
-        let (cs, ct) = (centre(xs), centre(ys));
-        Columns {
-            sx: xs.iter().map(|p| (p.x - cs.x) as f32).collect(),
-            sy: xs.iter().map(|p| (p.y - cs.y) as f32).collect(),
-            tx: ys.iter().map(|p| (p.x - ct.x) as f32).collect(),
-            ty: ys.iter().map(|p| (p.y - ct.y) as f32).collect(),
-            thr2: thr2.iter().map(|&r| r as f32).collect(),
-            source_centre: cs,
-            target_centre: ct,
-            xs: xs.to_vec(),
-            ys: ys.to_vec(),
-        }
-    }
-
-    fn len(&self) -> usize {
-        self.sx.len()
-    }
-
-    /// Marks (1) in `mask` the pairs `start..start + BLOCK` (fewer at the end) within their radius
-    /// under `t`; returns how many pairs the block holds.
-    fn block(&self, start: usize, t: &Iso2, mask: &mut [u8; BLOCK]) -> usize {
-        // y - (R x + p) with x = x' + cs, y = y' + ct: y' - (R x' + p'), p' = p + R cs - ct.
-        let p = t.translation.vector + t.rotation * self.source_centre - self.target_centre;
-        let (c, s) = (t.rotation.re as f32, t.rotation.im as f32);
-        let (px, py) = (p.x as f32, p.y as f32);
-        let end = (start + BLOCK).min(self.len());
-        let cols = self.sx[start..end]
-            .iter()
-            .zip(&self.sy[start..end])
-            .zip(&self.tx[start..end])
-            .zip(&self.ty[start..end])
-            .zip(&self.thr2[start..end]);
-        for (m, ((((ax, ay), bx), by), r2)) in mask.iter_mut().zip(cols) {
-            let dx = bx - (c * ax - s * ay + px);
-            let dy = by - (s * ax + c * ay + py);
-            *m = u8::from(dx * dx + dy * dy <= *r2);
-        }
-        end - start
-    }
-
-    /// Indices of the pairs within their radius under `t`, into `out` (cleared first).
-    fn inliers_into(&self, t: &Iso2, out: &mut Vec<usize>) {
-        out.clear();
-        let mut mask = [0u8; BLOCK];
-        for start in (0..self.len()).step_by(BLOCK) {
-            let len = self.block(start, t, &mut mask);
-            out.extend((0..len).filter(|&l| mask[l] != 0).map(|l| start + l));
-        }
-    }
-
-    /// The least-squares rigid motion ([`fit_rigid`]) of the pairs `ids`.
-    fn fit(&self, ids: &[usize]) -> Option<Iso2> {
-        fit_rigid(ids.iter().map(|&k| (self.xs[k], self.ys[k])))
-    }
-}
-
-/// Scores motions by the source points they explain.
-struct Scorer<'a> {
-    cols: &'a Columns,
-    slots: &'a [u32],
-    /// Per source slot, the stamp of the last motion that counted it.
-    seen: Vec<u32>,
-    stamp: u32,
-}
-
-impl Scorer<'_> {
-    /// Source points with a pair within its radius under `t`; stops early (returning at most `bar`)
-    /// once `bar` cannot be beaten.
-    fn count(&mut self, t: &Iso2, bar: usize) -> usize {
-        // Stamps run from 1; `seen` starts at 0 and is cleared to 0 when they wrap.
-        self.stamp = self.stamp.wrapping_add(1);
-        if self.stamp == 0 {
-            self.seen.iter_mut().for_each(|s| *s = 0);
-            self.stamp = 1;
-        }
-        let n = self.cols.len();
-        let mut count = 0usize;
-        let mut mask = [0u8; BLOCK];
-        for start in (0..n).step_by(BLOCK) {
-            let len = self.cols.block(start, t, &mut mask);
-            // Visit the marked pairs only (most blocks of a wrong motion mark none).
-            let mut bits = mask_bits(&mask, len);
-            while bits != 0 {
-                let l = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let slot = &mut self.seen[self.slots[start + l] as usize];
-                if *slot != self.stamp {
-                    *slot = self.stamp;
-                    count += 1;
-                }
-            }
-            if bar > 0 && count + (n - start - len) <= bar {
-                break;
-            }
-        }
-        count
-    }
-}
-
-/// The first `len` entries of a 0/1 `mask` as bits (entry `l` -> bit `l`): eight bytes at a time,
-/// gathered into one byte by a multiplication (each 0/1 byte lands on its own bit of the top byte).
-#[inline]
-fn mask_bits(mask: &[u8; BLOCK], len: usize) -> u64 {
-    let mut bits = 0u64;
-    for (c, chunk) in mask.chunks_exact(8).enumerate() {
-        let mut b = [0u8; 8];
-        b.copy_from_slice(chunk);
-        let x = u64::from_le_bytes(b);
-        bits |= (x.wrapping_mul(0x0102_0408_1020_4080) >> 56) << (8 * c);
-    }
-    if len < BLOCK {
-        bits &= (1u64 << len) - 1;
-    }
-    bits
 }
 
 /// Local-optimisation rounds per new best hypothesis.
@@ -589,28 +549,6 @@ fn classify(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The packed bits are the mask's entries, for every pattern of one and two set entries and for
-    /// a short last block.
-    #[test]
-    fn mask_bits_packs_the_mask() {
-        let naive = |m: &[u8; BLOCK], len: usize| {
-            (0..len)
-                .filter(|&l| m[l] != 0)
-                .fold(0u64, |b, l| b | (1 << l))
-        };
-        for a in 0..BLOCK {
-            for b in (a..BLOCK).step_by(7) {
-                let mut m = [0u8; BLOCK];
-                m[a] = 1;
-                m[b] = 1;
-                for len in [BLOCK, 63, 40, 9, 1] {
-                    assert_eq!(mask_bits(&m, len), naive(&m, len), "{a} {b} {len}");
-                }
-            }
-        }
-        assert_eq!(mask_bits(&[1; BLOCK], BLOCK), u64::MAX);
-    }
 
     /// Correspondences for `n` source points under motion `t`: each source point has `per_point`
     /// candidates, all within 0.3 m of its image (as k > 1 neighbours along a facade would be).

@@ -219,10 +219,10 @@ fn main() {
     ];
     println!("pairs per scenario: {pairs}");
     for sc in &scenarios {
-        if let Some(o) = &only {
-            if !sc.name.starts_with(o.as_str()) {
-                continue;
-            }
+        if let Some(o) = &only
+            && !sc.name.starts_with(o.as_str())
+        {
+            continue;
         }
         println!("\n## {}", sc.name);
         println!(

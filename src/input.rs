@@ -61,7 +61,7 @@ impl Input {
 pub enum IssueReason {
     /// The message does not decode as its topic's type (the CDR error).
     #[error("does not decode: {0}")]
-    Decode(#[source] BagError),
+    Decode(#[source] Box<BagError>),
     /// An odometry or ground-truth pose with a non-finite value or a zero quaternion.
     #[error("pose is not finite (or its quaternion is zero)")]
     NonFinitePose,
@@ -75,7 +75,7 @@ pub enum IssueReason {
     },
     /// The bag file is damaged from here on (messages before were read; the file ends here).
     #[error("damaged bag file: {0}")]
-    Damaged(#[source] BagError),
+    Damaged(#[source] Box<BagError>),
     /// A message of a non-ROS encoding (foxglove protobuf, [`crate::bag::foxglove`]) that does not
     /// decode or convert.
     #[error("does not convert: {0}")]

@@ -92,11 +92,11 @@ fn msrv_is_what_the_locked_crates_need() {
         };
         read += 1;
         let text = std::fs::read_to_string(&manifest).unwrap_or_default();
-        if let Some(rv) = field(&text, "rust-version") {
-            if version(&rv) > newest {
-                newest = version(&rv);
-                who = format!("{name} {ver}");
-            }
+        if let Some(rv) = field(&text, "rust-version")
+            && version(&rv) > newest
+        {
+            newest = version(&rv);
+            who = format!("{name} {ver}");
         }
     }
     assert!(read > 50, "only {read} locked crates found in the registry");

@@ -214,7 +214,8 @@ fn a_second_writer_is_refused_naming_the_first() {
 fn intact_nonsense_is_refused() {
     let dir = common::scratch("map_faults", "nonsense");
     let path = dir.join("map.dcloc");
-    let bad: [(&str, fn(&mut KeyframeRecord)); 4] = [
+    type Damage = fn(&mut KeyframeRecord);
+    let bad: [(&str, Damage); 4] = [
         ("not finite", |r| {
             r.t_odom_body = Iso2::new(Vec2::new(f64::NAN, 0.0), 0.0)
         }),

@@ -93,7 +93,10 @@ fn out_of_range_node_settings_stop_the_start() {
         let out = run(&["--ros-args", "-p", p], &[]);
         let err = text(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{p}: {err}");
-        assert!(err.contains(name), "{p}: the message does not name {name}: {err}");
+        assert!(
+            err.contains(name),
+            "{p}: the message does not name {name}: {err}"
+        );
     }
 }
 
@@ -123,7 +126,10 @@ fn a_map_in_use_is_refused_and_its_holder_keeps_it() {
     let stale = dir.join(".map.bin.tmp-999999");
     std::fs::write(&stale, b"half a map").unwrap();
     let first = start(&map, &[]);
-    assert!(!stale.exists(), "the killed writer's temporary file is still there");
+    assert!(
+        !stale.exists(),
+        "the killed writer's temporary file is still there"
+    );
 
     let second = run(
         &["--ros-args", "-p", &format!("map.file:={}", map.display())],
@@ -132,7 +138,10 @@ fn a_map_in_use_is_refused_and_its_holder_keeps_it() {
     let err = text(&second.stderr);
     assert_eq!(second.status.code(), Some(2), "{err}");
     assert!(err.contains("in use"), "{err}");
-    assert!(err.contains(&first.id().to_string()), "the holder's pid: {err}");
+    assert!(
+        err.contains(&first.id().to_string()),
+        "the holder's pid: {err}"
+    );
 
     let (code, err) = interrupt(first);
     assert_eq!(code, Some(0), "{err}");
@@ -161,6 +170,10 @@ fn a_refused_map_is_never_overwritten_and_fallbacks_are_numbered() {
         let (code, err) = interrupt(child);
         assert_eq!(code, Some(0), "{err}");
         assert!(dir.join(expected).exists(), "{expected} not written: {err}");
-        assert_eq!(std::fs::read(&map).unwrap(), garbage, "the refused map changed");
+        assert_eq!(
+            std::fs::read(&map).unwrap(),
+            garbage,
+            "the refused map changed"
+        );
     }
 }

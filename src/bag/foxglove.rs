@@ -218,7 +218,7 @@ pub enum FoxgloveError {
 pub fn point_cloud_to_pointcloud2(c: &PointCloud) -> Result<PointCloud2, FoxgloveError> {
     let stride = c.point_stride;
     let len = c.data.len();
-    if stride == 0 || len % stride as usize != 0 {
+    if stride == 0 || !len.is_multiple_of(stride as usize) {
         return Err(FoxgloveError::Stride { stride, len });
     }
     let width =
@@ -295,11 +295,11 @@ pub fn transforms_of(msg: &super::BagMessage) -> Vec<(String, String, Stamp, Iso
             }
         }
         (FRAME_TRANSFORM, "protobuf") => {
-            if let Ok(t) = FrameTransform::decode(msg.data()) {
-                if let Some(p) = t.to_iso3() {
-                    let s = t.timestamp.clone().unwrap_or_default().stamp();
-                    out.push((t.parent_frame_id, t.child_frame_id, s, p));
-                }
+            if let Ok(t) = FrameTransform::decode(msg.data())
+                && let Some(p) = t.to_iso3()
+            {
+                let s = t.timestamp.clone().unwrap_or_default().stamp();
+                out.push((t.parent_frame_id, t.child_frame_id, s, p));
             }
         }
         (FRAME_TRANSFORMS, "protobuf") => {

@@ -201,7 +201,7 @@ impl CrossDriveEval {
                 .min_by(|a, b| a.1.total_cmp(&b.1));
             if let Some((t, dist)) = best.filter(|b| b.1 <= self.eval.pair_radius) {
                 self.pairs_seen += 1;
-                if (self.pairs_seen - 1) % self.eval.pair_stride == 0 {
+                if (self.pairs_seen - 1).is_multiple_of(self.eval.pair_stride) {
                     pairs.push(Pair {
                         query: n_targets + qi,
                         target: t,

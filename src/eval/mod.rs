@@ -375,14 +375,14 @@ pub fn make_pairs(kfs: &[EvalKeyframe], cfg: &EvalConfig) -> Vec<Pair> {
                 )
             })
             .min_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((t, d)) = best {
-            if d <= cfg.pair_radius {
-                pairs.push(Pair {
-                    query: q,
-                    target: t,
-                    distance: d,
-                });
-            }
+        if let Some((t, d)) = best
+            && d <= cfg.pair_radius
+        {
+            pairs.push(Pair {
+                query: q,
+                target: t,
+                distance: d,
+            });
         }
     }
     pairs.into_iter().step_by(cfg.pair_stride).collect()

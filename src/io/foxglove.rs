@@ -73,7 +73,7 @@ impl Iterator for FoxgloveInputs {
                     return Some(Err(InputIssue {
                         topic: String::new(),
                         stamp: Stamp(0),
-                        reason: IssueReason::Damaged(e),
+                        reason: IssueReason::Damaged(Box::new(e)),
                     }));
                 }
             };

@@ -171,7 +171,7 @@ impl Iterator for BagInputs {
                     return Some(Err(InputIssue {
                         topic: String::new(),
                         stamp: self.last_log_time,
-                        reason: IssueReason::Damaged(e),
+                        reason: IssueReason::Damaged(Box::new(e)),
                     }));
                 }
             };
@@ -187,7 +187,7 @@ impl Iterator for BagInputs {
             };
             return Some(match route {
                 Route::Radar(radars) => match msg.decode::<PointCloud2>() {
-                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(e))),
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(mut cloud) => {
                         let stamp = stamp_or_log_time(&cloud.header, msg.log_time);
                         cloud.header.stamp = stamp.into();
@@ -212,7 +212,7 @@ impl Iterator for BagInputs {
                     }
                 },
                 Route::Odometry | Route::GroundTruth => match msg.decode::<Odometry>() {
-                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(e))),
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(odom) => {
                         let stamp = stamp_or_log_time(&odom.header, msg.log_time);
                         match ground_truth_sample(&odom) {

@@ -117,7 +117,7 @@ impl VodRadarPoint {
 
 /// Parses a VoD radar `.bin`: little-endian float32, N x 7 (x, y, z, RCS, v_r, v_r_compensated, time).
 pub fn parse_radar_bin(bytes: &[u8]) -> Result<Vec<VodRadarPoint>, VodError> {
-    if bytes.len() % 28 != 0 {
+    if !bytes.len().is_multiple_of(28) {
         return Err(VodError::BinLength { len: bytes.len() });
     }
     Ok(bytes

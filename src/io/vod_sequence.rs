@@ -200,7 +200,7 @@ pub fn vod_config(base: &Config) -> Config {
 /// The `.bin` bytes as a PointCloud2: 7 FLOAT32 fields `x, y, z, rcs, v_r, v_r_compensated, time`,
 /// point step 28.
 pub fn bin_to_pointcloud2(bytes: &[u8], header: Header) -> Result<PointCloud2, VodError> {
-    if bytes.len() % 28 != 0 {
+    if !bytes.len().is_multiple_of(28) {
         return Err(VodError::BinLength { len: bytes.len() });
     }
     let n =

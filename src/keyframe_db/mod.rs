@@ -179,12 +179,11 @@ impl KeyframeDb {
             .cache
             .iter()
             .position(|(i, p)| *i == index && p.fits(cfg))
+            && let Some(entry) = self.cache.remove(pos)
         {
-            if let Some(entry) = self.cache.remove(pos) {
-                let p = entry.1.clone();
-                self.cache.push_back(entry);
-                return Ok(p);
-            }
+            let p = entry.1.clone();
+            self.cache.push_back(entry);
+            return Ok(p);
         }
         let rec = self
             .records

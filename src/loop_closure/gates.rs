@@ -285,18 +285,18 @@ pub fn consistency(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Resul
     if !aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
         return Ok(agrees);
     }
-    if let Some(predicted) = g.predicted(p) {
-        if let Ok(Some((_, o))) = overlap_near(p.source, p.target, &predicted, g.rc) {
-            if lc.maximum_ambiguity < 1.0 && o > lc.maximum_ambiguity * r.overlap {
-                return Err((
-                    RejectReason::Ambiguous,
-                    format!(
-                        "the accepted alignment's prediction fits too (overlap {o:.2} against {:.2})",
-                        r.overlap
-                    ),
-                ));
-            }
-        }
+    if let Some(predicted) = g.predicted(p)
+        && let Ok(Some((_, o))) = overlap_near(p.source, p.target, &predicted, g.rc)
+        && lc.maximum_ambiguity < 1.0
+        && o > lc.maximum_ambiguity * r.overlap
+    {
+        return Err((
+            RejectReason::Ambiguous,
+            format!(
+                "the accepted alignment's prediction fits too (overlap {o:.2} against {:.2})",
+                r.overlap
+            ),
+        ));
     }
     if let Some(d2) = g
         .distance(p, r, t, false)
@@ -324,17 +324,18 @@ pub fn prediction_test(
     target: &PreparedSubmap,
 ) -> Result<(), Refusal> {
     let t = crate::math::iso2_from_iso3(&c.t_match_query);
-    if let Ok(Some((near, o))) = overlap_near(source, target, predicted, g.rc) {
-        if !g.rc.same_alignment(&near, &t) && o > g.lc.maximum_ambiguity * c.score {
-            let d = (near.translation.vector - t.translation.vector).norm();
-            return Err((
-                RejectReason::Ambiguous,
-                format!(
-                    "started at the accepted alignment's prediction it ends {d:.2} m away with overlap {o:.2} against {:.2}",
-                    c.score
-                ),
-            ));
-        }
+    if let Ok(Some((near, o))) = overlap_near(source, target, predicted, g.rc)
+        && !g.rc.same_alignment(&near, &t)
+        && o > g.lc.maximum_ambiguity * c.score
+    {
+        let d = (near.translation.vector - t.translation.vector).norm();
+        return Err((
+            RejectReason::Ambiguous,
+            format!(
+                "started at the accepted alignment's prediction it ends {d:.2} m away with overlap {o:.2} against {:.2}",
+                c.score
+            ),
+        ));
     }
     Ok(())
 }

@@ -223,26 +223,26 @@ impl Ingest {
     ) -> OdometryCheck {
         let sample = (stamp, t_odom_body);
         let mut reset = false;
-        if let Some(last) = self.last_odom.filter(|l| stamp > l.0) {
-            if let Err(why) = implausible(&last, &sample, cfg) {
-                let run = match self.jump {
-                    Some((prev, n)) if implausible(&prev, &sample, cfg).is_ok() => n + 1,
-                    _ => 1,
-                };
-                if run < ODOMETRY_RESET_AFTER {
-                    self.jump = Some((sample, run));
-                    dropped(stats, out, DropReason::BadOdometry, why);
-                    return OdometryCheck::Dropped;
-                }
-                log::warn!(
-                    "odometry jumped and stayed there for {run} samples ({why}): a new odometry track, the rolling submap reset"
-                );
-                self.odom.clear();
-                self.builder.clear();
-                self.last_odom = None;
-                stats.odometry_resets += 1;
-                reset = true;
+        if let Some(last) = self.last_odom.filter(|l| stamp > l.0)
+            && let Err(why) = implausible(&last, &sample, cfg)
+        {
+            let run = match self.jump {
+                Some((prev, n)) if implausible(&prev, &sample, cfg).is_ok() => n + 1,
+                _ => 1,
+            };
+            if run < ODOMETRY_RESET_AFTER {
+                self.jump = Some((sample, run));
+                dropped(stats, out, DropReason::BadOdometry, why);
+                return OdometryCheck::Dropped;
             }
+            log::warn!(
+                "odometry jumped and stayed there for {run} samples ({why}): a new odometry track, the rolling submap reset"
+            );
+            self.odom.clear();
+            self.builder.clear();
+            self.last_odom = None;
+            stats.odometry_resets += 1;
+            reset = true;
         }
         self.jump = None;
         match self.odom.push(stamp, t_odom_body) {
@@ -349,14 +349,14 @@ impl Ingest {
             return;
         }
         self.last_scan_stamp.insert(scan.radar, scan.stamp);
-        if self.pending.len() >= MAX_PENDING {
-            if let Some(old) = self.pending.pop_front() {
-                let detail = format!(
-                    "no odometry up to {:.3} s; dropped the oldest waiting scan",
-                    old.stamp.as_secs_f64()
-                );
-                dropped(stats, out, DropReason::QueueFull, detail);
-            }
+        if self.pending.len() >= MAX_PENDING
+            && let Some(old) = self.pending.pop_front()
+        {
+            let detail = format!(
+                "no odometry up to {:.3} s; dropped the oldest waiting scan",
+                old.stamp.as_secs_f64()
+            );
+            dropped(stats, out, DropReason::QueueFull, detail);
         }
         let at = self.pending.partition_point(|s| s.stamp <= scan.stamp);
         self.pending.insert(at, scan);

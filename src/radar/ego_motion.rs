@@ -249,10 +249,10 @@ impl LinearRansac<'_> {
             let Some(x) = self.minimal_solve(&sample[..self.unknowns]) else {
                 continue;
             };
-            if let Some((p, tol)) = self.prior {
-                if (x - p).norm() > tol {
-                    continue;
-                }
+            if let Some((p, tol)) = self.prior
+                && (x - p).norm() > tol
+            {
+                continue;
             }
             let (count, _) = self.consensus(&x, self.threshold);
             if best.is_none_or(|(c, _)| count > c) {

@@ -378,10 +378,10 @@ pub(super) fn reselect(ctx: &PairContext<'_>, t: &Iso2) -> Vec<usize> {
             (true, _, _) => continue,
             (false, _, _) => None,
         };
-        if let Some(p) = lm::pair_terms(t, x, y, cov, iso_var, &plain) {
-            if p.s <= gate2 {
-                kept.push((c.source, c.target, k));
-            }
+        if let Some(p) = lm::pair_terms(t, x, y, cov, iso_var, &plain)
+            && p.s <= gate2
+        {
+            kept.push((c.source, c.target, k));
         }
     }
     // One pair per source point and per target point: a point shared by several pairs would give

@@ -220,8 +220,8 @@ pub(super) fn refine_hypothesis(
     // certainty (pipeline NEES about 20 instead of 3); `dense.covariance_scale` accounts for the dense
     // pose being more accurate than that.
     let mut dense_settled = None;
-    if cfg.dense.enabled {
-        if let Some(d) = dense::refine_dense(
+    if cfg.dense.enabled
+        && let Some(d) = dense::refine_dense(
             src,
             tgt,
             tree,
@@ -229,13 +229,13 @@ pub(super) fn refine_hypothesis(
             &cfg.dense,
             &cfg.lm,
             dense::Rounds::Plain,
-        )? {
-            lm.t_target_source = d.t_target_source;
-            lm.converged = d.converged;
-            lm.cost = d.cost;
-            iterations += d.iterations;
-            dense_settled = Some(d.settled);
-        }
+        )?
+    {
+        lm.t_target_source = d.t_target_source;
+        lm.converged = d.converged;
+        lm.cost = d.cost;
+        iterations += d.iterations;
+        dense_settled = Some(d.settled);
     }
     let fit = Fit {
         t_target_source: lm.t_target_source,

@@ -314,10 +314,10 @@ impl Worker {
         if let Err(e) = self.out.markers.publish(self.markers.message(self.now())) {
             log::debug!("markers: {e:?}");
         }
-        if let Some(s) = self.pipeline.current_submap() {
-            if let Err(e) = self.out.submap.publish(submap_cloud(&s, &self.body_frame)) {
-                log::debug!("submap: {e:?}");
-            }
+        if let Some(s) = self.pipeline.current_submap()
+            && let Err(e) = self.out.submap.publish(submap_cloud(&s, &self.body_frame))
+        {
+            log::debug!("submap: {e:?}");
         }
     }
 

@@ -245,7 +245,7 @@ pub fn encode_detections(
         return Err(EncodeError::ZeroRows);
     }
     let rows = layout.rows as usize;
-    if detections.len() % rows != 0 {
+    if !detections.len().is_multiple_of(rows) {
         return Err(EncodeError::RowsDoNotDivide {
             points: detections.len(),
             rows: layout.rows,

@@ -380,7 +380,7 @@ mod tests {
 
     #[test]
     fn pose_from_table_reads_w_first() {
-        // RADAR_BACK_LEFT of FORMATS.md: yaw +174.41 deg.
+        // RADAR_BACK_LEFT of the nuScenes calibration: yaw +174.41 deg.
         let t = pose_from_table(
             [-0.562, 0.628, 0.53],
             [0.04876260733128922, 0.0, 0.0, 0.9988103964848657],

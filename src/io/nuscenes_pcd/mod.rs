@@ -10,7 +10,7 @@
 //! `POINTS` records, so exactly `POINTS` records are read and the rest is ignored.
 //!
 //! Velocity: `vx, vy` are the raw relative velocity in the radar frame and are what Doppler compensation
-//! needs (projected on the ray, METHOD.md section 1). `vx_comp, vy_comp` have the ego motion removed and
+//! needs (projected on the ray, docs/algorithm.md). `vx_comp, vy_comp` have the ego motion removed and
 //! are never used for it.//!
 //! Parts: `pcd` (any PCD header and its records; [`PcdHeader`], [`PcdError`], [`pcd_to_pointcloud2`]).
 

@@ -46,29 +46,14 @@ pub struct DenseConfig {
     /// Rounds before the `iterations` ones with `max_distance` and `gate` doubled (default 4). A
     /// descriptor-stage estimate can be a few metres off along a street, where only poles and corners
     /// say where along it the submaps sit: beyond `max_distance` they pair with nothing and the
-    /// facades hold the pose where it is. Measured with `dc_loc eval` on the demo drive, DC-Loc mean /
-    /// max translation error over the inliers: 0 rounds 0.094 / 1.97 m, 3: 0.088 / 1.33, 4: 0.086 /
-    /// 1.06, 5: 0.086 / 1.02, 8: 0.085 / 0.58 (median 0.072-0.073 m throughout); a five-radar revisit
-    /// that ended 2.2 m off (and was published as a false closure) ends 0.64 m off with 4.
+    /// facades hold the pose where it is (docs/experiments.md, Registration).
     pub coarse_rounds: usize,
     /// Largest Euclidean distance of a pair, m (default 1.5).
     pub max_distance: f64,
     /// Scale of the robust loss (`registration.lm.robust.kind`) in the rounds after the coarse
     /// ones and in the final solve, in sigma of the whitened residual (default 1.0; 0 keeps
-    /// `registration.lm.robust.scale`). Two passes do not see the same scene: parked cars are
-    /// replaced between them (the simulated city replaces or removes 45 % of them), and a car in
-    /// the same slot stands half a metre further along the street; the nearest-neighbour pairs of
-    /// such objects pull the pose along the street by centimetres. A tighter loss once the pose
-    /// has been pulled in weighs them down. Measured with `dc_loc eval` (DC-Loc mean / max / median
-    /// translation error, mean rotation error, mean NEES), the default Gaussian demo drive: 3.0
-    /// (the LM's scale) 0.085 / 1.475 / 0.072 m, 0.0016 rad, 5.88; 1.5: 0.079 / 1.474 / 0.065 m,
-    /// 0.0015 rad, 4.98; 1.0: 0.075 / 1.465 / 0.064 m, 0.0015 rad, 4.40. The same drive with no
-    /// parked car replaced (`world.parking.changing_fraction` 0): 0.060 / 0.053 m at 3.0, 0.050 m
-    /// median at 1.0 applied to every round. Student-t drive 0.084 / 0.071 -> 0.077 / 0.063 m;
-    /// Gamma 0.047 / 0.033 -> 0.046 / 0.031 m (its max 0.53 -> 1.72 m: one pair); seed 2 0.074 /
-    /// 0.065 -> 0.072 / 0.062 m. Applied to the coarse rounds too it pulled some Gamma pairs to
-    /// slid alignments (max 1.83 m). A scale from the residuals' median (IRLS with a MAD scale)
-    /// did no better (Gaussian 0.078 / 0.063 m at twice the MAD scale, Gamma max 1.84 m).
+    /// `registration.lm.robust.scale`). Two passes do not see the same scene (parked cars come and
+    /// go); once the pose has been pulled in, a tighter loss weighs such pairs down.
     pub robust_scale: f64,
     /// Fewest pairs, else the descriptor-stage estimate is kept (default 30).
     pub min_pairs: usize,
@@ -81,78 +66,33 @@ pub struct DenseConfig {
     /// Radius of that neighbourhood, m (default 2.0).
     pub surface_radius: f64,
     /// Move each point to the mean of that neighbourhood (default true): one step of local averaging
-    /// (the zeroth-order moving least squares of point-cloud smoothing). Two passes sample a surface
-    /// at different places and with independent range / cross-range noise; the means of overlapping
-    /// neighbourhoods carry a fraction of that noise, so nearest neighbours of two passes pair on the
-    /// surface instead of on each other's noise. The covariances stay those of single points plus the
-    /// scatter (conservative). Measured with `dc_loc eval` on the demo drive (DC-Loc mean / median
-    /// translation error over the inliers, mean rotation error, pairs inside 2 m):
-    /// `-p registration.dense.surface_smoothing:=false` 0.115 / 0.087 m, 0.0020 rad, 91.1 %; on (this)
-    /// 0.086 / 0.073 m, 0.0015 rad, 91.8 %. Moving points onto the neighbourhood's principal line
-    /// instead (first-order MLS, keeping the place along the surface; a variant not kept in the code,
-    /// measured before the screening and the coarse rounds) gave 0.103 / 0.075 m against 0.090 / 0.072 m
-    /// for the mean.
+    /// (zeroth-order moving least squares), so nearest neighbours of two passes pair on the surface
+    /// instead of on each other's noise. The covariances stay those of single points plus the scatter.
     pub surface_smoothing: bool,
-    /// Accelerated rounds ([`Rounds::Accelerated`]) that continue the winning hypothesis's rounds when they
-    /// have not settled (default 0 = off). Measured with `dc_loc eval` on the demo drive, DC-Loc mean /
-    /// median translation error over the inliers: off 0.121 / 0.082 m, 2 rounds 0.111 / 0.078, 3:
-    /// 0.103 / 0.077, 4: 0.107 / 0.080, 6: 0.111 / 0.084, 8: 0.104 / 0.079 (differences below about
-    /// 5 mm are which pairs fall inside the 2 m threshold); registration time +7 % (1000 points) to
-    /// +10 % (5000 points) at 3 rounds. Off by default because of the loop-closure gates: with 3
-    /// rounds the five-radar Student-t 3 % reverse drive published one false closure (2.5 m, a
-    /// street-slid alignment that was already 2.5 m off before polishing; the slightly different pose
-    /// and covariance let it pass the consistency check that refused it as ambiguous without
-    /// polishing). Bounding the polish's move (half the ambiguity distances, or 99 % of the prior
-    /// covariance) kept that closure and lost most of the accuracy gain. Since the smoothing and the
-    /// coarse rounds the plain rounds end nearer their fixed point: 3 rounds then changed the demo
-    /// drive's 0.086 / 0.073 m to 0.085 / 0.072 m.
+    /// Accelerated rounds ([`Rounds::Accelerated`]) that continue the winning hypothesis's rounds when
+    /// they have not settled (default 0 = off: with it on, a street-slid alignment can pass the
+    /// consistency gate).
     pub polish_rounds: usize,
     /// Average the winner's pose with this stage run the other way round (default false): the
-    /// target's points paired with their nearest source points, from the inverse pose. Each
-    /// direction pairs a point with the nearest sample of the other pass and carries its own
-    /// association bias; the mean of the two halves the part they do not share. Costs one more run
-    /// of this stage per registration (the winner's only; about 20 % of a 1000-point registration,
-    /// callgrind instruction counts). Measured with `dc_loc eval` on the demo drives (DC-Loc mean /
-    /// max / median translation error over the inliers, mean rotation error, mean NEES; pairs inside
-    /// 2 m unchanged): Gaussian off 0.086 / 1.062 / 0.073 m, 0.0015 rad, NEES 5.96; on 0.078 / 0.757
-    /// / 0.067 m, 0.0014 rad, 4.09. Student-t off 0.085 / 0.446 / 0.072 m, on 0.075 / 0.360 / 0.062
-    /// m. Gamma 0.049 / 0.032 m mean / median either way. Off by default: over the revisit matrix
-    /// (`dc_loc revisits`) it moved a few first closures of a session across the slide gate
-    /// (`loop.maximum_slide_ratio`), and the five-radar Gamma drive at 3 % drift closed none of its
-    /// 432 same-direction revisits (98.6 % with it off; no false closure either way).
+    /// target's points paired with their nearest source points, from the inverse pose, which halves
+    /// the association bias the two directions do not share. Costs one more run of this stage per
+    /// registration; off by default because it moves some first closures of a session across the
+    /// slide gate (`loop.maximum_slide_ratio`).
     pub symmetric: bool,
     /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
     /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
-    /// every reflector several times. Measured on the four 5000-point synthetic pairs of
-    /// `examples/registration_profile.rs` (`MAXSRC=n` sets it there), whole registration time and mean
-    /// translation error: 1500 points 13.1 ms / 2.5 cm, 2000: 15.0 ms / 2.3 cm, 3000: 19.1 ms /
-    /// 1.8 cm, all 5000: 27.4 ms / 1.3 cm. Submaps up to this size are unaffected.
+    /// every reflector several times.
     pub max_source_points: usize,
     /// Factor on the covariance (from the descriptor pairs at the refined pose) when this stage ran
-    /// (default 0.35). The dense pose is more accurate than the descriptor pairs' own scatter says; the
-    /// factor is measured (mean NEES near 3 on the synthetic scenes of tests/registration.rs and on the
-    /// simulated drives of `dc_loc eval`, which reports the NEES it finds).
+    /// (default 0.35): the dense pose is more accurate than the descriptor pairs' own scatter says.
     pub covariance_scale: f64,
     /// Soft-association rounds that finish the winning hypothesis's pose (default 0 = off): each
-    /// pairs every source point with a virtual partner, the mean of its `soft_neighbours` nearest
-    /// target points within `max_distance` and `gate`, weighted by their Gaussian likelihood under
-    /// the combined covariance, with the weighted covariance plus the partners' scatter (EM-ICP,
-    /// Granger & Pennec, ECCV 2002); one Gauss-Newton step per round, then the last round's pairs
-    /// are solved to the LM's tolerances. A nearest neighbour pairs a point with one sample of the
-    /// other pass, which pulls the pose by the sampling offset where the passes sampled a surface
-    /// at different places; the likelihood-weighted mean averages it out. Run for the winner only
-    /// (as polishing is), and kept when it ends within the ambiguity distances of it. Measured with
-    /// `dc_loc eval -p registration.dense.soft_rounds:=N` on the default Gaussian demo drive (DC-Loc
-    /// mean / median translation error over the inliers, mean NEES; pairs inside 2 m unchanged at
-    /// 412 of 416): off 0.075 / 0.065 m, 2.90; 1 round 0.070 / 0.062 m, 2.42; 3 rounds 0.069 /
-    /// 0.061 m, 2.36; 10 rounds 0.069 / 0.060 m, 2.36. The Student-t drive at 3 rounds 0.078 / 0.064
-    /// -> 0.069 / 0.058 m; Gamma 0.044 / 0.031 -> 0.041 / 0.031 m. The registration bench's
-    /// 1000-point pair (`DC_LOC_BENCH_PARAMS="registration.dense.soft_rounds:=N" cargo bench --bench
-    /// registration`): 2.95 ms off, 3.18 ms at 1 round, 3.40 ms at 3 (the target is 3 ms), so off by
-    /// default.
+    /// pairs every source point with the likelihood-weighted mean of its `soft_neighbours` nearest
+    /// target points within `max_distance` and `gate` (EM-ICP, Granger & Pennec, ECCV 2002), one
+    /// Gauss-Newton step per round; kept when it ends within the ambiguity distances. Slightly more
+    /// accurate, about 15 % slower per registration, so off by default.
     pub soft_rounds: usize,
-    /// Target points behind each virtual partner of the soft rounds, the likeliest (default 16; at 3
-    /// rounds on the Gaussian demo drive 8 gave 0.072 / 0.065 m, 32 gave 0.068 / 0.061 m).
+    /// Target points behind each virtual partner of the soft rounds, the likeliest (default 16).
     pub soft_neighbours: usize,
 }
 

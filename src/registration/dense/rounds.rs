@@ -159,9 +159,7 @@ pub enum Rounds {
 /// round steps of the plain one. Registration polishes only the winning hypothesis with it:
 /// accelerating every hypothesis also slid wrong ones along a street to alignments fitting nearly as
 /// well, which the ambiguity gate then refused (revisit recall on the five-radar 1 % drive 96.0 ->
-/// 94.9 %). Measured with `dc_loc eval` on the demo drive, DC-Loc mean / median translation error over
-/// the inliers: 8 plain rounds 0.121 / 0.082 m, 20 plain rounds 0.096 / 0.079 m, every hypothesis's 8
-/// rounds accelerated 0.103 / 0.079 m, and the polishing rounds as [`DenseConfig::polish_rounds`] says.
+/// 94.9 %).
 pub fn refine_dense(
     source: &PointSet2,
     target: &PointSet2,

@@ -11,7 +11,7 @@
 //!    relief) and car sides, random points in bushes, the near side of poles and trunks, building corners,
 //!    pedestrians. Each gets a Swerling-1 RCS (`10 log10(Exp(1))` around its mean) and, on walls, an
 //!    incidence loss.
-//! 4. Physics (METHOD.md section 1): true range `r`, azimuth `phi`, radial velocity
+//! 4. Physics (docs/algorithm.md, Doppler range distortion): true range `r`, azimuth `phi`, radial velocity
 //!    `v_r = d . (v_target - v_radar)`.
 //! 5. Resolution: candidates in one (range, azimuth, Doppler) resolution cell merge into one detection at
 //!    their power-weighted mean; the cell is detected with a logistic probability of its SNR margin

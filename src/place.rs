@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 pub const RING_KEY_DIM: usize = 12;
 
 /// Settings of the place descriptor.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlaceConfig {
     /// Outer radius of the grid, m (default 80).

@@ -60,7 +60,7 @@ pub enum OdometryError {
 }
 
 /// Odometry settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
     /// nav_msgs/Odometry topic (default `/odom`).
@@ -232,7 +232,7 @@ impl OdometryBuffer {
 }
 
 /// Submap settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SubmapConfig {
     /// Scans per radar stacked into a submap (default 10, the paper's N).

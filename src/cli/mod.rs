@@ -1,7 +1,7 @@
 //! Command-line front ends: the offline subcommands and the node's entry point.
 //!
 //! Entry points: [`main`] (subcommands, one module each: [`sim`], [`run`], [`eval`] with
-//! [`eval_datasets`] for `--nuscenes` and `--vod`, [`demo`], [`revisits`]; the data they read in
+//! [`eval_datasets`] for `--nuscenes` and `--vod`, [`demo`], [`revisits`], [`reference`] (`dc_loc params`); the data they read in
 //! [`source`], its parameters in [`params`]), [`node_main`] (the ROS 2 node).
 //!
 //! Conventions of every subcommand: results and summaries on stdout; logs on stderr through
@@ -14,6 +14,7 @@ pub mod eval;
 pub mod eval_datasets;
 pub mod params;
 pub mod progress;
+pub mod reference;
 pub mod revisits;
 pub mod run;
 pub mod sim;
@@ -47,6 +48,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Precision and recall of the loop closures on simulated drives under odometry drift.
     Revisits(revisits::RevisitArgs),
+    /// The parameter reference (Markdown), or a params file with every default (--yaml).
+    Params(reference::ParamsArgs),
 }
 
 /// A subcommand's failure, with the exit code it maps to.
@@ -92,6 +95,7 @@ pub fn main(args: &[String]) -> i32 {
         Command::Eval(a) => ("eval", eval::main(&a)),
         Command::Demo(a) => ("demo", demo::main(&a)),
         Command::Revisits(a) => ("revisits", revisits::main(&a)),
+        Command::Params(a) => ("params", reference::main(&a)),
     };
     match result {
         Ok(()) => 0,

@@ -1,10 +1,14 @@
 //! The pipeline configuration of an offline run: a ROS 2 params file (the node's section) and `-p`
-//! overrides onto the defaults, or onto a dataset's own radar layout ([`dataset_config`]).
+//! overrides onto the defaults, or onto a dataset's own radar layout ([`dataset_config`]). The node's
+//! own settings (`node.*`, `use_sim_time`) are accepted, so one file serves the node and `dc_loc run`:
+//! they are checked, and the cloud size limits apply offline too ([`input_limits`]).
 
 use std::path::Path;
 
 use super::CliError;
-use crate::params::{ParamSet, apply, flatten_config};
+use crate::input::InputLimits;
+use crate::params::node::NodeSettings;
+use crate::params::{ParamError, ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
 
 /// The configuration from a params file (the section of node `/namespace/node_name`) and `-p`
@@ -23,7 +27,7 @@ pub fn load_params(
         );
     }
     add_overrides(&mut set, overrides)?;
-    apply(&set).map_err(|e| CliError::Usage(format!("parameters ({file} and -p): {e}")))
+    pipeline_config(&set).map_err(|e| CliError::Usage(format!("parameters ({file} and -p): {e}")))
 }
 
 /// The configuration for a dataset whose radars `template` describes: `template`'s parameters, then the
@@ -44,7 +48,31 @@ pub fn dataset_config(
         }
     }
     add_overrides(&mut set, overrides)?;
-    apply(&set).map_err(|e| CliError::Usage(format!("parameters: {e}")))
+    pipeline_config(&set).map_err(|e| CliError::Usage(format!("parameters: {e}")))
+}
+
+/// The node's own parameters split off and checked, the rest applied.
+fn pipeline_config(set: &ParamSet) -> Result<Config, ParamError> {
+    let (_, rest) = NodeSettings::take_from(set)?;
+    apply(&rest)
+}
+
+/// The cloud size limits of the params file (optional) and the overrides (`node.max_cloud_points`,
+/// `node.max_cloud_bytes`; the defaults otherwise).
+pub fn input_limits(
+    params: Option<&Path>,
+    namespace: &str,
+    node_name: &str,
+    overrides: &[String],
+) -> Result<InputLimits, CliError> {
+    let mut set = match params {
+        Some(p) => read_params(p, namespace, node_name)?,
+        None => ParamSet::default(),
+    };
+    add_overrides(&mut set, overrides)?;
+    let (settings, _) =
+        NodeSettings::take_from(&set).map_err(|e| CliError::Usage(format!("parameters: {e}")))?;
+    Ok(settings.limits)
 }
 
 /// The parameters of node `/namespace/node_name` in the params file `path`.

@@ -10,9 +10,10 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 
+use super::params::input_limits;
 use super::source::{Dataset, Segment, SourceArgs};
 use super::{CliError, progress};
-use crate::input::IssueReason;
+use crate::input::{InputLimits, IssueReason};
 use crate::output::ClosureRecord;
 use crate::params::flatten_config;
 use crate::pipeline::{Event, Pipeline};
@@ -38,6 +39,13 @@ pub struct RunArgs {
 /// Runs `dc_loc run`.
 pub fn main(args: &RunArgs) -> Result<(), CliError> {
     let data = Dataset::open(&args.source, &args.namespace, &args.map_frame)?;
+    let src = &args.source;
+    let limits = input_limits(
+        src.params.as_deref(),
+        &args.namespace,
+        &src.node_name,
+        &src.overrides,
+    )?;
     let segments = data.segments()?;
     let out_path = args.out.display().to_string();
     let file =
@@ -56,7 +64,7 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
     };
     let mut reports = Vec::new();
     for segment in segments {
-        reports.push(run_segment(segment, &mut sink, &bar)?);
+        reports.push(run_segment(segment, limits, &mut sink, &bar)?);
     }
     progress::clear(&bar);
     let (closures, error, damaged) = (sink.closures, sink.error, sink.damaged);
@@ -88,6 +96,7 @@ struct ClosureSink<'a> {
 /// One segment through a fresh pipeline, its closures into `sink`.
 fn run_segment(
     segment: Segment<'_>,
+    limits: InputLimits,
     sink: &mut ClosureSink<'_>,
     bar: &indicatif::ProgressBar,
 ) -> Result<RunReport, CliError> {
@@ -108,6 +117,7 @@ fn run_segment(
     }
     let body_frame = cfg.body_frame.clone();
     let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
+    pipeline.set_input_limits(limits);
     Ok(run_inputs(
         &mut pipeline,
         segment.inputs,

@@ -30,7 +30,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 /// The keyframe map: where it is kept and how it is loaded.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapConfig {
     /// Map file to load at start and save to (default empty: no persistence).

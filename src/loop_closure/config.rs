@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 /// Revisit search and acceptance of loop closures. Every gate is a parameter; every rejection is
 /// counted by reason ([`super::RejectReason`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoopConfig {
     /// Search for revisits at all (default true; off for pure submap collection).
@@ -142,6 +142,8 @@ impl Default for LoopConfig {
 impl LoopConfig {
     /// Declares each field's range; each horizon reaches at least as far as the one before it.
     pub fn check(&self, v: &mut Validator) {
+        v.count("place_retrieve", self.place_retrieve, 0, 10_000);
+        v.count("backfill_per_keyframe", self.backfill_per_keyframe, 0, 1000);
         v.positive("search_radius", self.search_radius);
         v.positive("trusted_prior_std", self.trusted_prior_std);
         v.positive("maximum_translation_std", self.maximum_translation_std);

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 /// Radial velocity comes either from one scalar field (`velocity`, e.g. `v_r`, `velocity`, `doppler`) or,
 /// when `velocity` is empty, from the vector components `velocity_x`, `velocity_y` in the radar frame
 /// (nuScenes `vx`, `vy`), projected on the ray. An empty `z` or `rcs` means the field is not read.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FieldsConfig {
     /// x coordinate field (default `x`).
@@ -45,7 +45,7 @@ impl Default for FieldsConfig {
 }
 
 /// One radar: where it publishes, where it sits, and how it measures.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RadarConfig {
     /// PointCloud2 topic (default `/radar/points`).

@@ -18,7 +18,7 @@ use rand::rngs::StdRng;
 use serde::{Deserialize, Serialize};
 
 /// Settings of the Doppler ego-motion fit and of moving-object rejection.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EgoMotionConfig {
     /// Drop detections whose radial velocity disagrees with the ego-motion from submaps (default true).
@@ -57,6 +57,7 @@ impl Default for EgoMotionConfig {
 impl EgoMotionConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
+        v.range("seed", self.seed as f64, Range::NON_NEGATIVE);
         v.positive("inlier_threshold", self.inlier_threshold);
         v.range(
             "min_inlier_threshold",
@@ -94,7 +95,7 @@ pub enum EgoMotionError {
 }
 
 /// Which velocity components a single-radar fit estimates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum FitDims {
     /// x, y (z = 0): radars without elevation (ARS408: z is always 0).

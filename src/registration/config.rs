@@ -8,7 +8,7 @@ use crate::validate::{ConfigError, Validator};
 ///
 /// Defaults are written out on each field; [`RegistrationConfig::validate`] rejects (never clamps)
 /// unusable values and names them as `registration.<section>.<field>`.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RegistrationConfig {
     /// Fewest points a submap must have (default 10).
@@ -146,6 +146,8 @@ impl RegistrationConfig {
 
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
+        v.count("hypotheses", self.hypotheses, 0, 1000);
+        v.count("reselect_rounds", self.reselect_rounds, 0, 100);
         v.at_least("min_points", self.min_points, 3);
         v.at_least("min_inliers", self.min_inliers, 3);
         v.non_negative("min_inlier_spread", self.min_inlier_spread);

@@ -29,7 +29,7 @@ use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
 
 /// Settings of the correlative search.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CorrelativeConfig {
     /// Run it (default true) when the descriptor stage gives no result or a weak one (`below_score`,
@@ -120,6 +120,7 @@ impl Default for CorrelativeConfig {
 impl CorrelativeConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
+        v.count("below_inliers", self.below_inliers, 0, 1_000_000);
         let shifts_ok = self.slide_shifts.len() <= 32
             && self
                 .slide_shifts

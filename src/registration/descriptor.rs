@@ -50,7 +50,7 @@ pub const DESCRIPTOR_DIM: usize = 16;
 pub type Descriptor = [f32; DESCRIPTOR_DIM];
 
 /// Rotation-invariant angular part of the descriptor.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum AngularStatistic {
     /// Radial histogram only (as the DC-Loc authors' code).
@@ -62,7 +62,7 @@ pub enum AngularStatistic {
 }
 
 /// How the counts are normalised.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Normalisation {
     /// Raw (soft) counts.
@@ -80,7 +80,7 @@ pub enum Normalisation {
 /// Descriptor settings. Defaults: a 25 m neighbourhood in 10 rings plus the first 6 angular
 /// harmonics, Hellinger-normalised, at most 400 keypoints and 1500 support points per submap; the
 /// measurements behind them are in the module doc.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DescriptorConfig {
     /// Neighbourhood radius, m (default 25).

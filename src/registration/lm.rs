@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 /// stays consistent (mean NEES near 3 with known correspondences) whatever the loss and the weights;
 /// the information form only with least squares and the true point covariances
 /// (`covariance_is_consistent` in tests/registration.rs checks the default).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum CovarianceMode {
     /// Inverse of the robust-weighted Gauss-Newton information `sum rho'_i J_i^T W_i J_i`. Trusts the
@@ -47,7 +47,7 @@ pub enum CovarianceMode {
 }
 
 /// Levenberg-Marquardt settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LmConfig {
     /// Weight residuals by the point covariances (eq. 10); `false` gives the isotropic "no U.E."

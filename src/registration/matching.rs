@@ -34,7 +34,7 @@ use std::num::NonZeroUsize;
 pub const MAX_K: usize = 16;
 
 /// How the nearest descriptors are found (both exact, same result up to ties).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum MatchingBackend {
     /// Blocked linear scan (default; faster at this dimension, see the module doc).
@@ -44,7 +44,7 @@ pub enum MatchingBackend {
 }
 
 /// Matching settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MatchingConfig {
     /// Nearest target descriptors kept per queried source point (default 3, at most 15).

@@ -10,7 +10,7 @@ use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 
 /// Which robust loss.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum RobustKind {
     /// Plain least squares, `rho(s) = s`.
@@ -22,7 +22,7 @@ pub enum RobustKind {
 }
 
 /// A robust loss with its scale.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RobustLoss {
     /// The loss function (default `cauchy`, as the paper).

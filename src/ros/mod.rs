@@ -2,7 +2,7 @@
 //!
 //! The node is a thin layer: messages in, [`crate::pipeline::Pipeline`] on a worker thread, messages
 //! out. Entry points: [`node::main`] (the `dc_loc` binary without a subcommand), [`args`] (the ROS 2
-//! command line and environment, which ros2-client does not parse), [`settings`] (the node's own
+//! command line and environment, which ros2-client does not parse), [`crate::params::node`] (the node's own
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
 //! the publishers), [`diagnostics`], [`map_store`] (the map on disk), [`convert`] (the node's message
 //! types and conversions to them), [`merge`] (inputs back in stamp order). Topics and parameters:
@@ -17,7 +17,6 @@ pub mod map_store;
 pub mod merge;
 #[cfg(feature = "ros")]
 pub mod node;
-pub mod settings;
 pub mod shared;
 #[cfg(feature = "ros")]
 pub mod worker;

@@ -25,7 +25,6 @@ use serde_json::Value;
 use super::args::{ArgsError, DdsEnv, DiscoveryRange, RosArgs};
 use super::inputs::{self, Reception, TopicRadars};
 use super::map_store::{LoadedMap, MapSaver, load_map};
-use super::settings::{NodeSettings, all_params, describe};
 use super::shared::{Inbox, Shared, Work};
 use super::worker::{Outputs, Worker};
 use crate::input::InputLimits;
@@ -34,6 +33,7 @@ use crate::keyframe_db::lock::MapLock;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::params::node::{NodeSettings, all_params, describe};
 use crate::params::{ParamError, apply};
 use crate::pipeline::{Config, Pipeline};
 

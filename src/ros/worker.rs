@@ -15,7 +15,6 @@ use super::convert::{DiagnosticArray, MarkerArray, MarkerPoint, markers, submap_
 use super::diagnostics::{Diagnostics, Measures, Report};
 use super::map_store::MapSaver;
 use super::merge::StampMerger;
-use super::settings::NodeSettings;
 use super::shared::{Shared, Work, receive_time};
 use crate::input::Input;
 use crate::loop_closure::LoopClosure;
@@ -24,6 +23,7 @@ use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::output::loop_closure_msg;
+use crate::params::node::NodeSettings;
 use crate::pipeline::{Event, Pipeline};
 
 /// The node's publishers, owned by the worker thread.

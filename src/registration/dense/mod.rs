@@ -33,7 +33,7 @@ pub type TargetTree = super::grid::PointGrid;
 const GRID_CELL: f64 = 2.0;
 
 /// Settings of the dense stage.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DenseConfig {
     /// Run it (default true; off reproduces the paper's descriptor-pairs-only estimate).
@@ -128,9 +128,10 @@ impl DenseConfig {
         v.positive("surface_radius", self.surface_radius);
         v.positive("covariance_scale", self.covariance_scale);
         v.non_negative("robust_scale", self.robust_scale);
-        if self.soft_rounds > 0 {
-            v.count("soft_neighbours", self.soft_neighbours, 1, 64);
-        }
+        v.count("coarse_rounds", self.coarse_rounds, 0, 100);
+        v.count("polish_rounds", self.polish_rounds, 0, 100);
+        v.count("soft_rounds", self.soft_rounds, 0, 100);
+        v.count("soft_neighbours", self.soft_neighbours, 1, 64);
         v.count("surface_neighbours", self.surface_neighbours, 0, 64);
         v.at_least("max_source_points", self.max_source_points, self.min_pairs);
         v.at_least("min_pairs", self.min_pairs, 3);

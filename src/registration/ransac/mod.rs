@@ -52,7 +52,7 @@ impl Correspondence {
 }
 
 /// RANSAC settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RansacConfig {
     /// Inlier radius `|y - T x|`, m (default 1.0; the DC-Loc authors' code uses 0.75).
@@ -91,6 +91,8 @@ impl Default for RansacConfig {
 impl RansacConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
+        v.count("refit_rounds", self.refit_rounds, 0, 100);
+        v.range("seed", self.seed as f64, Range::NON_NEGATIVE);
         v.positive("inlier_threshold", self.inlier_threshold);
         v.non_negative("mahalanobis_gate", self.mahalanobis_gate);
         v.range("confidence", self.confidence, Range::above(0.0).below(1.0));

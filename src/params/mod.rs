@@ -10,6 +10,13 @@
 //! as ROS 2 flattens nested YAML. Radars are created from `radar_names`: each listed name gets the radar
 //! defaults, then its `radars.<name>.*` parameters. Unknown names and wrong types are refused with the
 //! parameter's name; nothing is silently ignored or clamped.
+//!
+//! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`reference`] (every
+//! parameter with its default, range and description: `dc_loc params`, README_NODE.md).
+
+pub mod file;
+pub mod node;
+pub mod reference;
 
 use crate::pipeline::Config;
 use crate::radar::RadarConfig;

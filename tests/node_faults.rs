@@ -177,3 +177,33 @@ fn a_refused_map_is_never_overwritten_and_fallbacks_are_numbered() {
         );
     }
 }
+
+#[test]
+fn a_dying_worker_ends_the_process_at_once() {
+    let dir = scratch("panic");
+    let mut child = node()
+        .args(["--ros-args", "-p", "node.diagnostics_period:=0.5"])
+        .env("DC_LOC_FAULT_WORKER_PANIC", "1")
+        .current_dir(&dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("cannot start dc_loc");
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    // The panic message, then the process must be gone within a second.
+    let panicked = lines.any(|l| l.is_ok_and(|l| l.contains("DC_LOC_FAULT_WORKER_PANIC")));
+    assert!(panicked, "no panic message");
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if t0.elapsed() > Duration::from_secs(1) {
+            let _ = child.kill();
+            panic!("the node is still running 1 s after its worker died");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert!(!status.success(), "{status}");
+}

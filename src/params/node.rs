@@ -29,6 +29,8 @@ pub struct NodeSettings {
     /// `node.shutdown_timeout`: longest time, s, the worker takes at shutdown to process the queue
     /// after the map is saved.
     pub shutdown_timeout: f64,
+    /// `node.markers_period`: shortest time, s, between two `~/markers` messages.
+    pub markers_period: f64,
 }
 
 impl Default for NodeSettings {
@@ -42,6 +44,7 @@ impl Default for NodeSettings {
             sync_timeout: 0.2,
             restart_after: 20,
             shutdown_timeout: 5.0,
+            markers_period: 1.0,
         }
     }
 }
@@ -100,6 +103,13 @@ pub const NODE_PARAMS: &[NodeParam] = &[
               the map first; what is left then is dropped, so that a supervisor's kill timeout never \
               ends the process before the map is saved.",
     },
+    NodeParam {
+        name: "node.markers_period",
+        doc: "Shortest time, s, between two `~/markers` messages: keyframes and closures that come \
+              sooner are sent with the next one, so the markers cost a bounded share of the worker \
+              however large the map (each message holds the whole session, transient local for late \
+              subscribers).",
+    },
 ];
 
 impl NodeSettings {
@@ -126,6 +136,10 @@ impl NodeSettings {
             (
                 "node.shutdown_timeout".into(),
                 Value::from(self.shutdown_timeout),
+            ),
+            (
+                "node.markers_period".into(),
+                Value::from(self.markers_period),
             ),
         ]
     }
@@ -166,6 +180,11 @@ impl NodeSettings {
             self.shutdown_timeout,
             Range::POSITIVE.up_to(600.0),
         );
+        v.range(
+            "node.markers_period",
+            self.markers_period,
+            Range::POSITIVE.up_to(3600.0),
+        );
     }
 
     /// Splits the node's own parameters off `params` and checks their ranges; the rest go to
@@ -188,6 +207,7 @@ impl NodeSettings {
                 "node.warn_interval" => s.warn_interval = number(name, v)?,
                 "node.sync_timeout" => s.sync_timeout = number(name, v)?,
                 "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
+                "node.markers_period" => s.markers_period = number(name, v)?,
                 n if n.starts_with("node.") => return Err(ParamError::Unknown(name.clone())),
                 _ => rest.set(name.clone(), v.clone()),
             }

@@ -73,6 +73,12 @@ pub struct Worker {
     settings: NodeSettings,
     body_frame: String,
     markers: Markers,
+    /// Keyframes or closures not yet in a `~/markers` message.
+    markers_pending: bool,
+    markers_sent: Option<Instant>,
+    /// `DC_LOC_FAULT_WORKER_PANIC`: the worker panics at its first periodic tick, so that a supervisor
+    /// setup can be tested against a dying node (README_NODE.md, Failure behaviour).
+    fault_panic: bool,
     measures: Measures,
     diagnostics: Diagnostics,
     saver: Option<MapSaver>,
@@ -107,6 +113,9 @@ impl Worker {
             shared,
             settings,
             markers,
+            markers_pending: true,
+            markers_sent: None,
+            fault_panic: std::env::var_os("DC_LOC_FAULT_WORKER_PANIC").is_some(),
             measures: Measures::default(),
             diagnostics: Diagnostics::new(hardware_id),
             saver,
@@ -143,7 +152,14 @@ impl Worker {
             }
             let since = self.diagnostics.since_last();
             let mut wait = Duration::from_secs_f64((period - since).max(0.0));
-            if let Some(d) = merger.deadline().into_iter().chain(deadline).min() {
+            let markers_due = self.markers_due();
+            if let Some(d) = merger
+                .deadline()
+                .into_iter()
+                .chain(deadline)
+                .chain(markers_due)
+                .min()
+            {
                 wait = wait.min(d.saturating_duration_since(now));
             }
             match rx.recv_timeout(wait) {
@@ -162,7 +178,11 @@ impl Worker {
                 self.handle(w);
             }
             self.shared.held.store(merger.len(), Ordering::SeqCst);
+            if markers_due.is_some_and(|d| Instant::now() >= d) {
+                self.publish_markers();
+            }
             if self.diagnostics.since_last() >= period {
+                assert!(!self.fault_panic, "DC_LOC_FAULT_WORKER_PANIC is set");
                 self.publish_diagnostics();
             }
             if let Some(s) = &mut self.saver {
@@ -207,6 +227,9 @@ impl Worker {
         self.shared.held.store(0, Ordering::SeqCst);
         let events = self.pipeline.finish();
         self.handle_events(events, None);
+        if self.markers_pending {
+            self.publish_markers();
+        }
         self.publish_diagnostics();
         let saved = match self.saver.take() {
             Some(s) => s.finish(self.pipeline.db()).map_or(Ok(()), Err),
@@ -309,11 +332,27 @@ impl Worker {
         );
     }
 
-    /// The markers and the current submap.
-    fn publish_map_views(&mut self) {
-        if let Err(e) = self.out.markers.publish(self.markers.message(self.now())) {
+    /// When the pending markers are due (`None`: nothing pending).
+    fn markers_due(&self) -> Option<Instant> {
+        let period = Duration::from_secs_f64(self.settings.markers_period);
+        self.markers_pending
+            .then(|| self.markers_sent.map_or_else(Instant::now, |t| t + period))
+    }
+
+    /// The session's keyframes and closures on `~/markers`.
+    fn publish_markers(&mut self) {
+        let msg = self.markers.message(self.now());
+        self.measures.markers_points = msg.markers.iter().map(|m| m.points.len()).sum();
+        if let Err(e) = self.out.markers.publish(msg) {
             log::debug!("markers: {e:?}");
         }
+        self.markers_pending = false;
+        self.markers_sent = Some(Instant::now());
+    }
+
+    /// The markers (when due) and the current submap.
+    fn publish_map_views(&mut self) {
+        self.markers_pending = true;
         if let Some(s) = self.pipeline.current_submap()
             && let Err(e) = self.out.submap.publish(submap_cloud(&s, &self.body_frame))
         {

@@ -4,7 +4,7 @@
 //! ([`reselect`]); and the alternatives the ambiguity gate compares the winner with ([`finish`]).
 
 use super::prepared::{DenseSets, PairContext};
-use super::search::Screened;
+use super::ransac::Screened;
 use super::{
     PointSet2, RegistrationConfig, RegistrationDetail, RegistrationError, RegistrationResult,
     correlative, covariance_ros_from_se2, dense, lm, ransac, robust,

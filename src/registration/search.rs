@@ -11,14 +11,12 @@
 
 use super::finishing::{Fit, check_inliers, conclude, descriptor_pairs, reselect};
 use super::prepared::{DenseSets, PairContext};
+use super::ransac::Screened;
 use super::{
     PointSet2, RegistrationConfig, RegistrationDetail, RegistrationError, correlative, dense, lm,
     ransac,
 };
 use crate::math::{Iso2, Vec2};
-
-/// The motions RANSAC found and their screening coverage, best first.
-pub type Screened = Vec<(usize, ransac::RansacResult)>;
 
 /// RANSAC and the screening: the supported motions ranked by coverage, best first. Empty when RANSAC
 /// found nothing but the correlative search may still; an error when nothing can follow.

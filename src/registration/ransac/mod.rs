@@ -101,6 +101,10 @@ impl RansacConfig {
     }
 }
 
+/// The motions RANSAC found and their screening coverage (the dense stage's count of covered
+/// points), best first.
+pub type Screened = Vec<(usize, RansacResult)>;
+
 /// What [`ransac`] returns.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RansacResult {

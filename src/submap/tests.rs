@@ -1,0 +1,324 @@
+//! Unit tests of submap stacking.
+
+use super::*;
+use crate::math::{iso2_from_iso3, iso3_from_xyz_rpy};
+use crate::radar::{Detection, RadarNoise};
+use approx::assert_relative_eq;
+
+fn odom_circle(buf: &mut OdometryBuffer, t_end: f64, rate: f64) {
+    // Constant speed 10 m/s, yaw rate 0.2 rad/s: an exact circle of radius 50 m.
+    let n = (t_end * rate) as usize;
+    for i in 0..=n {
+        let t = i as f64 / rate;
+        buf.push(Stamp::from_secs_f64(t), circle_pose(t)).unwrap();
+    }
+}
+
+fn circle_pose(t: f64) -> Iso3 {
+    circle_pose_at(t, 10.0)
+}
+
+/// The pose at `t` on a circle driven at speed `v` and yaw rate 0.2 rad/s.
+fn circle_pose_at(t: f64, v: f64) -> Iso3 {
+    let w = 0.2;
+    let yaw = w * t;
+    iso3_from_xyz_rpy(
+        v / w * yaw.sin(),
+        v / w * (1.0 - yaw.cos()),
+        0.0,
+        0.0,
+        0.0,
+        yaw,
+    )
+}
+
+#[test]
+fn interpolation_on_a_circle_and_its_limits() {
+    let mut buf = OdometryBuffer::new(OdometryConfig::default());
+    odom_circle(&mut buf, 5.0, 50.0);
+    for &t in &[0.0, 0.013, 1.0, 2.37, 4.999, 5.0] {
+        let p = buf.pose_at(Stamp::from_secs_f64(t)).unwrap();
+        let truth = circle_pose(t);
+        // Chord vs arc between 20 ms samples: <= v^2 w dt^2 / 8 ~ 1e-4 m.
+        assert_relative_eq!(
+            p.translation.vector,
+            truth.translation.vector,
+            epsilon = 2e-4
+        );
+        assert_relative_eq!(p.rotation.angle_to(&truth.rotation), 0.0, epsilon = 1e-9);
+    }
+    // 30 ms past the newest: extrapolated; 100 ms: not yet.
+    let e = buf.pose_at(Stamp::from_secs_f64(5.03)).unwrap();
+    assert_relative_eq!(
+        e.translation.vector,
+        circle_pose(5.03).translation.vector,
+        epsilon = 2e-3
+    );
+    assert!(matches!(
+        buf.pose_at(Stamp::from_secs_f64(5.1)),
+        Err(OdometryError::NotYet { .. })
+    ));
+    assert!(matches!(
+        buf.pose_at(Stamp::from_secs_f64(-0.1)),
+        Err(OdometryError::TooOld { .. })
+    ));
+    let (v, w) = buf.velocity_at(Stamp::from_secs_f64(2.0), 0.05).unwrap();
+    assert_relative_eq!(v, Vec3::new(10.0, 0.0, 0.0), epsilon = 1e-3);
+    assert_relative_eq!(w, 0.2, epsilon = 1e-6);
+    // Backwards time is refused and changes nothing.
+    let before = buf.len();
+    assert!(matches!(
+        buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0)),
+        Err(OdometryError::TimeWentBackwards { .. })
+    ));
+    assert_eq!(buf.len(), before);
+}
+
+#[test]
+fn gaps_are_not_bridged() {
+    let mut buf = OdometryBuffer::new(OdometryConfig::default());
+    buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0))
+        .unwrap();
+    buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0))
+        .unwrap();
+    assert!(matches!(
+        buf.pose_at(Stamp::from_secs_f64(1.0)),
+        Err(OdometryError::Gap { .. })
+    ));
+    assert!(
+        buf.push(
+            Stamp::from_secs_f64(3.0),
+            Iso3::translation(f64::NAN, 0.0, 0.0)
+        )
+        .is_err()
+    );
+}
+
+/// The Doppler speed scale on, at the bound it is documented with.
+const ON: SubmapConfig = SubmapConfig {
+    size: 10,
+    max_span: 3.0,
+    speed_scale_bound: 0.1,
+};
+
+/// A world of static points around the circle.
+fn circle_world() -> Vec<Vec3> {
+    (0..60)
+        .map(|i| {
+            let a = i as f64 * 0.37;
+            Vec3::new(40.0 + 30.0 * a.cos(), 25.0 + 30.0 * a.sin(), 0.5)
+        })
+        .collect()
+}
+
+/// Drives the circle (truly at 10 m/s) for 14 scans of a forward radar, with an odometry that
+/// reports `odom_speed` on the same yaw rate, into a builder with `cfg`.
+fn circle_submap(odom_speed: f64, cfg: SubmapConfig) -> Submap {
+    let mut odom = OdometryBuffer::new(OdometryConfig::default());
+    for i in 0..=150 {
+        let t = i as f64 / 50.0;
+        let p = circle_pose_at(t, odom_speed);
+        odom.push(Stamp::from_secs_f64(t), p).unwrap();
+    }
+    let radar = RadarModel {
+        t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    };
+    let world = circle_world();
+    let mut builder = SubmapBuilder::new(cfg, EgoMotionConfig::default(), vec![radar.clone()]);
+    for k in 0..14 {
+        let t = 1.0 + k as f64 / 13.0;
+        let t_odom_body = circle_pose(t);
+        let (v_body, w) = (Vec3::new(10.0, 0.0, 0.0), 0.2);
+        let t_br = radar.t_body_radar.translation.vector;
+        let v_radar = radar.t_body_radar.rotation.inverse()
+            * (v_body + Vec3::new(-w * t_br.y, w * t_br.x, 0.0));
+        let t_odom_radar = t_odom_body * radar.t_body_radar;
+        let mut dets = Vec::new();
+        for q in &world {
+            let p = t_odom_radar.inverse() * nalgebra::Point3::from(*q);
+            let r = p.coords.norm();
+            if p.x <= 0.0 || r > 100.0 {
+                continue;
+            }
+            let d = p.coords / r;
+            let v_r = -d.dot(&v_radar);
+            dets.push(Detection {
+                p_radar: d * (r + 0.04 * v_r),
+                v_r,
+                rcs: None,
+            });
+        }
+        let scan = RadarScan {
+            radar: 0,
+            stamp: Stamp::from_secs_f64(t),
+            detections: dets,
+        };
+        let pose = odom.pose_at(scan.stamp).unwrap();
+        let prior = odom.velocity_at(scan.stamp, 0.05);
+        let rep = builder.add_scan(&scan, pose, prior).unwrap();
+        assert!(rep.doppler_fit);
+        assert_eq!(rep.dynamic, 0);
+    }
+    builder.build().unwrap()
+}
+
+/// The largest distance of a submap point (compensated or raw) from the nearest world point, in
+/// the true anchor frame.
+fn worst_error(sub: &Submap, raw: bool) -> f64 {
+    let t_anchor_odom = circle_pose(2.0).inverse();
+    let truth: Vec<Vec3> = circle_world()
+        .iter()
+        .map(|q| (t_anchor_odom * nalgebra::Point3::from(*q)).coords)
+        .collect();
+    sub.points
+        .iter()
+        .map(|p| {
+            let p = if raw { p.p_raw } else { p.p };
+            truth
+                .iter()
+                .map(|t| (t - p).norm())
+                .fold(f64::MAX, f64::min)
+        })
+        .fold(0.0, f64::max)
+}
+
+/// A world of static points seen by a forward radar while driving the circle: every scan, placed with
+/// interpolated odometry and compensated, lands its points on the true world points in the anchor frame.
+#[test]
+fn submap_stacks_compensated_scans_on_the_world() {
+    let sub = circle_submap(10.0, ON);
+    assert_eq!(sub.scans.len(), 10, "only the last N = 10 scans");
+    assert_eq!(sub.anchor_stamp, Stamp::from_secs_f64(1.0 + 13.0 / 13.0));
+    let err = worst_error(&sub, false);
+    assert!(err < 1e-3, "compensated point off the world by {err}");
+    let worst_raw = worst_error(&sub, true);
+    assert!(
+        worst_raw > 0.3,
+        "the raw points do carry the Doppler distortion ({worst_raw})"
+    );
+    // Odometry and Doppler agree: chord against arc between scans, 1e-5.
+    let SpeedScale::Applied(k) = sub.speed_scale else {
+        panic!("{:?}", sub.speed_scale);
+    };
+    assert_relative_eq!(k, 1.0, epsilon = 1e-4);
+    let ps = sub.point_set(true);
+    assert_eq!(ps.len(), sub.len());
+    assert_eq!(
+        iso2_from_iso3(&sub.scans[9].t_anchor_body)
+            .translation
+            .vector
+            .norm(),
+        0.0
+    );
+}
+
+/// An odometry 4 % long (a larger circle on the same yaw rate): uncorrected, the oldest scan lands
+/// 4 % of its 7 m from the anchor off; the Doppler speeds scale the distances back.
+#[test]
+fn the_doppler_speeds_correct_the_odometry_distances() {
+    let off = circle_submap(
+        10.4,
+        SubmapConfig {
+            speed_scale_bound: 0.0,
+            ..ON
+        },
+    );
+    assert_eq!(off.speed_scale, SpeedScale::Unavailable);
+    let err_off = worst_error(&off, false);
+    assert!(
+        err_off > 0.2,
+        "the odometry stretches the submap ({err_off})"
+    );
+    let on = circle_submap(10.4, ON);
+    let SpeedScale::Applied(k) = on.speed_scale else {
+        panic!("{:?}", on.speed_scale);
+    };
+    assert_relative_eq!(k, 1.0 / 1.04, epsilon = 1e-4);
+    let err_on = worst_error(&on, false);
+    assert!(err_on < 2e-3, "corrected points off the world by {err_on}");
+    // Beyond the bound the odometry is used as it is, and the ratio is reported.
+    let refused = circle_submap(
+        10.4,
+        SubmapConfig {
+            speed_scale_bound: 0.03,
+            ..ON
+        },
+    );
+    let SpeedScale::Refused(k) = refused.speed_scale else {
+        panic!("{:?}", refused.speed_scale);
+    };
+    assert_relative_eq!(k, 1.0 / 1.04, epsilon = 1e-4);
+    assert_relative_eq!(worst_error(&refused, false), err_off, epsilon = 1e-12);
+}
+
+#[test]
+fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
+    let radars = vec![
+        RadarModel {
+            t_body_radar: Iso3::identity(),
+            beta: 0.04,
+            noise: RadarNoise::default(),
+        },
+        RadarModel {
+            t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, std::f64::consts::PI),
+            beta: 0.04,
+            noise: RadarNoise::default(),
+        },
+    ];
+    let cfg = SubmapConfig {
+        size: 3,
+        ..SubmapConfig::default()
+    };
+    let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
+    for k in 0..8 {
+        for radar in 0..2 {
+            // Radar 1 faces backwards: it sees static points receding.
+            let v_radar = if radar == 0 {
+                Vec3::new(10.0, 0.0, 0.0)
+            } else {
+                Vec3::new(-10.0, 0.0, 0.0)
+            };
+            let mut dets: Vec<Detection> = (0..30)
+                .map(|i| {
+                    let a = -1.0 + i as f64 / 15.0;
+                    let d = Vec3::new(a.cos(), a.sin(), 0.0);
+                    Detection {
+                        p_radar: d * (10.0 + i as f64),
+                        v_r: -d.dot(&v_radar),
+                        rcs: None,
+                    }
+                })
+                .collect();
+            // An oncoming car straight ahead.
+            dets.push(Detection {
+                p_radar: Vec3::new(20.0, 0.5, 0.0),
+                v_r: -25.0,
+                rcs: None,
+            });
+            let scan = RadarScan {
+                radar,
+                stamp: Stamp::from_secs_f64(k as f64 * 0.077 + radar as f64 * 0.01),
+                detections: dets,
+            };
+            let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+            assert_eq!(rep.dynamic, 1);
+            assert_eq!(rep.kept, 30);
+        }
+    }
+    assert_eq!(b.scan_count(), 6);
+    let sub = b.build().unwrap();
+    assert_eq!(sub.scans.iter().filter(|s| s.radar == 1).count(), 3);
+    assert!(
+        b.add_scan(
+            &RadarScan {
+                radar: 5,
+                ..Default::default()
+            },
+            Iso3::identity(),
+            None
+        )
+        .is_none()
+    );
+}

@@ -3,7 +3,7 @@
 //! `dc_loc run` reads from a bag, and publishes closures, markers and the submap as they come,
 //! diagnostics every `node.diagnostics_period`; the map is saved by [`MapSaver`].
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
@@ -38,30 +38,40 @@ pub struct Outputs {
     pub diagnostics: Publisher<DiagnosticArray>,
 }
 
-/// This session's keyframe positions (odometry frame) and closure edges, for `~/markers`.
+/// This session's newest keyframe positions (odometry frame) and closure edges, for `~/markers`: at
+/// most `cap` of each (`map.max_keyframes`), the oldest leaving first, so a long run's markers stay
+/// bounded.
 struct Markers {
     frame: String,
+    cap: usize,
     points: BTreeMap<u64, MarkerPoint>,
-    edges: Vec<(MarkerPoint, MarkerPoint)>,
+    edges: VecDeque<(MarkerPoint, MarkerPoint)>,
 }
 
 impl Markers {
     fn keyframe(&mut self, id: u64, t_odom_body: &Iso3) {
         let p = t_odom_body.translation.vector;
         self.points.insert(id, MarkerPoint { x: p.x, y: p.y });
+        while self.points.len() > self.cap {
+            self.points.pop_first();
+        }
     }
 
     /// An edge between two keyframes of this session's odometry frame (a loaded map's keyframes are
     /// in another frame).
     fn closure(&mut self, c: &LoopClosure) {
         if let (Some(a), Some(b)) = (self.points.get(&c.query_id), self.points.get(&c.match_id)) {
-            self.edges.push((*a, *b));
+            self.edges.push_back((*a, *b));
+            while self.edges.len() > self.cap {
+                self.edges.pop_front();
+            }
         }
     }
 
     fn message(&self, now: Time) -> MarkerArray {
         let kfs: Vec<MarkerPoint> = self.points.values().copied().collect();
-        markers(now, &self.frame, &kfs, &self.edges)
+        let edges: Vec<(MarkerPoint, MarkerPoint)> = self.edges.iter().copied().collect();
+        markers(now, &self.frame, &kfs, &edges)
     }
 }
 
@@ -96,8 +106,9 @@ impl Worker {
     ) -> Self {
         let mut markers = Markers {
             frame: "odom".into(),
+            cap: pipeline.config().map.max_keyframes,
             points: BTreeMap::new(),
-            edges: Vec::new(),
+            edges: VecDeque::new(),
         };
         for r in pipeline.db().records() {
             if r.session == pipeline.session() {

@@ -41,8 +41,10 @@ fn main() {
         std::process::Stdio::inherit(),
     );
     let pid = node.id();
+    let rt = replay::runtime();
+    let _entered = rt.enter();
     let replayer = Replayer::new(domain, &drive.radar_topics);
-    smol::block_on(async {
+    rt.block_on(async {
         replayer.wait_for_node().await;
         let cpu0 = cpu_seconds(pid).unwrap_or(0.0);
         let start = Instant::now();
@@ -51,7 +53,7 @@ fn main() {
         for (t, m) in &drive.messages {
             let due = start + Duration::from_secs_f64(t.secs_since(first) / rate);
             if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                smol::Timer::after(wait).await;
+                tokio::time::sleep(wait).await;
             }
             replayer.publish(m).await;
             if last_print.elapsed() > Duration::from_secs(5) {
@@ -70,7 +72,7 @@ fn main() {
         let wall = start.elapsed().as_secs_f64();
         let cpu = cpu_seconds(pid).unwrap_or(0.0) - cpu0;
         // Two more diagnostics periods for the final figures.
-        smol::Timer::after(Duration::from_millis(2500)).await;
+        tokio::time::sleep(Duration::from_millis(2500)).await;
         let g = |k: &str| replayer.value(k);
         println!(
             "\nsummary: {radars} radars + odometry, {} messages in {wall:.1} s\n\

@@ -184,6 +184,8 @@ fn main() {
         log.into(),
     );
     let pid = node.id();
+    let rt = replay::runtime();
+    let _entered = rt.enter();
     let replayer = Replayer::new(domain, &drive.radar_topics);
     let (start_pose, end_pose) = end_poses(&drive);
     // One pass: the drive's duration plus one odometry period, so stamps never repeat.
@@ -199,7 +201,7 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut samples = Vec::new();
-    smol::block_on(async {
+    rt.block_on(async {
         replayer.wait_for_node().await;
         let start = Instant::now();
         let end = start + Duration::from_secs(u64::from(minutes) * 60);
@@ -211,7 +213,7 @@ fn main() {
                 let drive_s = (pass * pass_ns) as f64 * 1e-9 + t.secs_since(first);
                 let due = start + Duration::from_secs_f64(drive_s / rate);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                    smol::Timer::after(wait).await;
+                    tokio::time::sleep(wait).await;
                 }
                 replayer
                     .publish(&pass_message(m, pass * pass_ns, &offset))
@@ -229,7 +231,7 @@ fn main() {
             pass += 1;
             offset *= one_pass;
         }
-        smol::Timer::after(Duration::from_secs(3)).await;
+        tokio::time::sleep(Duration::from_secs(3)).await;
     });
     let gap = *replayer
         .longest_gap

@@ -153,7 +153,8 @@ pub struct Replayer {
 }
 
 impl Replayer {
-    /// Publishers for `radar_topics` and `/odom`, and a `/diagnostics` subscriber, in `domain`.
+    /// Publishers for `radar_topics` and `/odom`, and a `/diagnostics` subscriber, in `domain` (call
+    /// inside a tokio runtime: [`runtime`]).
     pub fn new(domain: u16, radar_topics: &[String]) -> Replayer {
         let dp = ros2_client::dds::rustdds::DomainParticipantBuilder::new(domain)
             .with_only_networks([Ipv4Addr::LOCALHOST])
@@ -197,7 +198,7 @@ impl Replayer {
         let latest = Arc::new(Mutex::new((BTreeMap::new(), None::<Instant>)));
         let longest_gap = Arc::new(Mutex::new(0.0));
         let (l, g) = (latest.clone(), longest_gap.clone());
-        smol::spawn(async move {
+        tokio::spawn(async move {
             let mut s = std::pin::pin!(diag.async_stream());
             while let Some(Ok((d, _))) = s.next().await {
                 let mut l = l.lock().unwrap_or_else(|e| e.into_inner());
@@ -212,9 +213,8 @@ impl Replayer {
                     }
                 }
             }
-        })
-        .detach();
-        smol::spawn(node.spinner().expect("spinner").spin()).detach();
+        });
+        tokio::spawn(node.spinner().expect("spinner").spin());
         Replayer {
             node,
             clouds,
@@ -238,7 +238,7 @@ impl Replayer {
                 t0.elapsed() < Duration::from_secs(30),
                 "the node did not match"
             );
-            smol::Timer::after(Duration::from_millis(50)).await;
+            tokio::time::sleep(Duration::from_millis(50)).await;
         }
     }
 
@@ -259,6 +259,14 @@ impl Replayer {
         let l = self.latest.lock().unwrap_or_else(|e| e.into_inner());
         l.0.get(key).cloned().unwrap_or_else(|| "-".into())
     }
+}
+
+/// The runtime the replay runs on (one thread, with timers).
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .expect("tokio runtime")
 }
 
 /// CPU time (user + system) of a process, s (clock ticks of 1/100 s).

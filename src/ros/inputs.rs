@@ -163,6 +163,6 @@ pub async fn publisher_counts(
         }
         counts.push(("odometry".to_string(), odometry.get_publisher_count(node)));
         lock(&shared.publishers).extend(counts);
-        smol::Timer::after(Duration::from_millis(250)).await;
+        tokio::time::sleep(Duration::from_millis(250)).await;
     }
 }

@@ -147,9 +147,16 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         env.range,
         describe(&cfg, &settings)
     );
+    // One tokio thread runs DDS reception, the spinner and the timers; the pipeline has a thread of
+    // its own.
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .map_err(|e| NodeError::Runtime(format!("tokio runtime: {e}")))?;
+    let _entered = runtime.enter();
     let context = dds_context(&env)?;
     let mut node = make_node(&context, ros_args, &cfg, &settings)?;
-    let spin_task = smol::spawn(node.spinner().map_err(dds("spinner"))?.spin());
+    let spin_task = tokio::spawn(node.spinner().map_err(dds("spinner"))?.spin());
     let subs = Subscriptions::new(&mut node, ros_args, &cfg, settings.use_sim_time)?;
     let outputs = outputs(&mut node, ros_args)?;
 
@@ -160,7 +167,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         save_to.map(|path| MapSaver::new(path, cfg.map_shape(), cfg.map.save_interval, &db));
     let pipeline = Pipeline::with_map(cfg.clone(), db).map_err(|e| NodeError::Param(e.into()))?;
     // The worker says when it ends: before a stop was asked for, the node cannot go on.
-    let (done_tx, done_rx) = smol::channel::bounded::<()>(1);
+    let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let worker = {
         let worker = Worker::new(
             pipeline,
@@ -174,7 +181,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             .name("dc_loc-worker".into())
             .spawn(move || {
                 let result = worker.run(rx);
-                let _ = done_tx.try_send(());
+                let _ = done_tx.send(());
                 result
             })
             .map_err(|e| NodeError::Runtime(format!("worker thread: {e}")))?
@@ -186,7 +193,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         inbox: inbox.clone(),
         use_sim_time: settings.use_sim_time,
     };
-    let ended = smol::block_on(subs.receive(&node, reception, settings.limits, stop, done_rx));
+    let ended = runtime.block_on(subs.receive(&node, reception, settings.limits, stop, done_rx));
     log::info!("shutting down: saving the map, then processing the queued messages");
     shared.stopping.store(true, Ordering::SeqCst);
     inbox.stop();
@@ -194,7 +201,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let result = worker.join();
     // Drop order: streams and entities before the context.
     drop(subs);
-    drop(spin_task);
+    spin_task.abort();
     drop(node);
     drop(context);
     let saved = result.map_err(|_| NodeError::Runtime("the worker thread panicked".into()))?;
@@ -246,8 +253,8 @@ fn make_node(
 }
 
 /// A future that completes at the first SIGINT or SIGTERM; a second signal ends the process at once.
-fn stop_signal() -> smol::channel::Receiver<()> {
-    let (stop_tx, stop_rx) = smol::channel::bounded::<()>(1);
+fn stop_signal() -> tokio::sync::mpsc::Receiver<()> {
+    let (stop_tx, stop_rx) = tokio::sync::mpsc::channel::<()>(1);
     let requested = AtomicBool::new(false);
     if let Err(e) = ctrlc::set_handler(move || {
         if requested.swap(true, Ordering::SeqCst) {
@@ -312,8 +319,8 @@ impl Subscriptions {
         node: &Node,
         r: Reception,
         limits: InputLimits,
-        stop: smol::channel::Receiver<()>,
-        worker_done: smol::channel::Receiver<()>,
+        mut stop: tokio::sync::mpsc::Receiver<()>,
+        worker_done: tokio::sync::oneshot::Receiver<()>,
     ) -> Option<String> {
         let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
         for (topic, radars, sub) in &self.radars {
@@ -335,7 +342,7 @@ impl Subscriptions {
         // Every task runs as long as the node: the first to end is a failure.
         let any_ended = futures::future::select_all(tasks);
         let failure = async {
-            futures::future::select(any_ended, Box::pin(worker_done.recv())).await;
+            futures::future::select(any_ended, worker_done).await;
             log::error!("a task the node needs ended: stopping");
         };
         let stopped = async {

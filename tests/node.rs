@@ -149,6 +149,8 @@ struct Replay {
     replay_seconds: f64,
     /// `~/markers` (points per marker namespace of the latest) and `~/submap` (count, points, fields).
     outputs: serde_json::Value,
+    /// `--set-at`: the stamp of the drive at the parameter change and the service's answer.
+    set_at: Option<(f64, String)>,
 }
 
 impl Replay {
@@ -245,6 +247,10 @@ fn replay_on(d: &Drive, name: &str, script_args: &[&str], node_args: &[&str]) ->
         node_exit: v["node_exit"].as_i64().unwrap(),
         replay_seconds: v["replay_seconds"].as_f64().unwrap(),
         outputs: v["outputs"].clone(),
+        set_at: v["set_at_stamp"].as_f64().map(|t| {
+            let answer = v["set_result"].as_str().unwrap_or_default().to_string();
+            (t, answer)
+        }),
     }
 }
 
@@ -465,6 +471,57 @@ fn malformed_inputs_are_counted_and_change_no_closure() {
     // The empty and NaN clouds carried the stamp of the good cloud before them: dropped as duplicates.
     assert_eq!(r.diag("duplicate_stamp"), sent["empty_clouds"]);
     assert!(r.diag("nan_points") > 0);
+}
+
+#[test]
+fn a_live_gate_change_applies_from_the_next_keyframe() {
+    let _serial = serial();
+    let d = drive();
+    // At 60 % of the drive the revisit search is switched off with `ros2 param set`.
+    let r = replay(
+        "live",
+        &["--set-at", "0.6", "loop.enabled:=false"],
+        &["--params-file", d.params.to_str().unwrap()],
+    );
+    assert_eq!(r.node_exit, 0);
+    let (t_set, answer) = r.set_at.clone().expect("the parameter was set");
+    assert_eq!(answer, "ok");
+    // Before the change the closures are the offline run's; after it (beyond the keyframes then in
+    // flight) there are none.
+    let before: Vec<&ClosureRecord> = d
+        .offline
+        .iter()
+        .filter(|c| c.query_stamp < t_set - 2.0)
+        .collect();
+    let after_offline = d
+        .offline
+        .iter()
+        .filter(|c| c.query_stamp > t_set + 2.0)
+        .count();
+    assert!(
+        before.len() >= 10 && after_offline >= 20,
+        "{} / {after_offline}",
+        before.len()
+    );
+    let got = by_pair(&r.rclpy);
+    for c in &before {
+        assert!(
+            got.contains_key(&(c.query_id, c.match_id)),
+            "closure {} -> {} missing",
+            c.query_id,
+            c.match_id
+        );
+    }
+    let late: Vec<_> = r
+        .rclpy
+        .iter()
+        .filter(|c| c.query_stamp > t_set + 2.0)
+        .collect();
+    assert!(
+        late.is_empty(),
+        "{} closures after loop.enabled:=false",
+        late.len()
+    );
 }
 
 fn run_node(args: &[&str]) -> Output {

@@ -142,6 +142,11 @@ pub struct LoopCloser {
 }
 
 impl LoopCloser {
+    /// New gates and search settings (a run-time parameter change); the session state stays.
+    pub fn set_config(&mut self, lc: LoopConfig) {
+        self.lc = lc;
+    }
+
     /// A loop closer for session `session` (earlier sessions are those of a loaded map).
     pub fn new(lc: LoopConfig, rc: RegistrationConfig, session: u32) -> Self {
         LoopCloser {

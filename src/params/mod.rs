@@ -11,10 +11,12 @@
 //! defaults, then its `radars.<name>.*` parameters. Unknown names and wrong types are refused with the
 //! parameter's name; nothing is silently ignored or clamped.
 //!
-//! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`reference`] (every
+//! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`live`] (what changes at
+//! run time), [`file`] (params files written), [`reference`] (every
 //! parameter with its default, range and description: `dc_loc params`, README_NODE.md).
 
 pub mod file;
+pub mod live;
 pub mod node;
 pub mod reference;
 

@@ -31,6 +31,8 @@ pub struct NodeSettings {
     pub shutdown_timeout: f64,
     /// `node.markers_period`: shortest time, s, between two `~/markers` messages.
     pub markers_period: f64,
+    /// `node.log_level`: dc_loc's log level (`debug`, `info`, `warn`, `error`; empty: as started).
+    pub log_level: String,
 }
 
 impl Default for NodeSettings {
@@ -45,6 +47,7 @@ impl Default for NodeSettings {
             restart_after: 20,
             shutdown_timeout: 5.0,
             markers_period: 1.0,
+            log_level: String::new(),
         }
     }
 }
@@ -110,9 +113,28 @@ pub const NODE_PARAMS: &[NodeParam] = &[
               however large the map (each message holds the whole session, transient local for late \
               subscribers).",
     },
+    NodeParam {
+        name: "node.log_level",
+        doc: "dc_loc's own log level, on stderr and `/rosout`: `debug`, `info`, `warn` or `error`; \
+              empty keeps the start-up level (`--log-level`, `RUST_LOG`). Changes at run time.",
+    },
 ];
 
+/// The log levels `node.log_level` takes.
+pub const LOG_LEVELS: [&str; 5] = ["", "debug", "info", "warn", "error"];
+
 impl NodeSettings {
+    /// `node.log_level` as a filter (`None` when empty).
+    pub fn log_filter(&self) -> Option<log::LevelFilter> {
+        match self.log_level.as_str() {
+            "debug" => Some(log::LevelFilter::Debug),
+            "info" => Some(log::LevelFilter::Info),
+            "warn" => Some(log::LevelFilter::Warn),
+            "error" => Some(log::LevelFilter::Error),
+            _ => None,
+        }
+    }
+
     /// The settings as `(name, value)` parameters.
     pub fn as_params(&self) -> Vec<(String, Value)> {
         vec![
@@ -141,6 +163,7 @@ impl NodeSettings {
                 "node.markers_period".into(),
                 Value::from(self.markers_period),
             ),
+            ("node.log_level".into(), Value::from(self.log_level.clone())),
         ]
     }
 
@@ -185,6 +208,16 @@ impl NodeSettings {
             self.markers_period,
             Range::POSITIVE.up_to(3600.0),
         );
+        v.require(
+            "node.log_level",
+            LOG_LEVELS.contains(&self.log_level.as_str()),
+            || {
+                format!(
+                    "`{}` must be one of debug, info, warn, error or empty",
+                    self.log_level
+                )
+            },
+        );
     }
 
     /// Splits the node's own parameters off `params` and checks their ranges; the rest go to
@@ -208,6 +241,12 @@ impl NodeSettings {
                 "node.sync_timeout" => s.sync_timeout = number(name, v)?,
                 "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
                 "node.markers_period" => s.markers_period = number(name, v)?,
+                "node.log_level" => {
+                    s.log_level = v
+                        .as_str()
+                        .ok_or_else(|| type_error(name, "a string", v))?
+                        .to_string()
+                }
                 n if n.starts_with("node.") => return Err(ParamError::Unknown(name.clone())),
                 _ => rest.set(name.clone(), v.clone()),
             }
@@ -287,10 +326,12 @@ mod tests {
             };
             let mut bad = ParamSet::default();
             bad.set_override(&format!("{name}:={huge}")).unwrap();
-            assert!(
-                matches!(NodeSettings::take_from(&bad), Err(ParamError::Invalid(ref e)) if e.name == name),
-                "{name}:={huge} accepted"
-            );
+            let refused = match NodeSettings::take_from(&bad) {
+                Err(ParamError::Invalid(e)) => e.name == name,
+                Err(ParamError::Type { name: n, .. }) => n == name,
+                _ => false,
+            };
+            assert!(refused, "{name}:={huge} accepted");
         }
         let mut bad = ParamSet::default();
         bad.set_override("node.queue:=3").unwrap();

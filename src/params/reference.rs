@@ -9,7 +9,8 @@ use std::fmt::Write;
 
 use serde_json::Value;
 
-use super::node::{NODE_PARAMS, NodeSettings, all_params};
+use super::live::is_live;
+use super::node::{LOG_LEVELS, NODE_PARAMS, NodeSettings, all_params};
 use crate::pipeline::Config;
 use crate::validate::{Range, Validator};
 
@@ -26,6 +27,8 @@ pub struct ParamDoc {
     pub choices: Vec<String>,
     /// What it does.
     pub description: String,
+    /// It may change while the node runs ([`super::live`]).
+    pub live: bool,
 }
 
 /// The name with a radar's own name replaced by `<name>`.
@@ -51,6 +54,8 @@ pub fn reference() -> Vec<ParamDoc> {
     for p in NODE_PARAMS {
         described.text.insert(p.name.to_string(), p.doc.to_string());
     }
+    let levels = LOG_LEVELS.iter().map(|l| l.to_string()).collect();
+    described.choices.insert("node.log_level".into(), levels);
     all_params(&cfg, &settings)
         .into_iter()
         .map(|(name, default)| {
@@ -59,6 +64,7 @@ pub fn reference() -> Vec<ParamDoc> {
                 range: ranges.get(&name).copied(),
                 choices: described.choices.get(&name).cloned().unwrap_or_default(),
                 description: described.text.get(&name).cloned().unwrap_or_default(),
+                live: is_live(&name),
                 default,
                 name,
             }
@@ -215,7 +221,17 @@ fn accepted(p: &ParamDoc) -> String {
         return r.to_string();
     }
     if !p.choices.is_empty() {
-        let c: Vec<String> = p.choices.iter().map(|c| format!("`{c}`")).collect();
+        let c: Vec<String> = p
+            .choices
+            .iter()
+            .map(|c| {
+                if c.is_empty() {
+                    "`\"\"`".into()
+                } else {
+                    format!("`{c}`")
+                }
+            })
+            .collect();
         return c.join(", ");
     }
     String::new()
@@ -257,16 +273,17 @@ pub fn markdown(params: &[ParamDoc]) -> String {
         if let Some(d) = sections.sections.get(section) {
             let _ = writeln!(out, "{d}\n");
         }
-        out.push_str("| parameter | type | default | accepts | description |\n");
-        out.push_str("|---|---|---|---|---|\n");
+        out.push_str("| parameter | type | default | accepts | live | description |\n");
+        out.push_str("|---|---|---|---|---|---|\n");
         for p in params {
             let _ = writeln!(
                 out,
-                "| `{}` | {} | {} | {} | {} |",
+                "| `{}` | {} | {} | {} | {} | {} |",
                 p.name,
                 type_of(&p.default),
                 shown(&p.default),
                 accepted(p).replace('|', "\\|"),
+                if p.live { "yes" } else { "" },
                 p.description.replace('|', "\\|")
             );
         }

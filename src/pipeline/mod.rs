@@ -54,6 +54,14 @@ impl Pipeline {
         Self::with_map(cfg, db)
     }
 
+    /// Takes the run-time parameters of `cfg` (`loop.*`, `keyframe.*`, see [`crate::params::live`]);
+    /// they apply from the next keyframe. Everything else of `cfg` is ignored.
+    pub fn update_live(&mut self, cfg: &Config) {
+        self.cfg.r#loop = cfg.r#loop.clone();
+        self.cfg.keyframe = cfg.keyframe.clone();
+        self.loops.set_config(cfg.r#loop.clone());
+    }
+
     /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
     /// are revisit candidates, found by place descriptor (their odometry frame is another session's), and
     /// new keyframes get the next ids and a new session.

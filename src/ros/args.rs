@@ -78,6 +78,8 @@ pub struct RosArgs {
     pub remaps: Vec<(String, String)>,
     /// `--log-level`: the level for dc_loc's own logs (`None`: `RUST_LOG` or the default).
     pub log_level: Option<log::LevelFilter>,
+    /// Logs also go to `/rosout` (`--disable-rosout-logs` turns it off).
+    pub rosout: bool,
     sources: Vec<ParamSource>,
 }
 
@@ -88,6 +90,7 @@ impl Default for RosArgs {
             node_name: "dc_loc".into(),
             remaps: Vec::new(),
             log_level: None,
+            rosout: true,
             sources: Vec::new(),
         }
     }
@@ -142,10 +145,10 @@ impl RosArgs {
                         _ => return Err(ArgsError::BadLogLevel(v)),
                     });
                 }
-                // Accepted and without effect here (one process, no enclaves, logging to stderr).
-                "--enable-rosout-logs"
-                | "--disable-rosout-logs"
-                | "--enable-stdout-logs"
+                "--enable-rosout-logs" => out.rosout = true,
+                "--disable-rosout-logs" => out.rosout = false,
+                // Accepted and without effect here (the log always goes to stderr).
+                "--enable-stdout-logs"
                 | "--disable-stdout-logs"
                 | "--disable-external-lib-logs" => {}
                 "-e" | "--enclave" => {
@@ -207,6 +210,13 @@ impl RosArgs {
     /// `/ns/node`.
     pub fn fully_qualified_name(&self) -> String {
         crate::params::fully_qualified(&self.namespace, &self.node_name)
+    }
+
+    /// The logger name ROS 2 gives the node: namespace and name joined by dots (`car1.loc`).
+    pub fn logger_name(&self) -> String {
+        self.fully_qualified_name()
+            .trim_start_matches('/')
+            .replace('/', ".")
     }
 
     /// A name made absolute: `~/x` -> `/ns/node/x`, `x` -> `/ns/x`, `/x` unchanged.

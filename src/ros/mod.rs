@@ -4,7 +4,7 @@
 //! out. Entry points: [`node::main`] (the `dc_loc` binary without a subcommand), [`args`] (the ROS 2
 //! command line and environment, which ros2-client does not parse), [`crate::params::node`] (the node's own
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
-//! the publishers), [`diagnostics`], [`map_store`] (the map on disk), [`convert`] (the node's message
+//! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`map_store`] (the map on disk), [`convert`] (the node's message
 //! types and conversions to them), [`merge`] (inputs back in stamp order). Topics and parameters:
 //! README_NODE.md.
 
@@ -17,6 +17,8 @@ pub mod map_store;
 pub mod merge;
 #[cfg(feature = "ros")]
 pub mod node;
+#[cfg(feature = "ros")]
+pub mod rosout;
 pub mod shared;
 #[cfg(feature = "ros")]
 pub mod worker;

@@ -33,8 +33,9 @@ use crate::keyframe_db::lock::MapLock;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::params::live::LiveParams;
 use crate::params::node::{NodeSettings, all_params, describe};
-use crate::params::{ParamError, apply};
+use crate::params::{ParamError, ParamSet, apply};
 use crate::pipeline::{Config, Pipeline};
 
 /// A failure of the node, with its exit code (2: usage or configuration, 1: runtime).
@@ -79,7 +80,7 @@ pub fn main(args: &[String]) -> i32 {
             return 2;
         }
     };
-    init_logging(ros_args.log_level);
+    init_logging(ros_args.log_level, ros_args.rosout);
     match run(&ros_args) {
         Ok(()) => 0,
         Err(e) => {
@@ -91,15 +92,15 @@ pub fn main(args: &[String]) -> i32 {
 
 /// env_logger on stderr: `RUST_LOG` (default `warn,dc_loc=info`, DDS internals at `error`: rustdds warns
 /// about every loopback peer; ros2-client's node module off: it logs an error for each matched-publisher
-/// query before the first match), dc_loc's level set by `--log-level`.
-fn init_logging(level: Option<log::LevelFilter>) {
-    let mut b = env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(
-        "warn,rustdds=error,ros2_client=error,ros2_client::node=off,dc_loc=info",
-    ));
-    if let Some(l) = level {
-        b.filter_module("dc_loc", l);
-    }
-    let _ = b.try_init();
+/// query before the first match), dc_loc's level set by `--log-level`; dc_loc's records also to
+/// `/rosout` unless `rosout` is false ([`super::rosout`]).
+fn init_logging(level: Option<log::LevelFilter>, rosout: bool) {
+    let builder = || {
+        env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(
+            "warn,rustdds=error,ros2_client=error,ros2_client::node=off,dc_loc=info",
+        ))
+    };
+    super::rosout::init(builder, level, rosout);
 }
 
 /// The configuration, the node settings and the map, or why the node cannot start.
@@ -114,6 +115,8 @@ pub struct StartUp {
     pub save_to: Option<PathBuf>,
     /// The lock on the map file, held while the node runs.
     pub lock: Option<MapLock>,
+    /// The parameters as given (what run-time changes start from).
+    pub params: ParamSet,
 }
 
 /// Reads the parameters and the map: everything that can refuse a start before DDS is touched.
@@ -128,6 +131,7 @@ pub fn start_up(ros_args: &RosArgs) -> Result<StartUp, NodeError> {
         db,
         save_to,
         lock,
+        params,
     })
 }
 
@@ -139,7 +143,12 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         db,
         save_to,
         lock: _lock,
+        params,
     } = start_up(ros_args)?;
+    if let Some(level) = settings.log_filter() {
+        super::rosout::set_level(level);
+    }
+    let live = Arc::new(LiveParams::new(&params));
     log::info!(
         "dc_loc node {} (ROS_DOMAIN_ID {}, discovery {:?}), effective configuration:\n{}",
         ros_args.fully_qualified_name(),
@@ -155,7 +164,8 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         .map_err(|e| NodeError::Runtime(format!("tokio runtime: {e}")))?;
     let _entered = runtime.enter();
     let context = dds_context(&env)?;
-    let mut node = make_node(&context, ros_args, &cfg, &settings)?;
+    let mut node = make_node(&context, ros_args, &cfg, &settings, live.clone())?;
+    super::rosout::forward(node.logging_handle(), ros_args.logger_name());
     let spin_task = tokio::spawn(node.spinner().map_err(dds("spinner"))?.spin());
     let subs = Subscriptions::new(&mut node, ros_args, &cfg, settings.use_sim_time)?;
     let outputs = outputs(&mut node, ros_args)?;
@@ -176,6 +186,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
             settings.clone(),
             saver,
             ros_args.fully_qualified_name(),
+            live,
         );
         std::thread::Builder::new()
             .name("dc_loc-worker".into())
@@ -222,28 +233,33 @@ fn dds_context(env: &DdsEnv) -> Result<Context, NodeError> {
     Context::from_domain_participant(participant).map_err(dds("context"))
 }
 
-/// The node with every parameter declared, read-only once running (the pipeline is built from them
-/// at start).
+/// The node with every parameter declared; once running, the live ones ([`LiveParams`]) change on
+/// `ros2 param set` (checked, applied by the worker at the next keyframe), the others are refused.
 fn make_node(
     context: &Context,
     ros_args: &RosArgs,
     cfg: &Config,
     settings: &NodeSettings,
+    live: Arc<LiveParams>,
 ) -> Result<Node, NodeError> {
     let started = Arc::new(AtomicBool::new(false));
-    let mut options = NodeOptions::new().enable_rosout(true);
+    let mut options = NodeOptions::new().enable_rosout(ros_args.rosout);
     for (n, v) in all_params(cfg, settings) {
         options = options.declare_parameter(&n, parameter_value(&v));
     }
-    let started_check = started.clone();
-    options = options.parameter_validator(Box::new(move |name, _value| {
-        if started_check.load(Ordering::SeqCst) {
-            Err(format!(
-                "dc_loc parameters are read at start-up: restart the node to change `{name}`"
-            ))
-        } else {
-            Ok(())
+    let (started_check, live_check) = (started.clone(), live.clone());
+    options = options.parameter_validator(Box::new(move |name, value| {
+        if !started_check.load(Ordering::SeqCst) {
+            return Ok(());
         }
+        live_check.check(name, &json_value(value)).map(|_| ())
+    }));
+    let started_set = started.clone();
+    options = options.parameter_set_action(Box::new(move |name, value| {
+        if !started_set.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        live.set(name, &json_value(value))
     }));
     let node_name =
         NodeName::new(&ros_args.namespace, &ros_args.node_name).map_err(dds("node name"))?;
@@ -456,6 +472,22 @@ fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
 }
 
 /// A parameter value as ROS 2 declares it.
+/// A ROS 2 parameter value as the JSON value the configuration takes.
+fn json_value(v: &ParameterValue) -> Value {
+    match v {
+        ParameterValue::NotSet => Value::Null,
+        ParameterValue::Boolean(b) => Value::from(*b),
+        ParameterValue::Integer(i) => Value::from(*i),
+        ParameterValue::Double(d) => Value::from(*d),
+        ParameterValue::String(s) => Value::from(s.clone()),
+        ParameterValue::ByteArray(a) => Value::from(a.clone()),
+        ParameterValue::BooleanArray(a) => Value::from(a.clone()),
+        ParameterValue::IntegerArray(a) => Value::from(a.clone()),
+        ParameterValue::DoubleArray(a) => Value::from(a.clone()),
+        ParameterValue::StringArray(a) => Value::from(a.clone()),
+    }
+}
+
 fn parameter_value(v: &Value) -> ParameterValue {
     match v {
         Value::Bool(b) => ParameterValue::Boolean(*b),

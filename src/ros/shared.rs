@@ -2,7 +2,7 @@
 //! between them ([`Inbox`], [`Work`]), and the node's clock ([`receive_time`]).
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{SyncSender, TrySendError};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant, SystemTime};
@@ -31,7 +31,8 @@ pub struct Shared {
     pub stopping: AtomicBool,
     /// Rate limiting of warnings: reason -> (last warning, suppressed since).
     warned: Mutex<BTreeMap<String, (Instant, u64)>>,
-    warn_interval: Duration,
+    /// `node.warn_interval`, ns.
+    warn_interval_ns: AtomicU64,
 }
 
 /// The guarded value, also after a panic elsewhere poisoned the lock (counters stay usable).
@@ -42,10 +43,19 @@ pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 impl Shared {
     /// Counters that warn of one reason at most every `warn_interval`.
     pub fn new(warn_interval: Duration) -> Self {
-        Shared {
-            warn_interval,
-            ..Shared::default()
-        }
+        let shared = Shared::default();
+        shared.set_warn_interval(warn_interval);
+        shared
+    }
+
+    /// A new `node.warn_interval`.
+    pub fn set_warn_interval(&self, interval: Duration) {
+        let ns = u64::try_from(interval.as_nanos()).unwrap_or(u64::MAX);
+        self.warn_interval_ns.store(ns, Ordering::Relaxed);
+    }
+
+    fn warn_interval(&self) -> Duration {
+        Duration::from_nanos(self.warn_interval_ns.load(Ordering::Relaxed))
     }
 
     /// One more message received on `input`.
@@ -64,7 +74,7 @@ impl Shared {
         let mut w = lock(&self.warned);
         let now = Instant::now();
         match w.get_mut(reason) {
-            Some((last, suppressed)) if now.duration_since(*last) < self.warn_interval => {
+            Some((last, suppressed)) if now.duration_since(*last) < self.warn_interval() => {
                 *suppressed += 1;
             }
             Some((last, suppressed)) => {

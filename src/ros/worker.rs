@@ -23,6 +23,7 @@ use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::output::loop_closure_msg;
+use crate::params::live::LiveParams;
 use crate::params::node::NodeSettings;
 use crate::pipeline::{Event, Pipeline};
 
@@ -89,6 +90,7 @@ pub struct Worker {
     /// `DC_LOC_FAULT_WORKER_PANIC`: the worker panics at its first periodic tick, so that a supervisor
     /// setup can be tested against a dying node (README_NODE.md, Failure behaviour).
     fault_panic: bool,
+    live: Arc<LiveParams>,
     measures: Measures,
     diagnostics: Diagnostics,
     saver: Option<MapSaver>,
@@ -103,6 +105,7 @@ impl Worker {
         settings: NodeSettings,
         saver: Option<MapSaver>,
         hardware_id: String,
+        live: Arc<LiveParams>,
     ) -> Self {
         let mut markers = Markers {
             frame: "odom".into(),
@@ -127,6 +130,7 @@ impl Worker {
             markers_pending: true,
             markers_sent: None,
             fault_panic: std::env::var_os("DC_LOC_FAULT_WORKER_PANIC").is_some(),
+            live,
             measures: Measures::default(),
             diagnostics: Diagnostics::new(hardware_id),
             saver,
@@ -141,7 +145,6 @@ impl Worker {
     /// to [`Work::Stop`] for at most `node.shutdown_timeout` (the rest is dropped and counted), saves
     /// the map again and returns the final save's error, if any.
     pub fn run(mut self, rx: Receiver<Work>) -> Result<(), String> {
-        let period = self.settings.diagnostics_period;
         let n_radars = self.pipeline.config().radar_names.len();
         // Streams: each radar, then odometry.
         let mut merger: StampMerger<Work> = StampMerger::new(
@@ -161,6 +164,7 @@ impl Worker {
                 self.drop_rest(&rx);
                 break;
             }
+            let period = self.settings.diagnostics_period;
             let since = self.diagnostics.since_last();
             let mut wait = Duration::from_secs_f64((period - since).max(0.0));
             let markers_due = self.markers_due();
@@ -185,6 +189,7 @@ impl Worker {
                 }
                 Err(RecvTimeoutError::Timeout) => {}
             }
+            self.take_live_parameters();
             while let Some(w) = merger.pop_ready(Instant::now()) {
                 self.handle(w);
             }
@@ -201,6 +206,24 @@ impl Worker {
             }
         }
         self.shutdown(merger)
+    }
+
+    /// A run-time parameter change (`ros2 param set`), already checked: the gates and the keyframe
+    /// spacing to the pipeline, the periods and the log level here.
+    fn take_live_parameters(&mut self) {
+        let Some((cfg, settings)) = self.live.take_pending() else {
+            return;
+        };
+        self.pipeline.update_live(&cfg);
+        self.shared
+            .set_warn_interval(Duration::from_secs_f64(settings.warn_interval));
+        if let Some(level) = settings.log_filter() {
+            super::rosout::set_level(level);
+        }
+        self.settings.diagnostics_period = settings.diagnostics_period;
+        self.settings.warn_interval = settings.warn_interval;
+        self.settings.markers_period = settings.markers_period;
+        self.settings.log_level = settings.log_level;
     }
 
     /// The map saved before the queue is drained, so that a supervisor's kill timeout cannot lose it.

@@ -10,7 +10,10 @@ with rclpy:
    ``/car1/loc/submap``, ``/diagnostics``;
 2. ``get_parameters`` (what ``ros2 param get`` calls): the ``-p`` override, the own file's ``/car1/loc``
    section, the ``/**`` wildcard, defaults, ``use_sim_time``;
-3. ``set_parameters`` of a running node is refused (the pipeline is built at start-up) and the value stays;
+3. ``set_parameters`` of a running node: a structural parameter (``submap.size``) is refused and keeps its
+   value, an out-of-range gate (``loop.search_radius`` -1) is refused naming it, a valid gate and the log
+   level change (``get_parameters`` shows the new values);
+   ``/rosout`` (rcl_interfaces/Log) carries the node's log, under the logger name ``car1.loc``;
 4. SIGINT ends the node with exit code 0;
 5. with ``-p use_sim_time:=true`` the node stamps its diagnostics with the ``/clock`` time an rclpy
    publisher sends (rosgraph_msgs/Clock).
@@ -109,14 +112,45 @@ def main() -> int:
                   and not values["use_sim_time"].bool_value, "use_sim_time declared, false")
             check(values["node.queue_size"].integer_value == 2000, "node.queue_size default")
 
-            req = SetParameters.Request(parameters=[Parameter(
-                name="keyframe.distance",
-                value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=9.0))])
-            reply = call(SetParameters, "/car1/loc/set_parameters", req)
-            check(not reply.results[0].successful, "set_parameters refused while running")
-            again = call(GetParameters, "/car1/loc/get_parameters",
-                         GetParameters.Request(names=["keyframe.distance"]))
-            check(again.values[0].double_value == 6.0, "value unchanged after the refused set")
+            from rcl_interfaces.msg import Log
+            from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+            logs = []
+            rs.node.create_subscription(
+                Log, "/rosout", lambda m: logs.append(m),
+                QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE))
+
+            def set_param(name, value):
+                if isinstance(value, float):
+                    v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+                elif isinstance(value, int):
+                    v = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+                else:
+                    v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+                req = SetParameters.Request(parameters=[Parameter(name=name, value=v)])
+                return call(SetParameters, "/car1/loc/set_parameters", req).results[0]
+
+            def get(name):
+                return call(GetParameters, "/car1/loc/get_parameters",
+                            GetParameters.Request(names=[name])).values[0]
+
+            r = set_param("submap.size", 9)
+            check(not r.successful and "restart" in r.reason, f"structural parameter refused: {r.reason}")
+            check(get("submap.size").integer_value == 7, "submap.size unchanged after the refused set")
+            r = set_param("loop.search_radius", -1.0)
+            check(not r.successful and "loop.search_radius" in r.reason,
+                  f"out-of-range gate refused naming it: {r.reason}")
+            r = set_param("loop.search_radius", 22.0)
+            check(r.successful, f"live gate accepted ({r.reason})")
+            check(get("loop.search_radius").double_value == 22.0, "loop.search_radius now 22")
+            r = set_param("node.log_level", "debug")
+            check(r.successful, f"log level accepted ({r.reason})")
+            rs.spin_until(lambda: any("loop.search_radius set to" in m.msg and m.name == "car1.loc" for m in logs),
+                          20.0, "the parameter change on /rosout")
+            entry = next(m for m in logs if "loop.search_radius set to" in m.msg)
+            check(entry.level == 20 and entry.file.endswith(".rs") and entry.line > 0,
+                  f"/rosout record: level {entry.level}, {entry.file}:{entry.line}, {entry.function}")
 
             node.proc.send_signal(signal.SIGINT)
             code = node.proc.wait(timeout=20)

@@ -65,6 +65,30 @@ def record(msg) -> dict:
     }
 
 
+def set_parameter(rs, node_ns: str, assignment: str) -> str:
+    """Sets ``NAME:=VALUE`` on the running node with rcl_interfaces/SetParameters; returns "ok" or the
+    refusal's reason."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    name, text = assignment.split(":=", 1)
+    if text in ("true", "false"):
+        v = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=text == "true")
+    elif text.lstrip("-").isdigit():
+        v = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=int(text))
+    else:
+        try:
+            v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(text))
+        except ValueError:
+            v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=text)
+    client = rs.node.create_client(SetParameters, node_ns + "/set_parameters")
+    rs.spin_until(client.service_is_ready, 20.0, "the set_parameters service")
+    future = client.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=v)]))
+    rs.spin_until(future.done, 20.0, "the set_parameters reply")
+    r = future.result().results[0]
+    return "ok" if r.successful else r.reason
+
+
 def read_bag(bag: Path):
     """(log_time_ns, topic, type, raw CDR) of the radar and odometry topics, in log-time order."""
     from rosbags.rosbag2 import Reader
@@ -159,6 +183,8 @@ def main() -> int:
     ap.add_argument("--skip-before", type=float, default=0.0)
     ap.add_argument("--kill", action="store_true")
     ap.add_argument("--node-name", default="/dc_loc")
+    ap.add_argument("--set-at", nargs=2, metavar=("FRACTION", "NAME:=VALUE"),
+                    help="set a parameter of the running node (set_parameters) at this fraction of the drive")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
 
@@ -255,7 +281,11 @@ def main() -> int:
             sent = {"radar": 0, "odometry": 0, "malformed": {}}
             start = time.monotonic()
             last_cloud = last_odom = None
+            set_index = int(float(a.set_at[0]) * len(messages)) if a.set_at else -1
             for i, (t, topic, msgtype, raw) in enumerate(messages):
+                if i == set_index:
+                    result["set_at_stamp"] = t * 1e-9
+                    result["set_result"] = set_parameter(rs, a.node_name.rstrip("/"), a.set_at[1])
                 due = start + (t - messages[0][0]) * 1e-9 / a.rate
                 while True:
                     left = due - time.monotonic()

@@ -650,9 +650,21 @@ fn map_survives_sigkill_and_the_second_half_closes_on_the_first() {
         first_keyframes >= 80,
         "{first_keyframes} keyframes in the first part"
     );
-    // The rest of the drive into a new node that loads the map.
-    let second = replay("map_second", &["--skip-before", "0.55"], &common);
+    // The rest of the drive into a new node that loads the map; ~/save_map called before the stop.
+    let second = replay(
+        "map_second",
+        &["--skip-before", "0.55", "--save-map"],
+        &common,
+    );
     assert_eq!(second.node_exit, 0);
+    let saved = &second.outputs["save_map"];
+    assert_eq!(saved["success"], true, "{saved}");
+    let on_request = dc_loc::keyframe_db::KeyframeDb::load(&map, Default::default(), 4).unwrap();
+    assert_eq!(
+        on_request.len() as u64,
+        second.diag("map_keyframes"),
+        "{saved}"
+    );
     let loaded = second.diag("map_keyframes") - second.diag("keyframes");
     assert!(
         loaded + 2 >= first_keyframes && loaded <= first_keyframes,
@@ -674,6 +686,27 @@ fn map_survives_sigkill_and_the_second_half_closes_on_the_first() {
         "{} closures onto the loaded map",
         earlier.len()
     );
+    // Each closure onto the loaded map gave the pose in it: the match keyframe's pose in the map
+    // times the true motion from the match to the query keyframe, up to the closure's error.
+    let relocalized = second.outputs["relocalized"].as_array().unwrap();
+    assert_eq!(
+        relocalized.len(),
+        earlier.len(),
+        "one ~/relocalized per closure onto the map"
+    );
+    for (p, c) in relocalized.iter().zip(&earlier) {
+        let at = |t: f64| d.drive.state_at(Stamp::from_secs_f64(t)).t_map_body;
+        let truth = at(c.match_stamp).inverse() * at(c.query_stamp);
+        let m = &c.match_odom_pose;
+        let (sin, cos) = yaw(m).sin_cos();
+        let v = truth.translation.vector;
+        let expected = (m.x + cos * v.x - sin * v.y, m.y + sin * v.x + cos * v.y);
+        let dx = p["x"].as_f64().unwrap() - expected.0;
+        let dy = p["y"].as_f64().unwrap() - expected.1;
+        assert!(dx.hypot(dy) < 1.0, "relocalized {p} vs {expected:?}");
+        assert_eq!(p["frame_id"], "map");
+        assert!(p["cov_xx"].as_f64().unwrap() > 0.0 && p["cov_yy"].as_f64().unwrap() > 0.0);
+    }
     for c in &earlier {
         let q = d
             .drive

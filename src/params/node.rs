@@ -33,6 +33,8 @@ pub struct NodeSettings {
     pub markers_period: f64,
     /// `node.log_level`: dc_loc's log level (`debug`, `info`, `warn`, `error`; empty: as started).
     pub log_level: String,
+    /// `node.map_frame`: frame id of the `~/relocalized` poses.
+    pub map_frame: String,
 }
 
 impl Default for NodeSettings {
@@ -48,6 +50,7 @@ impl Default for NodeSettings {
             shutdown_timeout: 5.0,
             markers_period: 1.0,
             log_level: String::new(),
+            map_frame: "map".into(),
         }
     }
 }
@@ -118,6 +121,11 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         doc: "dc_loc's own log level, on stderr and `/rosout`: `debug`, `info`, `warn` or `error`; \
               empty keeps the start-up level (`--log-level`, `RUST_LOG`). Changes at run time.",
     },
+    NodeParam {
+        name: "node.map_frame",
+        doc: "Frame id of the `~/relocalized` poses: the odometry frame of the earlier session (the \
+              loaded map) the robot was found in.",
+    },
 ];
 
 /// The log levels `node.log_level` takes.
@@ -164,6 +172,7 @@ impl NodeSettings {
                 Value::from(self.markers_period),
             ),
             ("node.log_level".into(), Value::from(self.log_level.clone())),
+            ("node.map_frame".into(), Value::from(self.map_frame.clone())),
         ]
     }
 
@@ -208,6 +217,9 @@ impl NodeSettings {
             self.markers_period,
             Range::POSITIVE.up_to(3600.0),
         );
+        v.require("node.map_frame", !self.map_frame.is_empty(), || {
+            "must not be empty".into()
+        });
         v.require(
             "node.log_level",
             LOG_LEVELS.contains(&self.log_level.as_str()),
@@ -241,6 +253,12 @@ impl NodeSettings {
                 "node.sync_timeout" => s.sync_timeout = number(name, v)?,
                 "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
                 "node.markers_period" => s.markers_period = number(name, v)?,
+                "node.map_frame" => {
+                    s.map_frame = v
+                        .as_str()
+                        .ok_or_else(|| type_error(name, "a string", v))?
+                        .to_string()
+                }
                 "node.log_level" => {
                     s.log_level = v
                         .as_str()

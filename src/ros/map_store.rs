@@ -160,6 +160,11 @@ impl MapSaver {
         }
     }
 
+    /// Where the map is saved.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// The result of the newest save.
     pub fn status(&self) -> SaveStatus {
         super::shared::lock(&self.status).clone()

@@ -4,13 +4,17 @@
 //! out. Entry points: [`node::main`] (the `dc_loc` binary without a subcommand), [`args`] (the ROS 2
 //! command line and environment, which ros2-client does not parse), [`crate::params::node`] (the node's own
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
-//! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`map_store`] (the map on disk), [`convert`] (the node's message
+//! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`services`] (`~/save_map`, `~/relocalized`), [`map_store`] (the map on disk), [`convert`] (the node's message
 //! types and conversions to them), [`merge`] (inputs back in stamp order). Topics and parameters:
 //! README_NODE.md.
 
 pub mod args;
 pub mod convert;
 pub mod diagnostics;
+#[cfg(feature = "ros")]
+pub mod endpoints;
+#[cfg(feature = "ros")]
+pub mod error;
 #[cfg(feature = "ros")]
 pub mod inputs;
 pub mod map_store;
@@ -19,6 +23,8 @@ pub mod merge;
 pub mod node;
 #[cfg(feature = "ros")]
 pub mod rosout;
+#[cfg(feature = "ros")]
+pub mod services;
 pub mod shared;
 #[cfg(feature = "ros")]
 pub mod worker;

@@ -12,64 +12,27 @@ use std::net::Ipv4Addr;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
 use std::time::Duration;
 
-use ros2_client::{
-    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, ParameterValue, QosProfile,
-    Subscription,
-    qos::{Durability, History, Reliability, WhenFull},
-};
-use serde::de::DeserializeOwned;
+use ros2_client::{Context, Node, NodeName, NodeOptions, ParameterValue};
 use serde_json::Value;
 
-use super::args::{ArgsError, DdsEnv, DiscoveryRange, RosArgs};
-use super::inputs::{self, Reception, TopicRadars};
+use super::args::{DdsEnv, DiscoveryRange, RosArgs};
+use super::endpoints::{Subscriptions, outputs};
+pub use super::error::NodeError;
+use super::error::dds;
+use super::inputs::Reception;
 use super::map_store::{LoadedMap, MapSaver, load_map};
+use super::services::SaveRequests;
 use super::shared::{Inbox, Shared, Work};
-use super::worker::{Outputs, Worker};
-use crate::input::InputLimits;
+use super::worker::{Controls, Worker};
 use crate::keyframe_db::KeyframeDb;
 use crate::keyframe_db::lock::MapLock;
-use crate::msgs::nav_msgs::Odometry;
-use crate::msgs::rosgraph_msgs::Clock;
-use crate::msgs::sensor_msgs::PointCloud2;
 use crate::params::live::LiveParams;
 use crate::params::node::{NodeSettings, all_params, describe};
-use crate::params::{ParamError, ParamSet, apply};
+use crate::params::{ParamSet, apply};
 use crate::pipeline::{Config, Pipeline};
-
-/// A failure of the node, with its exit code (2: usage or configuration, 1: runtime).
-#[derive(Debug, thiserror::Error)]
-pub enum NodeError {
-    /// Command line or environment.
-    #[error(transparent)]
-    Args(#[from] ArgsError),
-    /// Parameters.
-    #[error(transparent)]
-    Param(#[from] ParamError),
-    /// The map file cannot be used.
-    #[error("{0}")]
-    Map(String),
-    /// DDS could not be set up.
-    #[error("DDS: {0}")]
-    Dds(String),
-    /// The node could not go on: a task it needs ended, or the map could not be saved at shutdown.
-    #[error("{0}")]
-    Runtime(String),
-}
-
-impl NodeError {
-    fn exit_code(&self) -> i32 {
-        match self {
-            NodeError::Dds(_) | NodeError::Runtime(_) => 1,
-            _ => 2,
-        }
-    }
-}
-
-fn dds<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> NodeError + '_ {
-    move |e| NodeError::Dds(format!("{what}: {e:?}"))
-}
 
 /// Runs the node (`args` as from `std::env::args`); returns the process exit code.
 pub fn main(args: &[String]) -> i32 {
@@ -149,6 +112,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         super::rosout::set_level(level);
     }
     let live = Arc::new(LiveParams::new(&params));
+    let (save_tx, save_rx) = SaveRequests::channel();
     log::info!(
         "dc_loc node {} (ROS_DOMAIN_ID {}, discovery {:?}), effective configuration:\n{}",
         ros_args.fully_qualified_name(),
@@ -156,12 +120,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         env.range,
         describe(&cfg, &settings)
     );
-    // One tokio thread runs DDS reception, the spinner and the timers; the pipeline has a thread of
-    // its own.
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .build()
-        .map_err(|e| NodeError::Runtime(format!("tokio runtime: {e}")))?;
+    let runtime = runtime()?;
     let _entered = runtime.enter();
     let context = dds_context(&env)?;
     let mut node = make_node(&context, ros_args, &cfg, &settings, live.clone())?;
@@ -176,27 +135,21 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let saver =
         save_to.map(|path| MapSaver::new(path, cfg.map_shape(), cfg.map.save_interval, &db));
     let pipeline = Pipeline::with_map(cfg.clone(), db).map_err(|e| NodeError::Param(e.into()))?;
-    // The worker says when it ends: before a stop was asked for, the node cannot go on.
-    let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
-    let worker = {
-        let worker = Worker::new(
-            pipeline,
-            outputs,
-            shared.clone(),
-            settings.clone(),
-            saver,
-            ros_args.fully_qualified_name(),
-            live,
-        );
-        std::thread::Builder::new()
-            .name("dc_loc-worker".into())
-            .spawn(move || {
-                let result = worker.run(rx);
-                let _ = done_tx.send(());
-                result
-            })
-            .map_err(|e| NodeError::Runtime(format!("worker thread: {e}")))?
+    let controls = Controls {
+        live,
+        save_requests: save_rx,
     };
+    let name = ros_args.fully_qualified_name();
+    let worker = Worker::new(
+        pipeline,
+        outputs,
+        shared.clone(),
+        settings.clone(),
+        saver,
+        name,
+        controls,
+    );
+    let (worker, done_rx) = spawn_worker(worker, rx)?;
     let stop = stop_signal();
     println!("dc_loc: node {} running", ros_args.fully_qualified_name());
     let reception = Reception {
@@ -204,7 +157,8 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         inbox: inbox.clone(),
         use_sim_time: settings.use_sim_time,
     };
-    let ended = runtime.block_on(subs.receive(&node, reception, settings.limits, stop, done_rx));
+    let ended =
+        runtime.block_on(subs.receive(&node, reception, settings.limits, stop, done_rx, save_tx));
     log::info!("shutting down: saving the map, then processing the queued messages");
     shared.stopping.store(true, Ordering::SeqCst);
     inbox.stop();
@@ -220,6 +174,39 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         return Err(NodeError::Runtime(why));
     }
     saved.map_err(|e| NodeError::Runtime(format!("the map was not saved at shutdown: {e}")))
+}
+
+/// One tokio thread runs DDS reception, the spinner and the timers; the pipeline has a thread of its
+/// own ([`spawn_worker`]).
+fn runtime() -> Result<tokio::runtime::Runtime, NodeError> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .map_err(|e| NodeError::Runtime(format!("tokio runtime: {e}")))
+}
+
+/// The worker on its thread, and a signal when it ends (before a stop was asked for, the node cannot
+/// go on).
+fn spawn_worker(
+    worker: Worker,
+    rx: std::sync::mpsc::Receiver<Work>,
+) -> Result<
+    (
+        JoinHandle<Result<(), String>>,
+        tokio::sync::oneshot::Receiver<()>,
+    ),
+    NodeError,
+> {
+    let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
+    let handle = std::thread::Builder::new()
+        .name("dc_loc-worker".into())
+        .spawn(move || {
+            let result = worker.run(rx);
+            let _ = done_tx.send(());
+            result
+        })
+        .map_err(|e| NodeError::Runtime(format!("worker thread: {e}")))?;
+    Ok((handle, done_rx))
 }
 
 /// The DDS participant and context: loopback only when asked (ros2-client reads neither
@@ -284,194 +271,6 @@ fn stop_signal() -> tokio::sync::mpsc::Receiver<()> {
     stop_rx
 }
 
-/// The node's input subscriptions.
-struct Subscriptions {
-    /// Per radar topic (several radars may share one; the frame id tells them apart).
-    radars: Vec<(String, TopicRadars, Subscription<PointCloud2>)>,
-    odometry: (String, Subscription<Odometry>),
-    clock: Option<Subscription<Clock>>,
-}
-
-impl Subscriptions {
-    fn new(
-        node: &mut Node,
-        ros_args: &RosArgs,
-        cfg: &Config,
-        use_sim_time: bool,
-    ) -> Result<Self, NodeError> {
-        let mut by_topic: std::collections::BTreeMap<String, TopicRadars> = Default::default();
-        for (i, (name, rc)) in cfg.radar_list().into_iter().enumerate() {
-            by_topic
-                .entry(ros_args.resolve_topic(&rc.topic))
-                .or_default()
-                .push((i, name.to_string(), rc.frame_id.clone()));
-        }
-        let mut radars = Vec::new();
-        for (topic, topic_radars) in by_topic {
-            let sub = subscribe(node, &topic, "sensor_msgs", "PointCloud2", INPUT_DEPTH)?;
-            let names: Vec<&str> = topic_radars.iter().map(|r| r.1.as_str()).collect();
-            log::info!("radar {} on {topic}", names.join(", "));
-            radars.push((topic, topic_radars, sub));
-        }
-        let odom_topic = ros_args.resolve_topic(&cfg.odometry.topic);
-        let odometry = subscribe(node, &odom_topic, "nav_msgs", "Odometry", INPUT_DEPTH)?;
-        log::info!("odometry on {odom_topic}");
-        let clock = if use_sim_time {
-            Some(subscribe(node, "/clock", "rosgraph_msgs", "Clock", 10)?)
-        } else {
-            None
-        };
-        Ok(Subscriptions {
-            radars,
-            odometry: (odom_topic, odometry),
-            clock,
-        })
-    }
-
-    /// Runs every reception task until `stop` completes; `Some(cause)` when the node cannot go on (a
-    /// task or the worker ended first).
-    async fn receive(
-        &self,
-        node: &Node,
-        r: Reception,
-        limits: InputLimits,
-        mut stop: tokio::sync::mpsc::Receiver<()>,
-        worker_done: tokio::sync::oneshot::Receiver<()>,
-    ) -> Option<String> {
-        let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
-        for (topic, radars, sub) in &self.radars {
-            let shared = r.shared.clone();
-            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
-                inputs::radar_input(topic, radars, &limits, &shared, c)
-            })));
-        }
-        let (topic, sub) = &self.odometry;
-        let shared = r.shared.clone();
-        tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
-            inputs::odometry_input(topic, &shared, o)
-        })));
-        if let Some(sub) = &self.clock {
-            tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
-        }
-        let counts = inputs::publisher_counts(node, &self.radars, &self.odometry.1, r.shared);
-        tasks.push(Box::pin(counts));
-        // Every task runs as long as the node: the first to end is a failure.
-        let any_ended = futures::future::select_all(tasks);
-        let failure = async {
-            futures::future::select(any_ended, worker_done).await;
-            log::error!("a task the node needs ended: stopping");
-        };
-        let stopped = async {
-            let _ = stop.recv().await;
-        };
-        match futures::future::select(Box::pin(stopped), Box::pin(failure)).await {
-            futures::future::Either::Left(_) => None,
-            futures::future::Either::Right(_) => {
-                Some("a reception task or the worker ended unexpectedly".into())
-            }
-        }
-    }
-}
-
-/// DDS reader history of each input: deep enough that a busy executor never makes the reader discard
-/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz).
-const INPUT_DEPTH: usize = 1000;
-
-/// Best-effort, volatile, keep-last: matches reliable and best-effort publishers alike.
-fn sensor_qos(depth: usize) -> QosProfile {
-    QosProfile::subscription_default()
-        .reliability(Reliability::BestEffort)
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth })
-}
-
-fn reliable(depth: usize, durability: Durability) -> QosProfile {
-    QosProfile::publisher_default()
-        .reliability(Reliability::Reliable {
-            when_full: WhenFull::Wait(Duration::from_millis(200)),
-        })
-        .durability(durability)
-        .history(History::KeepLast { depth })
-}
-
-fn topic_name(resolved: &str) -> Result<Name, NodeError> {
-    Name::parse(resolved).map_err(|e| NodeError::Dds(format!("topic name {resolved}: {e:?}")))
-}
-
-fn subscribe<M: DeserializeOwned + 'static>(
-    node: &mut Node,
-    topic: &str,
-    package: &str,
-    type_name: &str,
-    depth: usize,
-) -> Result<Subscription<M>, NodeError> {
-    let qos = sensor_qos(depth);
-    let t = node
-        .create_topic(
-            &topic_name(topic)?,
-            MessageTypeName::new(package, type_name),
-            &qos,
-        )
-        .map_err(dds("input topic"))?;
-    node.create_subscription(&t, Some(qos))
-        .map_err(dds("subscription"))
-}
-
-/// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
-/// gets the history), `~/markers`, `~/submap`, `/diagnostics`.
-fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
-    fn publisher<M: serde::Serialize>(
-        node: &mut Node,
-        ros_args: &RosArgs,
-        name: &str,
-        (package, type_name): (&str, &str),
-        qos: QosProfile,
-    ) -> Result<ros2_client::Publisher<M>, NodeError> {
-        let resolved = ros_args.resolve_topic(name);
-        let t = node
-            .create_topic(
-                &topic_name(&resolved)?,
-                MessageTypeName::new(package, type_name),
-                &qos,
-            )
-            .map_err(dds("output topic"))?;
-        log::info!("publishing {package}/msg/{type_name} on {resolved}");
-        node.create_publisher(&t, Some(qos))
-            .map_err(dds("publisher"))
-    }
-    Ok(Outputs {
-        closures: publisher(
-            node,
-            ros_args,
-            "~/loop_closures",
-            ("dc_loc", "LoopClosure"),
-            reliable(100, Durability::TransientLocal),
-        )?,
-        markers: publisher(
-            node,
-            ros_args,
-            "~/markers",
-            ("visualization_msgs", "MarkerArray"),
-            reliable(1, Durability::TransientLocal),
-        )?,
-        submap: publisher(
-            node,
-            ros_args,
-            "~/submap",
-            ("sensor_msgs", "PointCloud2"),
-            reliable(1, Durability::Volatile),
-        )?,
-        diagnostics: publisher(
-            node,
-            ros_args,
-            "/diagnostics",
-            ("diagnostic_msgs", "DiagnosticArray"),
-            reliable(10, Durability::Volatile),
-        )?,
-    })
-}
-
-/// A parameter value as ROS 2 declares it.
 /// A ROS 2 parameter value as the JSON value the configuration takes.
 fn json_value(v: &ParameterValue) -> Value {
     match v {
@@ -488,6 +287,7 @@ fn json_value(v: &ParameterValue) -> Value {
     }
 }
 
+/// A parameter value as ROS 2 declares it.
 fn parameter_value(v: &Value) -> ParameterValue {
     match v {
         Value::Bool(b) => ParameterValue::Boolean(*b),

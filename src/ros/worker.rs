@@ -9,35 +9,21 @@ use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use ros2_client::Publisher;
-
-use super::convert::{DiagnosticArray, MarkerArray, MarkerPoint, markers, submap_cloud};
+use super::convert::{MarkerArray, MarkerPoint, markers, submap_cloud};
 use super::diagnostics::{Diagnostics, Measures, Report};
+use super::endpoints::Outputs;
 use super::map_store::MapSaver;
 use super::merge::StampMerger;
+use super::services::{SaveRequest, TriggerResponse, relocalized};
 use super::shared::{Shared, Work, receive_time};
 use crate::input::Input;
 use crate::loop_closure::LoopClosure;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::builtin_interfaces::Time;
-use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
-use crate::msgs::sensor_msgs::PointCloud2;
 use crate::output::loop_closure_msg;
 use crate::params::live::LiveParams;
 use crate::params::node::NodeSettings;
 use crate::pipeline::{Event, Pipeline};
-
-/// The node's publishers, owned by the worker thread.
-pub struct Outputs {
-    /// `~/loop_closures`.
-    pub closures: Publisher<LoopClosureMsg>,
-    /// `~/markers`.
-    pub markers: Publisher<MarkerArray>,
-    /// `~/submap`.
-    pub submap: Publisher<PointCloud2>,
-    /// `/diagnostics`.
-    pub diagnostics: Publisher<DiagnosticArray>,
-}
 
 /// This session's newest keyframe positions (odometry frame) and closure edges, for `~/markers`: at
 /// most `cap` of each (`map.max_keyframes`), the oldest leaving first, so a long run's markers stay
@@ -76,6 +62,14 @@ impl Markers {
     }
 }
 
+/// What reaches the worker besides inputs: run-time parameter changes and `~/save_map` requests.
+pub struct Controls {
+    /// Checked parameter changes.
+    pub live: Arc<LiveParams>,
+    /// Saves asked for.
+    pub save_requests: Receiver<SaveRequest>,
+}
+
 /// The pipeline and everything that reports on it.
 pub struct Worker {
     pipeline: Pipeline,
@@ -90,7 +84,7 @@ pub struct Worker {
     /// `DC_LOC_FAULT_WORKER_PANIC`: the worker panics at its first periodic tick, so that a supervisor
     /// setup can be tested against a dying node (README_NODE.md, Failure behaviour).
     fault_panic: bool,
-    live: Arc<LiveParams>,
+    controls: Controls,
     measures: Measures,
     diagnostics: Diagnostics,
     saver: Option<MapSaver>,
@@ -105,7 +99,7 @@ impl Worker {
         settings: NodeSettings,
         saver: Option<MapSaver>,
         hardware_id: String,
-        live: Arc<LiveParams>,
+        controls: Controls,
     ) -> Self {
         let mut markers = Markers {
             frame: "odom".into(),
@@ -130,7 +124,7 @@ impl Worker {
             markers_pending: true,
             markers_sent: None,
             fault_panic: std::env::var_os("DC_LOC_FAULT_WORKER_PANIC").is_some(),
-            live,
+            controls,
             measures: Measures::default(),
             diagnostics: Diagnostics::new(hardware_id),
             saver,
@@ -190,6 +184,7 @@ impl Worker {
                 Err(RecvTimeoutError::Timeout) => {}
             }
             self.take_live_parameters();
+            self.serve_save_requests();
             while let Some(w) = merger.pop_ready(Instant::now()) {
                 self.handle(w);
             }
@@ -211,7 +206,7 @@ impl Worker {
     /// A run-time parameter change (`ros2 param set`), already checked: the gates and the keyframe
     /// spacing to the pipeline, the periods and the log level here.
     fn take_live_parameters(&mut self) {
-        let Some((cfg, settings)) = self.live.take_pending() else {
+        let Some((cfg, settings)) = self.controls.live.take_pending() else {
             return;
         };
         self.pipeline.update_live(&cfg);
@@ -224,6 +219,33 @@ impl Worker {
         self.settings.warn_interval = settings.warn_interval;
         self.settings.markers_period = settings.markers_period;
         self.settings.log_level = settings.log_level;
+    }
+
+    /// `~/save_map`: the map saved now, between two inputs.
+    fn serve_save_requests(&mut self) {
+        while let Ok(reply) = self.controls.save_requests.try_recv() {
+            let response = match &mut self.saver {
+                None => TriggerResponse {
+                    success: false,
+                    message: "no map.file is set: nothing to save to".into(),
+                },
+                Some(s) => match s.save_now(self.pipeline.db()) {
+                    None => TriggerResponse {
+                        success: true,
+                        message: format!(
+                            "{} keyframes saved to {}",
+                            self.pipeline.db().len(),
+                            s.path().display()
+                        ),
+                    },
+                    Some(e) => TriggerResponse {
+                        success: false,
+                        message: format!("not saved: {e}"),
+                    },
+                },
+            };
+            let _ = reply.send(response);
+        }
     }
 
     /// The map saved before the queue is drained, so that a supervisor's kill timeout cannot lose it.
@@ -351,6 +373,12 @@ impl Worker {
                 c.query_id,
                 c.match_id
             ),
+        }
+        let session = self.pipeline.session();
+        if let Some(pose) = relocalized(c, session, self.now(), &self.settings.map_frame)
+            && let Err(e) = self.out.relocalized.publish(pose)
+        {
+            log::debug!("relocalized: {e:?}");
         }
         if let Some(a) = arrived {
             self.measures

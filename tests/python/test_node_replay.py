@@ -183,6 +183,7 @@ def main() -> int:
     ap.add_argument("--skip-before", type=float, default=0.0)
     ap.add_argument("--kill", action="store_true")
     ap.add_argument("--node-name", default="/dc_loc")
+    ap.add_argument("--save-map", action="store_true", help="call ~/save_map before stopping the node")
     ap.add_argument("--set-at", nargs=2, metavar=("FRACTION", "NAME:=VALUE"),
                     help="set a parameter of the running node (set_parameters) at this fraction of the drive")
     ap.add_argument("node_args", nargs="*")
@@ -239,7 +240,8 @@ def main() -> int:
             # ~/markers (transient local, the latest) and ~/submap.
             from visualization_msgs.msg import MarkerArray
 
-            outputs = {"markers": None, "submaps": 0, "submap_points": 0, "submap_fields": []}
+            outputs = {"markers": None, "submaps": 0, "submap_points": 0, "submap_fields": [],
+                       "relocalized": []}
 
             def on_markers(m):
                 outputs["markers"] = {mk.ns: len(mk.points) for mk in m.markers}
@@ -255,6 +257,19 @@ def main() -> int:
                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
             rs.node.create_subscription(PointCloud2, node_ns + "/submap", on_submap, 10)
+            # ~/relocalized: the pose in a loaded map, as (stamp, x, y, frame, covariance xx, yy).
+            from geometry_msgs.msg import PoseWithCovarianceStamped
+
+            def on_relocalized(m):
+                p = m.pose.pose.position
+                outputs["relocalized"].append({
+                    "stamp": secs(m.header.stamp), "x": p.x, "y": p.y, "frame_id": m.header.frame_id,
+                    "cov_xx": m.pose.covariance[0], "cov_yy": m.pose.covariance[7]})
+
+            rs.node.create_subscription(
+                PoseWithCovarianceStamped, node_ns + "/relocalized", on_relocalized,
+                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE))
             reader = cs.reader(closures_topic, tl.LoopClosure, tl.cyclone_qos_loop_closure())
 
             def poll_cyclone():
@@ -363,6 +378,15 @@ def main() -> int:
             n = diag_count[0]
             rs.spin_until(lambda: diag_count[0] > n, 10.0, "one more diagnostics message")
             result["diagnostics"] = dict(diag)
+            if a.save_map:
+                from std_srvs.srv import Trigger
+
+                client = rs.node.create_client(Trigger, node_ns + "/save_map")
+                rs.spin_until(client.service_is_ready, 20.0, "the ~/save_map service")
+                future = client.call_async(Trigger.Request())
+                rs.spin_until(future.done, 20.0, "the ~/save_map reply")
+                outputs["save_map"] = {"success": future.result().success,
+                                      "message": future.result().message}
             if a.kill:
                 node.proc.send_signal(signal.SIGKILL)
                 result["node_exit"] = node.proc.wait(timeout=10)

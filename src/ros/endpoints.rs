@@ -1,0 +1,249 @@
+//! The node's DDS endpoints with their QoS: the input subscriptions and the reception loop over them
+//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`]) and the service servers.
+
+use std::sync::mpsc::SyncSender;
+use std::time::Duration;
+
+use ros2_client::{
+    MessageTypeName, Name, Node, Publisher, QosProfile, Server, ServiceMapping, ServiceTypeName,
+    Subscription,
+    qos::{Durability, History, Reliability, WhenFull},
+};
+use serde::de::DeserializeOwned;
+
+use super::args::RosArgs;
+use super::convert::{DiagnosticArray, MarkerArray};
+use super::error::{NodeError, dds};
+use super::inputs::{self, Reception, TopicRadars};
+use super::services::{
+    self, PoseWithCovarianceStamped, SaveRequest, TriggerRequest, TriggerResponse,
+};
+use crate::input::InputLimits;
+use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
+use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::rosgraph_msgs::Clock;
+use crate::msgs::sensor_msgs::PointCloud2;
+use crate::pipeline::Config;
+
+/// The node's publishers, owned by the worker thread.
+pub struct Outputs {
+    /// `~/loop_closures`.
+    pub closures: Publisher<LoopClosureMsg>,
+    /// `~/markers`.
+    pub markers: Publisher<MarkerArray>,
+    /// `~/submap`.
+    pub submap: Publisher<PointCloud2>,
+    /// `/diagnostics`.
+    pub diagnostics: Publisher<DiagnosticArray>,
+    /// `~/relocalized`.
+    pub relocalized: Publisher<PoseWithCovarianceStamped>,
+}
+
+/// The node's input subscriptions.
+pub struct Subscriptions {
+    /// Per radar topic (several radars may share one; the frame id tells them apart).
+    radars: Vec<(String, TopicRadars, Subscription<PointCloud2>)>,
+    odometry: (String, Subscription<Odometry>),
+    clock: Option<Subscription<Clock>>,
+    /// `~/save_map`.
+    save_map: Server<TriggerRequest, TriggerResponse>,
+}
+
+impl Subscriptions {
+    /// Subscribes the radars (one subscription per topic), the odometry and, with sim time, `/clock`.
+    pub fn new(
+        node: &mut Node,
+        ros_args: &RosArgs,
+        cfg: &Config,
+        use_sim_time: bool,
+    ) -> Result<Self, NodeError> {
+        let mut by_topic: std::collections::BTreeMap<String, TopicRadars> = Default::default();
+        for (i, (name, rc)) in cfg.radar_list().into_iter().enumerate() {
+            by_topic
+                .entry(ros_args.resolve_topic(&rc.topic))
+                .or_default()
+                .push((i, name.to_string(), rc.frame_id.clone()));
+        }
+        let mut radars = Vec::new();
+        for (topic, topic_radars) in by_topic {
+            let sub = subscribe(node, &topic, "sensor_msgs", "PointCloud2", INPUT_DEPTH)?;
+            let names: Vec<&str> = topic_radars.iter().map(|r| r.1.as_str()).collect();
+            log::info!("radar {} on {topic}", names.join(", "));
+            radars.push((topic, topic_radars, sub));
+        }
+        let odom_topic = ros_args.resolve_topic(&cfg.odometry.topic);
+        let odometry = subscribe(node, &odom_topic, "nav_msgs", "Odometry", INPUT_DEPTH)?;
+        log::info!("odometry on {odom_topic}");
+        let clock = if use_sim_time {
+            Some(subscribe(node, "/clock", "rosgraph_msgs", "Clock", 10)?)
+        } else {
+            None
+        };
+        let save_map = node
+            .create_server(
+                ServiceMapping::Enhanced,
+                &topic_name(&ros_args.resolve_topic("~/save_map"))?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                reliable(10, Durability::Volatile),
+                reliable(10, Durability::Volatile),
+            )
+            .map_err(dds("~/save_map service"))?;
+        Ok(Subscriptions {
+            radars,
+            odometry: (odom_topic, odometry),
+            clock,
+            save_map,
+        })
+    }
+
+    /// Runs every reception task until `stop` completes; `Some(cause)` when the node cannot go on (a
+    /// task or the worker ended first).
+    pub async fn receive(
+        &self,
+        node: &Node,
+        r: Reception,
+        limits: InputLimits,
+        mut stop: tokio::sync::mpsc::Receiver<()>,
+        worker_done: tokio::sync::oneshot::Receiver<()>,
+        save_requests: SyncSender<SaveRequest>,
+    ) -> Option<String> {
+        let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
+        for (topic, radars, sub) in &self.radars {
+            let shared = r.shared.clone();
+            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
+                inputs::radar_input(topic, radars, &limits, &shared, c)
+            })));
+        }
+        let (topic, sub) = &self.odometry;
+        let shared = r.shared.clone();
+        tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
+            inputs::odometry_input(topic, &shared, o)
+        })));
+        if let Some(sub) = &self.clock {
+            tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
+        }
+        let counts = inputs::publisher_counts(node, &self.radars, &self.odometry.1, r.shared);
+        tasks.push(Box::pin(counts));
+        tasks.push(Box::pin(services::save_map(&self.save_map, save_requests)));
+        // Every task runs as long as the node: the first to end is a failure.
+        let any_ended = futures::future::select_all(tasks);
+        let failure = async {
+            futures::future::select(any_ended, worker_done).await;
+            log::error!("a task the node needs ended: stopping");
+        };
+        let stopped = async {
+            let _ = stop.recv().await;
+        };
+        match futures::future::select(Box::pin(stopped), Box::pin(failure)).await {
+            futures::future::Either::Left(_) => None,
+            futures::future::Either::Right(_) => {
+                Some("a reception task or the worker ended unexpectedly".into())
+            }
+        }
+    }
+}
+
+/// DDS reader history of each input: deep enough that a busy executor never makes the reader discard
+/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz).
+const INPUT_DEPTH: usize = 1000;
+
+/// Best-effort, volatile, keep-last: matches reliable and best-effort publishers alike.
+fn sensor_qos(depth: usize) -> QosProfile {
+    QosProfile::subscription_default()
+        .reliability(Reliability::BestEffort)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth })
+}
+
+fn reliable(depth: usize, durability: Durability) -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::Wait(Duration::from_millis(200)),
+        })
+        .durability(durability)
+        .history(History::KeepLast { depth })
+}
+
+fn topic_name(resolved: &str) -> Result<Name, NodeError> {
+    Name::parse(resolved).map_err(|e| NodeError::Dds(format!("topic name {resolved}: {e:?}")))
+}
+
+fn subscribe<M: DeserializeOwned + 'static>(
+    node: &mut Node,
+    topic: &str,
+    package: &str,
+    type_name: &str,
+    depth: usize,
+) -> Result<Subscription<M>, NodeError> {
+    let qos = sensor_qos(depth);
+    let t = node
+        .create_topic(
+            &topic_name(topic)?,
+            MessageTypeName::new(package, type_name),
+            &qos,
+        )
+        .map_err(dds("input topic"))?;
+    node.create_subscription(&t, Some(qos))
+        .map_err(dds("subscription"))
+}
+
+/// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
+/// gets the history), `~/markers`, `~/submap`, `/diagnostics`.
+pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
+    fn publisher<M: serde::Serialize>(
+        node: &mut Node,
+        ros_args: &RosArgs,
+        name: &str,
+        (package, type_name): (&str, &str),
+        qos: QosProfile,
+    ) -> Result<ros2_client::Publisher<M>, NodeError> {
+        let resolved = ros_args.resolve_topic(name);
+        let t = node
+            .create_topic(
+                &topic_name(&resolved)?,
+                MessageTypeName::new(package, type_name),
+                &qos,
+            )
+            .map_err(dds("output topic"))?;
+        log::info!("publishing {package}/msg/{type_name} on {resolved}");
+        node.create_publisher(&t, Some(qos))
+            .map_err(dds("publisher"))
+    }
+    Ok(Outputs {
+        closures: publisher(
+            node,
+            ros_args,
+            "~/loop_closures",
+            ("dc_loc", "LoopClosure"),
+            reliable(100, Durability::TransientLocal),
+        )?,
+        markers: publisher(
+            node,
+            ros_args,
+            "~/markers",
+            ("visualization_msgs", "MarkerArray"),
+            reliable(1, Durability::TransientLocal),
+        )?,
+        submap: publisher(
+            node,
+            ros_args,
+            "~/submap",
+            ("sensor_msgs", "PointCloud2"),
+            reliable(1, Durability::Volatile),
+        )?,
+        diagnostics: publisher(
+            node,
+            ros_args,
+            "/diagnostics",
+            ("diagnostic_msgs", "DiagnosticArray"),
+            reliable(10, Durability::Volatile),
+        )?,
+        relocalized: publisher(
+            node,
+            ros_args,
+            "~/relocalized",
+            ("geometry_msgs", "PoseWithCovarianceStamped"),
+            reliable(1, Durability::TransientLocal),
+        )?,
+    })
+}

@@ -43,7 +43,7 @@ struct Sample {
 fn moved(pose: &Pose, offset: &Iso3) -> Pose {
     let p = pose.to_iso3().map(|p| offset * p).unwrap_or(*offset);
     let (t, q) = (p.translation.vector, p.rotation);
-    let mut out = pose.clone();
+    let mut out = *pose;
     out.position.x = t.x;
     out.position.y = t.y;
     out.position.z = t.z;

@@ -2,10 +2,11 @@
 //! sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft, the simulator, the
 //! node's DDS subscriptions), the [`InputIssue`] a source reports for a message it skips, and the
 //! conversions of ROS messages into inputs ([`odometry_pose`], [`ground_truth_sample`],
-//! [`stamp_or_log_time`]).
+//! [`header_stamp`]).
 //!
 //! Stamps: an input carries its message's `header.stamp`. Some drivers leave it zero (the TI mmWave
-//! ROS driver does); then the receive time (a bag's log time, the node's clock) stands in.
+//! ROS driver does); then the receive time (a bag's log time, the node's clock) stands in. A stamp
+//! whose `nanosec` is 1e9 or more names no time: its message is skipped ([`IssueReason::BadStamp`]).
 
 use crate::bag::BagError;
 use crate::math::{Iso3, Stamp, Vec3};
@@ -83,6 +84,14 @@ pub enum IssueReason {
     /// A dataset file (a nuScenes sweep, a View-of-Delft frame) that is missing or does not parse.
     #[error("unreadable file: {0}")]
     Unreadable(String),
+    /// A header stamp whose `nanosec` is 1e9 or more.
+    #[error("header stamp {sec} s {nanosec} ns is not a time (nanosec must be below 1e9)")]
+    BadStamp {
+        /// The stamp's seconds.
+        sec: i32,
+        /// The stamp's nanoseconds.
+        nanosec: u32,
+    },
 }
 
 impl IssueReason {
@@ -95,6 +104,7 @@ impl IssueReason {
             IssueReason::Damaged(_) => "damaged_file",
             IssueReason::Foreign(_) => "undecodable_foreign",
             IssueReason::Unreadable(_) => "unreadable_file",
+            IssueReason::BadStamp { .. } => "bad_stamp",
         }
     }
 }
@@ -152,10 +162,18 @@ impl InputLimits {
     }
 }
 
-/// The header stamp, or `log_time` when the header stamp is zero (recorders that leave it unset).
-pub fn stamp_or_log_time(header: &Header, log_time: Stamp) -> Stamp {
-    let s: Stamp = header.stamp.into();
-    if s == Stamp(0) { log_time } else { s }
+/// The header stamp, or `log_time` when the header stamp is zero (recorders that leave it unset); a
+/// stamp whose `nanosec` is 1e9 or more is refused as [`IssueReason::BadStamp`].
+pub fn header_stamp(header: &Header, log_time: Stamp) -> Result<Stamp, IssueReason> {
+    let t = header.stamp;
+    match Stamp::checked_from_sec_nanosec(t.sec, t.nanosec) {
+        None => Err(IssueReason::BadStamp {
+            sec: t.sec,
+            nanosec: t.nanosec,
+        }),
+        Some(Stamp(0)) => Ok(log_time),
+        Some(s) => Ok(s),
+    }
 }
 
 /// Stamp and body pose of an odometry message; `None` when the pose is not finite.
@@ -194,7 +212,29 @@ mod tests {
         assert!(odometry_pose(&m).is_none());
 
         let log = Stamp(99);
-        assert_eq!(stamp_or_log_time(&m.header, log), Stamp(5_000_000_007));
-        assert_eq!(stamp_or_log_time(&Header::default(), log), log);
+        assert_eq!(
+            header_stamp(&m.header, log).ok(),
+            Some(Stamp(5_000_000_007))
+        );
+        assert_eq!(header_stamp(&Header::default(), log).ok(), Some(log));
+    }
+
+    #[test]
+    fn a_header_stamp_with_nanosec_past_a_second_is_refused() {
+        let mut h = Header::default();
+        let log = Stamp(99);
+        assert_eq!(header_stamp(&h, log).unwrap(), log);
+        h.stamp = Time {
+            sec: 5,
+            nanosec: 999_999_999,
+        };
+        assert_eq!(header_stamp(&h, log).unwrap(), Stamp(5_999_999_999));
+        h.stamp.nanosec = 1_000_000_000;
+        let e = header_stamp(&h, log).unwrap_err();
+        assert_eq!(e.name(), "bad_stamp");
+        assert!(e.to_string().contains("5 s 1000000000 ns"), "{e}");
+        // Zero seconds do not make it a zero (unset) stamp.
+        h.stamp.sec = 0;
+        assert!(header_stamp(&h, log).is_err());
     }
 }

@@ -32,9 +32,15 @@ pub type Quat = nalgebra::UnitQuaternion<f64>;
 pub struct Stamp(pub i64);
 
 impl Stamp {
-    /// From a ROS `builtin_interfaces/Time` (seconds and nanoseconds).
+    /// From a ROS `builtin_interfaces/Time` (seconds and nanoseconds); nanoseconds of 1e9 or more
+    /// carry into the seconds (see [`Stamp::checked_from_sec_nanosec`], which refuses them).
     pub fn from_sec_nanosec(sec: i32, nanosec: u32) -> Self {
         Stamp(i64::from(sec) * 1_000_000_000 + i64::from(nanosec))
+    }
+    /// From a ROS `builtin_interfaces/Time`; `None` when `nanosec` is 1e9 or more, which names no
+    /// time (a driver's bug, not a stamp to shift by whole seconds).
+    pub fn checked_from_sec_nanosec(sec: i32, nanosec: u32) -> Option<Self> {
+        (nanosec < 1_000_000_000).then(|| Self::from_sec_nanosec(sec, nanosec))
     }
     /// From floating-point seconds (rounded to the nearest nanosecond).
     pub fn from_secs_f64(s: f64) -> Self {

@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 
 use crate::input::{Input, InputIssue};
+use crate::math::Stamp;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
 
 /// What [`run_inputs`] hands to its closure, in stream order: each input or issue, then the events the
@@ -27,6 +28,8 @@ pub struct RunReport {
     pub odometry_inputs: u64,
     /// Ground-truth samples read (not fed to the pipeline).
     pub ground_truth_inputs: u64,
+    /// Stamp of the first radar or odometry input fed to the pipeline: where the drive starts.
+    pub first_stamp: Option<Stamp>,
     /// Skipped messages by [`IssueReason::name`].
     pub issues: BTreeMap<&'static str, u64>,
     /// The pipeline's counters after [`Pipeline::finish`].
@@ -55,6 +58,9 @@ where
                     Input::Radar { .. } | Input::Scan(_) => report.radar_inputs += 1,
                     Input::Odometry { .. } => report.odometry_inputs += 1,
                     Input::GroundTruth { .. } => report.ground_truth_inputs += 1,
+                }
+                if !matches!(input, Input::GroundTruth { .. }) {
+                    report.first_stamp.get_or_insert(input.stamp());
                 }
                 on_item(RunItem::Input(&input));
                 for e in pipeline.push(&input) {

@@ -61,7 +61,7 @@ pub enum Message {
     /// A radar cloud on its topic.
     Cloud(String, PointCloud2),
     /// Odometry.
-    Odometry(Odometry),
+    Odometry(Box<Odometry>),
 }
 
 /// The drive as a bag (with its params file) and its messages in log-time order.
@@ -93,7 +93,7 @@ impl Drive {
         for m in reader.messages_on(&wanted).expect("messages") {
             let m = m.expect("message");
             let msg = if m.topic() == "/odom" {
-                Message::Odometry(m.decode::<Odometry>().expect("odometry"))
+                Message::Odometry(Box::new(m.decode::<Odometry>().expect("odometry")))
             } else {
                 Message::Cloud(m.topic().to_string(), m.decode().expect("cloud"))
             };
@@ -139,6 +139,9 @@ pub fn stop_node(mut node: Child) -> Option<i32> {
     node.wait().ok().and_then(|s| s.code())
 }
 
+/// The newest value of every `/diagnostics` key, and when the newest message came.
+pub type Latest = (BTreeMap<String, String>, Option<Instant>);
+
 /// The publishers of the drive's topics and the latest `/diagnostics` values.
 pub struct Replayer {
     /// The ROS 2 node the publishers belong to.
@@ -146,7 +149,7 @@ pub struct Replayer {
     clouds: BTreeMap<String, Publisher<PointCloud2>>,
     odometry: Publisher<Odometry>,
     /// The newest value of every diagnostics key, and when the newest message came.
-    pub latest: Arc<Mutex<(BTreeMap<String, String>, Option<Instant>)>>,
+    pub latest: Arc<Mutex<Latest>>,
     /// Longest time between two `/diagnostics` messages, s.
     pub longest_gap: Arc<Mutex<f64>>,
     _context: Context,
@@ -249,7 +252,7 @@ impl Replayer {
                 let _ = self.clouds[topic].async_publish(c.clone()).await;
             }
             Message::Odometry(o) => {
-                let _ = self.odometry.async_publish(o.clone()).await;
+                let _ = self.odometry.async_publish((**o).clone()).await;
             }
         }
     }

@@ -9,7 +9,9 @@
 //!
 //! Memory: nothing holds a whole file. One chunk of each open file is held decompressed, and a chunk or
 //! record that declares more than 64 MiB (compressed or not) is refused as damage, whatever the file
-//! claims: a 1 KB file that declares a 1 GiB chunk costs nothing.
+//! claims: a 1 KB file that declares a 1 GiB chunk costs nothing. Files open together share 256 MiB:
+//! of n files, each takes chunks up to 256 MiB / n (64 MiB at most), so a directory of many small
+//! files whose chunks each expand to the limit cannot add up.
 //!
 //! The reader is not tied to ROS 2: every channel is listed with its message and schema encoding,
 //! and [`BagMessage::data`] gives the payload of any encoding (foxglove protobuf or JSON as well);
@@ -17,15 +19,13 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use mcap::records::Record;
 use mcap::sans_io::indexed_reader::{
     IndexedReadEvent, IndexedReader, IndexedReaderOptions, ReadOrder,
 };
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 use serde::de::DeserializeOwned;
 
@@ -37,8 +37,24 @@ use crate::math::Stamp;
 /// holds decompressed, whatever a corrupt length field asks for. Real chunks are around 1 MiB; a
 /// single radar cloud is well under 1 MiB.
 pub const MAX_RECORD_BYTES: usize = 64 << 20;
+/// Most bytes that the files read together (a group of overlapping files) may hold decompressed:
+/// each of n files takes chunks of at most this / n bytes (and [`MAX_RECORD_BYTES`]).
+pub const MAX_GROUP_BYTES: usize = 256 << 20;
 /// Largest single read into the linear reader, bytes.
 const READ_SIZE: usize = 1 << 20;
+
+mod guard;
+mod linear;
+use linear::LinearSource;
+
+/// Why a chunk at byte `at` of `declared` bytes is refused.
+fn oversize(at: u64, declared: u64, limit: usize) -> String {
+    format!(
+        "chunk at byte {at} declares {declared} bytes, more than the {:.0} MiB the reader takes \
+         from one file (a damaged or crafted file)",
+        limit as f64 / f64::from(1 << 20)
+    )
+}
 
 /// One topic (channel) of a bag, summed over its files.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -221,6 +237,13 @@ fn bag_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
 
 /// Reads the summary section, or `None` when the file has none or it cannot be read.
 fn read_summary(file: &mut File, len: u64, path: &Path) -> Option<mcap::Summary> {
+    if let Some(fault) = guard::summary_fault(file, len, MAX_GROUP_BYTES) {
+        log::warn!(
+            "{}: no usable MCAP summary ({fault}); reading the file from start to end",
+            path.display()
+        );
+        return None;
+    }
     let options = SummaryReaderOptions::default()
         .with_file_size(len)
         .with_record_length_limit(MAX_RECORD_BYTES);
@@ -290,7 +313,7 @@ impl McapFile {
             }
         }
         // No summary: scan the file once for its channels and counts, up to any damage.
-        let mut source = LinearSource::open(path, None)?;
+        let mut source = LinearSource::open(path, None, MAX_RECORD_BYTES)?;
         let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
         let mut time_range: Option<(u64, u64)> = None;
         while let Some(item) = source.next_raw() {
@@ -321,15 +344,19 @@ impl McapFile {
         })
     }
 
-    fn source(&self, topics: Option<&[&str]>) -> Result<Source, BagError> {
+    /// Opens the file for reading, refusing chunks and records of more than `limit` bytes.
+    fn source(&self, topics: Option<&[&str]>, limit: usize) -> Result<Source, BagError> {
         match &self.summary {
-            Some(summary) => Ok(Source::Indexed(IndexedSource::open(
+            Some(summary) => Ok(Source::Indexed(Box::new(IndexedSource::open(
                 &self.path,
                 summary,
                 &self.channels,
                 topics,
-            )?)),
-            None => Ok(Source::Linear(LinearSource::open(&self.path, topics)?)),
+                limit,
+            )?))),
+            None => Ok(Source::Linear(Box::new(LinearSource::open(
+                &self.path, topics, limit,
+            )?))),
         }
     }
 }
@@ -352,12 +379,36 @@ impl IndexedSource {
         summary: &mcap::Summary,
         channels: &BTreeMap<u16, (Arc<ChannelMeta>, u64)>,
         topics: Option<&[&str]>,
+        limit: usize,
     ) -> Result<Self, BagError> {
+        // The mcap reader refuses these too, naming only the compressed size.
+        let declared = |c: &mcap::records::ChunkIndex| c.compressed_size.max(c.uncompressed_size);
+        if let Some(c) = summary
+            .chunk_indexes
+            .iter()
+            .find(|c| declared(c) > limit as u64)
+        {
+            return Err(BagError::Damaged {
+                path: path.to_path_buf(),
+                reason: oversize(c.chunk_start_offset, declared(c), limit),
+            });
+        }
+        let together = guard::overlapping_bytes(&summary.chunk_indexes);
+        if together > limit as u64 {
+            return Err(BagError::Damaged {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "chunks overlapping in time declare {together} bytes together, more than the \
+                     {:.0} MiB the reader holds of one file (a damaged or crafted file)",
+                    limit as f64 / f64::from(1 << 20)
+                ),
+            });
+        }
         let file = File::open(path).map_err(io_err(path))?;
         let len = file.metadata().map_err(io_err(path))?.len();
         let mut options = IndexedReaderOptions::new()
             .with_order(ReadOrder::LogTime)
-            .with_record_length_limit(MAX_RECORD_BYTES);
+            .with_record_length_limit(limit);
         // Channels to yield. (An empty topic set means "all" to the mcap reader, so the selection
         // is also applied here.)
         let channels: HashMap<u16, Arc<ChannelMeta>> = channels
@@ -452,127 +503,10 @@ impl IndexedSource {
     }
 }
 
-/// Messages of one file in file order, from start to end.
-struct LinearSource {
-    path: PathBuf,
-    file: BufReader<File>,
-    reader: LinearReader,
-    /// Schemas seen so far: id -> (name, encoding, data).
-    schemas: HashMap<u16, (String, String, Vec<u8>)>,
-    /// Channels seen so far.
-    channels: BTreeMap<u16, Arc<ChannelMeta>>,
-    topics: Option<Vec<String>>,
-    /// The last message read by [`Self::next_raw`].
-    last: Option<(mcap::records::MessageHeader, Vec<u8>)>,
-}
-
-impl LinearSource {
-    fn open(path: &Path, topics: Option<&[&str]>) -> Result<Self, BagError> {
-        let file = File::open(path).map_err(io_err(path))?;
-        let options = LinearReaderOptions::default()
-            .with_record_length_limit(MAX_RECORD_BYTES)
-            .with_validate_chunk_crcs(true);
-        Ok(LinearSource {
-            path: path.to_path_buf(),
-            file: BufReader::with_capacity(1 << 16, file),
-            reader: LinearReader::new_with_options(options),
-            schemas: HashMap::new(),
-            channels: BTreeMap::new(),
-            topics: topics.map(|t| t.iter().map(|s| s.to_string()).collect()),
-            last: None,
-        })
-    }
-
-    /// Advances to the next message (kept in `self.last`); returns its channel id and log time.
-    fn next_raw(&mut self) -> Option<Result<(u16, u64), BagError>> {
-        enum Step {
-            Read(usize),
-            Message(mcap::records::MessageHeader, Vec<u8>),
-            Other,
-        }
-        loop {
-            let step = match self.reader.next_event()? {
-                Err(e) => return Some(Err(mcap_err(&self.path)(e))),
-                Ok(LinearReadEvent::ReadRequest(n)) => Step::Read(n),
-                Ok(LinearReadEvent::Record { opcode, data }) => {
-                    match mcap::parse_record(opcode, data) {
-                        Err(e) => return Some(Err(mcap_err(&self.path)(e))),
-                        Ok(Record::Schema { header, data }) => {
-                            self.schemas
-                                .insert(header.id, (header.name, header.encoding, data.to_vec()));
-                            Step::Other
-                        }
-                        Ok(Record::Channel(c)) => {
-                            let (type_name, schema_encoding, schema) =
-                                self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                            self.channels.insert(
-                                c.id,
-                                Arc::new(ChannelMeta {
-                                    topic: c.topic,
-                                    type_name,
-                                    message_encoding: c.message_encoding,
-                                    schema_encoding,
-                                    schema,
-                                }),
-                            );
-                            Step::Other
-                        }
-                        Ok(Record::Message { header, data }) => {
-                            Step::Message(header, data.into_owned())
-                        }
-                        Ok(_) => Step::Other,
-                    }
-                }
-            };
-            match step {
-                Step::Read(n) => {
-                    let buf = self.reader.insert(n.min(READ_SIZE));
-                    match self.file.read(buf) {
-                        Ok(got) => self.reader.notify_read(got),
-                        Err(e) => return Some(Err(io_err(&self.path)(e))),
-                    }
-                }
-                Step::Message(header, data) => {
-                    let (id, t) = (header.channel_id, header.log_time);
-                    self.last = Some((header, data));
-                    return Some(Ok((id, t)));
-                }
-                Step::Other => {}
-            }
-        }
-    }
-
-    fn next(&mut self) -> Option<Result<BagMessage, BagError>> {
-        loop {
-            if let Err(e) = self.next_raw()? {
-                return Some(Err(e));
-            }
-            let (header, data) = self.last.take()?;
-            let Some(channel) = self.channels.get(&header.channel_id) else {
-                return Some(Err(BagError::UnknownChannel {
-                    path: self.path.clone(),
-                    channel_id: header.channel_id,
-                }));
-            };
-            if let Some(topics) = &self.topics
-                && !topics.contains(&channel.topic)
-            {
-                continue;
-            }
-            return Some(Ok(BagMessage {
-                channel: channel.clone(),
-                log_time: stamp(header.log_time),
-                publish_time: stamp(header.publish_time),
-                sequence: header.sequence,
-                data,
-            }));
-        }
-    }
-}
-
+/// One open file's reader (boxed: the two differ much in size).
 enum Source {
-    Indexed(IndexedSource),
-    Linear(LinearSource),
+    Indexed(Box<IndexedSource>),
+    Linear(Box<LinearSource>),
 }
 
 impl Source {
@@ -591,7 +525,8 @@ pub struct Messages {
     /// The groups still to open, in time order.
     groups: std::collections::VecDeque<Vec<Arc<McapFile>>>,
     topics: Option<Vec<String>>,
-    sources: Vec<Source>,
+    /// The open group's files (`None`: the file could not be opened; its error is its first item).
+    sources: Vec<Option<Source>>,
     /// Next item of each source; `None` once the source is exhausted.
     peeked: Vec<Option<Result<BagMessage, BagError>>>,
     /// Whether each source has ended.
@@ -631,24 +566,36 @@ impl Messages {
     }
 
     /// Opens the next group once every source of the current one has ended; false when none is left.
-    fn advance(&mut self) -> Result<bool, BagError> {
+    /// The group's files share [`MAX_GROUP_BYTES`]; a file that cannot be opened reports why as its
+    /// only item, and the others of the group go on.
+    fn advance(&mut self) -> bool {
         if self.done.iter().any(|d| !d) {
-            return Ok(true);
+            return true;
         }
         let Some(group) = self.groups.pop_front() else {
-            return Ok(false);
+            return false;
         };
         let topics: Option<Vec<&str>> = self
             .topics
             .as_ref()
             .map(|t| t.iter().map(String::as_str).collect());
-        self.sources = group
-            .iter()
-            .map(|f| f.source(topics.as_deref()))
-            .collect::<Result<Vec<_>, _>>()?;
-        self.peeked = (0..self.sources.len()).map(|_| None).collect();
+        let limit = MAX_RECORD_BYTES.min(MAX_GROUP_BYTES / group.len().max(1));
+        self.sources.clear();
+        self.peeked.clear();
+        for f in &group {
+            match f.source(topics.as_deref(), limit) {
+                Ok(s) => {
+                    self.sources.push(Some(s));
+                    self.peeked.push(None);
+                }
+                Err(e) => {
+                    self.sources.push(None);
+                    self.peeked.push(Some(Err(e)));
+                }
+            }
+        }
         self.done = vec![false; self.sources.len()];
-        Ok(true)
+        true
     }
 }
 
@@ -657,10 +604,8 @@ impl Iterator for Messages {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            match self.advance() {
-                Ok(false) => return None,
-                Err(e) => return Some(Err(e)),
-                Ok(true) => {}
+            if !self.advance() {
+                return None;
             }
             if let Some(item) = self.next_in_group() {
                 return Some(item);
@@ -674,7 +619,7 @@ impl Messages {
     fn next_in_group(&mut self) -> Option<Result<BagMessage, BagError>> {
         for (i, source) in self.sources.iter_mut().enumerate() {
             if self.peeked[i].is_none() && !self.done[i] {
-                self.peeked[i] = source.next();
+                self.peeked[i] = source.as_mut().and_then(Source::next);
                 self.done[i] = self.peeked[i].is_none();
             }
         }

@@ -190,7 +190,7 @@ fn scenes_to_load(
             scene
                 .sweeps
                 .iter()
-                .filter(|w| !db.dataroot.join(&w.filename).is_file())
+                .filter(|w| !w.path_in(&db.dataroot).is_some_and(|p| p.is_file()))
                 .map(|w| (d, w)),
         );
     }

@@ -1,12 +1,12 @@
 //! The pipeline configuration of an offline run: a ROS 2 params file (the node's section) and `-p`
 //! overrides onto the defaults, or onto a dataset's own radar layout ([`dataset_config`]). The node's
 //! own settings (`node.*`, `use_sim_time`) are accepted, so one file serves the node and `dc_loc run`:
-//! they are checked, and the cloud size limits apply offline too ([`input_limits`]).
+//! they are checked, and the cloud size limits and `node.restart_after` apply offline too
+//! ([`node_settings`]).
 
 use std::path::Path;
 
 use super::CliError;
-use crate::input::InputLimits;
 use crate::params::node::NodeSettings;
 use crate::params::{ParamError, ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
@@ -57,14 +57,14 @@ fn pipeline_config(set: &ParamSet) -> Result<Config, ParamError> {
     apply(&rest)
 }
 
-/// The cloud size limits of the params file (optional) and the overrides (`node.max_cloud_points`,
-/// `node.max_cloud_bytes`; the defaults otherwise).
-pub fn input_limits(
+/// The node's own settings of the params file (optional) and the overrides; `dc_loc run` takes the
+/// cloud size limits and `node.restart_after` from them, as the node does.
+pub fn node_settings(
     params: Option<&Path>,
     namespace: &str,
     node_name: &str,
     overrides: &[String],
-) -> Result<InputLimits, CliError> {
+) -> Result<NodeSettings, CliError> {
     let mut set = match params {
         Some(p) => read_params(p, namespace, node_name)?,
         None => ParamSet::default(),
@@ -72,7 +72,7 @@ pub fn input_limits(
     add_overrides(&mut set, overrides)?;
     let (settings, _) =
         NodeSettings::take_from(&set).map_err(|e| CliError::Usage(format!("parameters: {e}")))?;
-    Ok(settings.limits)
+    Ok(settings)
 }
 
 /// The parameters of node `/namespace/node_name` in the params file `path`.

@@ -10,12 +10,13 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 
-use super::params::input_limits;
+use super::params::node_settings;
 use super::source::{Dataset, Segment, SourceArgs};
 use super::{CliError, progress};
-use crate::input::{InputLimits, IssueReason};
+use crate::input::IssueReason;
 use crate::output::ClosureRecord;
 use crate::params::flatten_config;
+use crate::params::node::NodeSettings;
 use crate::pipeline::{Event, Pipeline};
 use crate::runner::{RunItem, RunReport, run_inputs};
 
@@ -40,7 +41,7 @@ pub struct RunArgs {
 pub fn main(args: &RunArgs) -> Result<(), CliError> {
     let data = Dataset::open(&args.source, &args.namespace, &args.map_frame)?;
     let src = &args.source;
-    let limits = input_limits(
+    let node = node_settings(
         src.params.as_deref(),
         &args.namespace,
         &src.node_name,
@@ -63,8 +64,10 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         damaged: Vec::new(),
     };
     let mut reports = Vec::new();
+    let mut radar_names = Vec::new();
     for segment in segments {
-        reports.push(run_segment(segment, limits, &mut sink, &bar)?);
+        radar_names.push(segment.config.radar_names.clone());
+        reports.push(run_segment(segment, &node, &mut sink, &bar)?);
     }
     progress::clear(&bar);
     let (closures, error, damaged) = (sink.closures, sink.error, sink.damaged);
@@ -75,7 +78,11 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::Runtime(format!("--out {out_path}: {e}")))?;
     println!("{}", data.describe());
     print_summary(&reports);
+    print_doppler(&reports, &radar_names);
     println!("closures {closures} -> {}", args.out.display());
+    if let Some(mb) = peak_memory_mb() {
+        println!("peak memory: {mb} MB");
+    }
     if !damaged.is_empty() {
         return Err(CliError::Runtime(format!(
             "the bag is damaged, closures up to the damage were written: {}",
@@ -96,7 +103,7 @@ struct ClosureSink<'a> {
 /// One segment through a fresh pipeline, its closures into `sink`.
 fn run_segment(
     segment: Segment<'_>,
-    limits: InputLimits,
+    node: &NodeSettings,
     sink: &mut ClosureSink<'_>,
     bar: &indicatif::ProgressBar,
 ) -> Result<RunReport, CliError> {
@@ -117,7 +124,8 @@ fn run_segment(
     }
     let body_frame = cfg.body_frame.clone();
     let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
-    pipeline.set_input_limits(limits);
+    pipeline.set_input_limits(node.limits);
+    pipeline.set_restart_after(node.restart_after);
     Ok(run_inputs(
         &mut pipeline,
         segment.inputs,
@@ -207,4 +215,51 @@ fn print_summary(reports: &[RunReport]) {
             "keyframes whose Doppler and odometry distances disagreed beyond submap.speed_scale_bound: {refused}"
         );
     }
+}
+
+/// The radars' Doppler against the odometry, per segment: the scans that disagreed, and each radar
+/// flagged as misconfigured with the stamp of the scan that showed it and the likely cause.
+fn print_doppler(reports: &[RunReport], radar_names: &[Vec<String>]) {
+    for (r, names) in reports.iter().zip(radar_names) {
+        let name = |i: &usize| names.get(*i).map_or("?", String::as_str);
+        let disagreed: BTreeMap<&str, u64> = r
+            .stats
+            .doppler_disagreements
+            .iter()
+            .map(|(i, n)| (name(i), *n))
+            .collect();
+        if r.stats.doppler_warnings.is_empty() {
+            if !disagreed.is_empty() {
+                println!(
+                    "doppler: no radar flagged; scans disagreeing with the odometry: {}",
+                    counts(&disagreed)
+                );
+            }
+            continue;
+        }
+        for (i, (stamp, cause)) in &r.stats.doppler_warnings {
+            let into = r.first_stamp.map_or(0.0, |s| stamp.secs_since(s));
+            println!(
+                "doppler: radar `{}` flagged at {:.3} s ({into:.1} s into the drive; {} scans \
+                 disagreed in all): {cause}",
+                name(i),
+                stamp.as_secs_f64(),
+                disagreed.get(name(i)).copied().unwrap_or(0),
+            );
+        }
+    }
+}
+
+/// Peak resident memory of this process (`VmHWM` of /proc/self/status), MB; `None` without /proc.
+fn peak_memory_mb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .strip_suffix("kB")?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb.div_ceil(1024))
 }

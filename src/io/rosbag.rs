@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use crate::bag::{BagError, BagReader, Messages, schema};
-use crate::input::{Input, InputIssue, IssueReason, ground_truth_sample, stamp_or_log_time};
+use crate::input::{Input, InputIssue, IssueReason, ground_truth_sample, header_stamp};
 use crate::math::Stamp;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::sensor_msgs::PointCloud2;
@@ -189,7 +189,10 @@ impl Iterator for BagInputs {
                 Route::Radar(radars) => match msg.decode::<PointCloud2>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(mut cloud) => {
-                        let stamp = stamp_or_log_time(&cloud.header, msg.log_time);
+                        let stamp = match header_stamp(&cloud.header, msg.log_time) {
+                            Ok(s) => s,
+                            Err(reason) => return Some(Err(issue(msg.log_time, reason))),
+                        };
                         cloud.header.stamp = stamp.into();
                         let got = &cloud.header.frame_id;
                         match radars
@@ -214,7 +217,10 @@ impl Iterator for BagInputs {
                 Route::Odometry | Route::GroundTruth => match msg.decode::<Odometry>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(odom) => {
-                        let stamp = stamp_or_log_time(&odom.header, msg.log_time);
+                        let stamp = match header_stamp(&odom.header, msg.log_time) {
+                            Ok(s) => s,
+                            Err(reason) => return Some(Err(issue(msg.log_time, reason))),
+                        };
                         match ground_truth_sample(&odom) {
                             None => Err(issue(stamp, IssueReason::NonFinitePose)),
                             Some((_, pose, speed)) => Ok(if matches!(route, Route::Odometry) {

@@ -112,8 +112,8 @@ impl Pipeline {
 
     /// How many inputs in a row with stamps out of line with the newest input (more than 1 s before it:
     /// a bag replayed again, a simulator reset; more than 10 s after it: a jump after an outage) are
-    /// taken as the new time rather than bad stamps (default 1: the first one, as in an offline bag;
-    /// the node uses `node.restart_after`). The ones before are dropped as
+    /// taken as the new time rather than bad stamps (default 1: the first one; the node and `dc_loc
+    /// run` use `node.restart_after`, default 20). The ones before are dropped as
     /// [`DropReason::StampBackwards`] or [`DropReason::StampAhead`]. Values below 1 count as 1.
     pub fn set_restart_after(&mut self, n: usize) {
         self.ingest.set_restart_after(n);

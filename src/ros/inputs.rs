@@ -12,7 +12,7 @@ use ros2_client::{Node, Subscription};
 use serde::de::DeserializeOwned;
 
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
-use crate::input::{Input, InputLimits, odometry_pose};
+use crate::input::{Input, InputLimits, header_stamp, odometry_pose};
 use crate::math::Stamp;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
@@ -52,8 +52,8 @@ pub struct Reception {
     pub use_sim_time: bool,
 }
 
-/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: a zero stamp becomes the
-/// receive time, `convert` turns the message into an input or a refusal (counted), and the input goes
+/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: a stamp whose `nanosec`
+/// is 1e9 or more is refused (`bad_stamp`), a zero stamp becomes the receive time, `convert` turns the message into an input or a refusal (counted), and the input goes
 /// to the worker.
 pub async fn take<M, F>(topic: &str, sub: &Subscription<M>, r: Reception, mut convert: F)
 where
@@ -71,6 +71,10 @@ where
             }
         };
         let header = msg.header_mut();
+        if let Err(e) = header_stamp(header, Stamp(0)) {
+            r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
+            continue;
+        }
         if Stamp::from(header.stamp) == Stamp(0) {
             header.stamp = receive_time(&r.shared, r.use_sim_time).into();
         }

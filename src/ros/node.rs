@@ -185,18 +185,15 @@ fn runtime() -> Result<tokio::runtime::Runtime, NodeError> {
         .map_err(|e| NodeError::Runtime(format!("tokio runtime: {e}")))
 }
 
+/// The worker's thread: its result is the final map save's.
+type WorkerThread = JoinHandle<Result<(), String>>;
+
 /// The worker on its thread, and a signal when it ends (before a stop was asked for, the node cannot
 /// go on).
 fn spawn_worker(
     worker: Worker,
     rx: std::sync::mpsc::Receiver<Work>,
-) -> Result<
-    (
-        JoinHandle<Result<(), String>>,
-        tokio::sync::oneshot::Receiver<()>,
-    ),
-    NodeError,
-> {
+) -> Result<(WorkerThread, tokio::sync::oneshot::Receiver<()>), NodeError> {
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let handle = std::thread::Builder::new()
         .name("dc_loc-worker".into())

@@ -20,8 +20,8 @@ pub struct OdometryDrift {
 /// A scene as an input stream: per sweep, in time order, the ground truth (ego pose, speed
 /// from the neighbouring ego poses), the odometry (the ego poses with [`OdometryDrift`] integrated in)
 /// and the radar cloud (the PCD records that pass the filter, as a PointCloud2 stamped with the sweep
-/// time, frame id `radar_<channel>`). A missing or damaged PCD file is reported as an
-/// [`InputIssue`] and skipped; the scene goes on.
+/// time, frame id `radar_<channel>`). A missing or damaged PCD file, or one whose name leaves the
+/// data root (never opened), is reported as an [`InputIssue`] and skipped; the scene goes on.
 pub struct SceneInputs<'a> {
     dataroot: &'a Path,
     scene: &'a NuscenesScene,
@@ -124,15 +124,20 @@ impl Iterator for SceneInputs<'_> {
             stamp: stamp.into(),
             frame_id: channel.to_ascii_lowercase(),
         };
-        let path = self.dataroot.join(&sweep.filename);
-        let cloud = match std::fs::read(&path) {
-            Err(source) => Err(NuscenesError::MissingSweep {
-                path,
+        let cloud = match sweep.path_in(self.dataroot) {
+            None => Err(NuscenesError::OutsideDataroot {
+                filename: sweep.filename.clone(),
                 token: sweep.token.clone(),
-                source,
             }),
-            Ok(bytes) => filtered_pointcloud2(&bytes, &self.filter, header)
-                .map_err(|source| NuscenesError::Pcd { path, source }),
+            Some(path) => match std::fs::read(&path) {
+                Err(source) => Err(NuscenesError::MissingSweep {
+                    path,
+                    token: sweep.token.clone(),
+                    source,
+                }),
+                Ok(bytes) => filtered_pointcloud2(&bytes, &self.filter, header)
+                    .map_err(|source| NuscenesError::Pcd { path, source }),
+            },
         };
         // A sweep that cannot be read is skipped and reported; the scene goes on.
         self.queue.push_back(match cloud {
@@ -179,5 +184,72 @@ mod tests {
         let o = inputs.odometry(Stamp(1_000_000_000), p(15.0)).unwrap();
         assert!((o.translation.x - 16.0).abs() < 1e-12);
         assert_eq!(inputs.odometry(Stamp(1_000_000_000), p(15.0)), None);
+    }
+
+    /// A PCD file in the nuScenes radar layout without points.
+    const EMPTY_PCD: &str = "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n\
+FIELDS x y z dyn_prop id rcs vx vy vx_comp vy_comp is_quality_valid ambig_state x_rms y_rms invalid_state pdh0 vx_rms vy_rms\n\
+SIZE 4 4 4 1 2 4 4 4 4 4 1 1 1 1 1 1 1 1\nTYPE F F F I I F F F F F I I I I I I I I\n\
+COUNT 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1\n\
+WIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA binary\n";
+
+    #[test]
+    fn sweep_names_that_leave_the_dataroot_are_refused_unopened() {
+        // Readable PCD files inside and outside the data root: only the inside one may be read.
+        let base =
+            std::env::temp_dir().join(format!("dc_loc_nuscenes_paths_{}", std::process::id()));
+        let root = base.join("root");
+        std::fs::create_dir_all(root.join("sweeps")).unwrap();
+        std::fs::write(root.join("sweeps/in.pcd"), EMPTY_PCD).unwrap();
+        std::fs::write(base.join("secret.pcd"), EMPTY_PCD).unwrap();
+        let outside = base.join("secret.pcd").to_str().unwrap().to_string();
+        let names = [
+            "sweeps/in.pcd".to_string(),
+            "../secret.pcd".into(),
+            "sweeps/../../secret.pcd".into(),
+            outside,
+            String::new(),
+        ];
+        let sweeps = names
+            .iter()
+            .enumerate()
+            .map(|(k, name)| RadarSweep {
+                channel: 0,
+                timestamp_us: 1_000_000 + 100_000 * k as i64,
+                is_key_frame: false,
+                filename: name.clone(),
+                token: format!("t{k}"),
+                t_ego_radar: Iso3::identity(),
+                t_global_ego: Iso3::identity(),
+            })
+            .collect();
+        let scene = NuscenesScene {
+            token: "s".into(),
+            name: "scene-x".into(),
+            description: String::new(),
+            location: "here".into(),
+            logfile: "log".into(),
+            sweeps,
+        };
+        let filter = NuscenesRadarFilter::keep_all();
+        let inputs = SceneInputs::new(&root, &scene, filter, OdometryDrift::default());
+        let (mut clouds, mut refused) = (0, Vec::new());
+        for item in inputs {
+            match item {
+                Ok(Input::Radar { .. }) => clouds += 1,
+                Ok(_) => {}
+                Err(issue) => {
+                    assert_eq!(issue.reason.name(), "unreadable_file");
+                    refused.push(issue.reason.to_string());
+                }
+            }
+        }
+        std::fs::remove_dir_all(&base).unwrap();
+        assert_eq!(clouds, 1);
+        assert_eq!(refused.len(), 4, "{refused:?}");
+        for (why, name) in refused.iter().zip(&names[1..]) {
+            assert!(why.contains("leaves the dataroot"), "{why}");
+            assert!(why.contains(&format!("{name:?}")), "{why}");
+        }
     }
 }

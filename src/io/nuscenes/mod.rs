@@ -27,7 +27,7 @@ use crate::io::nuscenes_pcd::{PcdError, nuscenes_fields_config};
 use crate::math::{Iso3, Stamp};
 use crate::pipeline::Config;
 use crate::radar::RadarConfig;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 use tables::Loader;
 
 /// The five radar channels, in the radar-index order of [`nuscenes_config`].
@@ -116,6 +116,17 @@ pub enum NuscenesError {
         /// The OS error.
         source: std::io::Error,
     },
+    /// A sweep's file name leaves the data root (an absolute path, a `..`): the file is not opened.
+    #[error(
+        "sweep file name {filename:?} (sample_data {token}) leaves the dataroot (absolute or with \
+         `..`): not opened"
+    )]
+    OutsideDataroot {
+        /// The file name as the table gives it.
+        filename: String,
+        /// The sample_data token.
+        token: String,
+    },
     /// A sweep's PCD file does not parse.
     #[error("sweep file {path}: {source}")]
     Pcd {
@@ -149,6 +160,16 @@ impl RadarSweep {
     /// The stamp (nanoseconds).
     pub fn stamp(&self) -> Stamp {
         Stamp(self.timestamp_us.saturating_mul(1000))
+    }
+
+    /// The sweep's file under `dataroot`; `None` when its name is empty, absolute or climbs out with
+    /// `..` (a table's file name is data, never a way out of the dataset).
+    pub fn path_in(&self, dataroot: &Path) -> Option<PathBuf> {
+        let name = Path::new(&self.filename);
+        let inside = name
+            .components()
+            .all(|c| matches!(c, Component::Normal(_) | Component::CurDir));
+        (inside && !self.filename.is_empty()).then(|| dataroot.join(name))
     }
 }
 

@@ -221,6 +221,13 @@ fn oversize_chunk(path: &Path, limit: usize) -> std::io::Result<Option<(u64, Str
                 );
                 return Ok(Some((at, why)));
             }
+            if name == 0 {
+                let (walked, fault) = uncompressed_chunk_fault(&mut file, at, record_len)?;
+                read += walked;
+                if fault.is_some() {
+                    return Ok(fault.map(|why| (at, why)));
+                }
+            }
         }
         let Some(next) = at.checked_add(9).and_then(|a| a.checked_add(record_len)) else {
             return Ok(None);
@@ -231,4 +238,42 @@ fn oversize_chunk(path: &Path, limit: usize) -> std::io::Result<Option<(u64, Str
         file.seek_relative(i64::try_from(next - at - read).unwrap_or(i64::MAX))?;
         at = next;
     }
+}
+
+/// Whether the records of an uncompressed chunk (at byte `at`, `record_len` bytes; the file is just past
+/// its empty compression name) run past the chunk's end, which the mcap crate's reader does not check.
+/// Returns the bytes read and the fault, if any.
+fn uncompressed_chunk_fault(
+    file: &mut BufReader<File>,
+    at: u64,
+    record_len: u64,
+) -> std::io::Result<(u64, Option<String>)> {
+    // The chunk's fields before its records: times, uncompressed size, CRC, empty name, records length.
+    const FIXED: u64 = 8 + 8 + 8 + 4 + 4 + 8;
+    let mut word = [0u8; 8];
+    if file.read_exact(&mut word).is_err() {
+        return Ok((0, None));
+    }
+    let records = u64::from_le_bytes(word);
+    let mut walked = 8;
+    let fault = |why: &str| Some(format!("chunk at byte {at}: {why}"));
+    if records > record_len.saturating_sub(FIXED) {
+        return Ok((walked, fault("its records run past the chunk")));
+    }
+    let mut left = records;
+    let mut head = [0u8; 9];
+    while left > 0 {
+        if left < 9 || file.read_exact(&mut head).is_err() {
+            return Ok((walked, fault("a record inside it is cut off")));
+        }
+        walked += 9;
+        let n = u64::from_le_bytes(head[1..9].try_into().unwrap_or_default());
+        if n > left - 9 {
+            return Ok((walked, fault("a record inside it runs past the chunk")));
+        }
+        file.seek_relative(i64::try_from(n).unwrap_or(i64::MAX))?;
+        walked += n;
+        left -= 9 + n;
+    }
+    Ok((walked, None))
 }

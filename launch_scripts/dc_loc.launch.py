@@ -7,7 +7,8 @@ Arguments
 - odom_topic: nav_msgs/Odometry topic remapped onto the configured `odometry.topic` `/odom`.
 - log_level: debug, info, warn or error (default info).
 - dc_loc: the dc_loc executable (default: `dc_loc` on PATH).
-The node reads ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE from the environment, as every ROS 2 node.
+Parameters go to the node as `--ros-args --params-file`, the log level as `--ros-args --log-level`
+(launch_ros puts both after the node's own `--ros-args`). The node reads ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE from the environment, as every ROS 2 node.
 """
 
 import os
@@ -36,7 +37,7 @@ def generate_launch_description():
         namespace=LaunchConfiguration("namespace"),
         parameters=[LaunchConfiguration("params_file")],
         remappings=[("/odom", LaunchConfiguration("odom_topic"))],
-        arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
+        ros_arguments=["--log-level", LaunchConfiguration("log_level")],
         output="screen",
         emulate_tty=True,
     )

@@ -274,17 +274,7 @@ builtin_interfaces/Time clock
     MsgFile {
         name: "dc_loc/msg/LoopClosure",
         type_hash: "RIHS01_a68920ba6b6cab5f024fc684f0275b266711fb5c28e553efbdead30eddaab7f8",
-        text: r#"std_msgs/Header header                 # stamp: query keyframe time; frame_id: body frame
-uint64 query_id                        # newer keyframe
-uint64 match_id                        # older, revisited keyframe
-builtin_interfaces/Time query_stamp
-builtin_interfaces/Time match_stamp
-geometry_msgs/Pose query_odom_pose     # odometry poses of the two keyframes
-geometry_msgs/Pose match_odom_pose
-geometry_msgs/PoseWithCovariance relative_pose   # query body frame in the match body frame; covariance row-major x y z rotx roty rotz
-uint32 inliers
-float64 score
-"#,
+        text: include_str!("../../msg/LoopClosure.msg"),
     },
 ];
 

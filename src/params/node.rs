@@ -35,7 +35,43 @@ pub struct NodeSettings {
     pub log_level: String,
     /// `node.map_frame`: frame id of the `~/relocalized` poses.
     pub map_frame: String,
+    /// The optional outputs for pose-graph back ends (`node.robot_id`, `node.pose_graph_*`,
+    /// `node.lio_sam_*`).
+    pub backends: BackendSettings,
 }
+
+/// The optional outputs for pose-graph back ends that read other message types than
+/// `dc_loc/msg/LoopClosure` (README_NODE.md, Back ends).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BackendSettings {
+    /// `node.robot_id`: robot id of the `pose_graph_tools_msgs` nodes and edges (an `int32` there; the
+    /// range check keeps it within).
+    pub robot_id: i64,
+    /// `node.pose_graph_output`: publish each closure as a `pose_graph_tools_msgs/PoseGraph`.
+    pub pose_graph_output: bool,
+    /// `node.pose_graph_topic`: its topic.
+    pub pose_graph_topic: String,
+    /// `node.lio_sam_output`: publish each closure's two keyframe stamps for LIO-SAM.
+    pub lio_sam_output: bool,
+    /// `node.lio_sam_topic`: its topic.
+    pub lio_sam_topic: String,
+}
+
+impl Default for BackendSettings {
+    fn default() -> Self {
+        BackendSettings {
+            robot_id: 0,
+            pose_graph_output: false,
+            pose_graph_topic: "~/pose_graph".into(),
+            lio_sam_output: false,
+            lio_sam_topic: LIO_SAM_TOPIC.into(),
+        }
+    }
+}
+
+/// The name LIO-SAM's map optimisation subscribes to its external loop closures under (relative: it
+/// resolves in the namespace of the node that uses it, so dc_loc and LIO-SAM in one namespace meet).
+pub const LIO_SAM_TOPIC: &str = "lio_loop/loop_closure_detection";
 
 impl Default for NodeSettings {
     fn default() -> Self {
@@ -51,6 +87,7 @@ impl Default for NodeSettings {
             markers_period: 1.0,
             log_level: String::new(),
             map_frame: "map".into(),
+            backends: BackendSettings::default(),
         }
     }
 }
@@ -126,6 +163,37 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         doc: "Frame id of the `~/relocalized` poses: the odometry frame of the earlier session (the \
               loaded map) the robot was found in.",
     },
+    NodeParam {
+        name: "node.robot_id",
+        doc: "Robot id written into the `pose_graph_tools_msgs` nodes and edges (`robot_id`, \
+              `robot_from`, `robot_to`): the robot's index in a multi-robot back end such as \
+              Kimera-Multi, which maps it to its key prefix.",
+    },
+    NodeParam {
+        name: "node.pose_graph_output",
+        doc: "Publish each closure also as a `pose_graph_tools_msgs/PoseGraph` (MIT-SPARK's \
+              definition) on `node.pose_graph_topic`: one LOOPCLOSE edge from the match keyframe to \
+              the query keyframe (`pose` the query in the match frame, `covariance` as the closure's) \
+              and the two keyframes as nodes (README_NODE.md, Back ends). Off by default: the message \
+              package must be installed where it is read.",
+    },
+    NodeParam {
+        name: "node.pose_graph_topic",
+        doc: "Topic of the `pose_graph_tools_msgs/PoseGraph` output (reliable, transient local, keep \
+              last 100, as `~/loop_closures`).",
+    },
+    NodeParam {
+        name: "node.lio_sam_output",
+        doc: "Publish each closure also as LIO-SAM's external loop input, a \
+              `std_msgs/Float64MultiArray` holding the query and the match keyframe stamps in seconds, \
+              on `node.lio_sam_topic`; LIO-SAM registers the pair itself. Off by default.",
+    },
+    NodeParam {
+        name: "node.lio_sam_topic",
+        doc: "Topic of the LIO-SAM output (reliable, volatile, keep last 100). The default is the \
+              relative name LIO-SAM's map optimisation subscribes to, so both meet when they run in \
+              one namespace.",
+    },
 ];
 
 /// The log levels `node.log_level` takes.
@@ -173,6 +241,23 @@ impl NodeSettings {
             ),
             ("node.log_level".into(), Value::from(self.log_level.clone())),
             ("node.map_frame".into(), Value::from(self.map_frame.clone())),
+            ("node.robot_id".into(), Value::from(self.backends.robot_id)),
+            (
+                "node.pose_graph_output".into(),
+                Value::Bool(self.backends.pose_graph_output),
+            ),
+            (
+                "node.pose_graph_topic".into(),
+                Value::from(self.backends.pose_graph_topic.clone()),
+            ),
+            (
+                "node.lio_sam_output".into(),
+                Value::Bool(self.backends.lio_sam_output),
+            ),
+            (
+                "node.lio_sam_topic".into(),
+                Value::from(self.backends.lio_sam_topic.clone()),
+            ),
         ]
     }
 
@@ -230,6 +315,7 @@ impl NodeSettings {
                 )
             },
         );
+        self.backends.check(v);
     }
 
     /// Splits the node's own parameters off `params` and checks their ranges; the rest go to
@@ -265,7 +351,11 @@ impl NodeSettings {
                         .ok_or_else(|| type_error(name, "a string", v))?
                         .to_string()
                 }
-                n if n.starts_with("node.") => return Err(ParamError::Unknown(name.clone())),
+                n if n.starts_with("node.") => {
+                    if !s.backends.take(name, v)? {
+                        return Err(ParamError::Unknown(name.clone()));
+                    }
+                }
                 _ => rest.set(name.clone(), v.clone()),
             }
         }
@@ -274,6 +364,72 @@ impl NodeSettings {
         v.finish()?;
         Ok((s, rest))
     }
+}
+
+impl BackendSettings {
+    /// Declares each setting's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.range(
+            "node.robot_id",
+            self.robot_id as f64,
+            Range::closed(0.0, f64::from(i32::MAX)),
+        );
+        for (name, topic) in [
+            ("node.pose_graph_topic", &self.pose_graph_topic),
+            ("node.lio_sam_topic", &self.lio_sam_topic),
+        ] {
+            v.require(name, topic_name_ok(topic), || {
+                format!(
+                    "`{topic}` is not a topic name: letters, digits, `_` and `/` separators, \
+                     optionally `~/` first, no empty or digit-first part"
+                )
+            });
+        }
+    }
+
+    /// Takes `name` when it is one of these settings (`Ok(false)` when it is not).
+    fn take(&mut self, name: &str, v: &Value) -> Result<bool, ParamError> {
+        let text = || {
+            v.as_str()
+                .map(str::to_string)
+                .ok_or_else(|| type_error(name, "a string", v))
+        };
+        let flag = || v.as_bool().ok_or_else(|| type_error(name, "a boolean", v));
+        match name {
+            "node.robot_id" => {
+                // Beyond i64 it is refused by the range check like any other value out of range.
+                self.robot_id = v
+                    .as_i64()
+                    .or_else(|| v.as_u64().map(|_| i64::MAX))
+                    .ok_or_else(|| type_error(name, "an integer", v))?;
+            }
+            "node.pose_graph_output" => self.pose_graph_output = flag()?,
+            "node.pose_graph_topic" => self.pose_graph_topic = text()?,
+            "node.lio_sam_output" => self.lio_sam_output = flag()?,
+            "node.lio_sam_topic" => self.lio_sam_topic = text()?,
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+}
+
+/// A ROS 2 topic name as rcl accepts it before expansion: absolute (`/a/b`), relative (`a/b`) or
+/// private (`~/a`, `~`); each part non-empty, of letters, digits and `_`, not starting with a digit.
+fn topic_name_ok(name: &str) -> bool {
+    let rest = if name == "~" {
+        return true;
+    } else if let Some(r) = name.strip_prefix("~/") {
+        r
+    } else {
+        name.strip_prefix('/').unwrap_or(name)
+    };
+    !rest.is_empty()
+        && rest.split('/').all(|part| {
+            part.chars()
+                .next()
+                .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && part.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        })
 }
 
 fn type_error(name: &str, expected: &'static str, v: &Value) -> ParamError {
@@ -361,6 +517,52 @@ mod tests {
         bad.set_override("use_sim_time:=1").unwrap();
         assert!(matches!(
             NodeSettings::take_from(&bad),
+            Err(ParamError::Type { .. })
+        ));
+    }
+
+    #[test]
+    fn backend_outputs_are_off_by_default_and_checked() {
+        let b = NodeSettings::default().backends;
+        assert!(!b.pose_graph_output && !b.lio_sam_output);
+        assert_eq!(b.robot_id, 0);
+        assert_eq!(b.lio_sam_topic, "lio_loop/loop_closure_detection");
+        let mut set = ParamSet::default();
+        for o in [
+            "node.robot_id:=3",
+            "node.pose_graph_output:=true",
+            "node.pose_graph_topic:=/kimera/loop_closures",
+            "node.lio_sam_output:=true",
+            "node.lio_sam_topic:=~/lio",
+        ] {
+            set.set_override(o).unwrap();
+        }
+        let (s, _) = NodeSettings::take_from(&set).unwrap();
+        assert_eq!(s.backends.robot_id, 3);
+        assert!(s.backends.pose_graph_output && s.backends.lio_sam_output);
+        assert_eq!(s.backends.pose_graph_topic, "/kimera/loop_closures");
+        assert_eq!(s.backends.lio_sam_topic, "~/lio");
+        for (bad, name) in [
+            ("node.robot_id:=-1", "node.robot_id"),
+            ("node.robot_id:=2147483648", "node.robot_id"),
+            ("node.pose_graph_topic:=''", "node.pose_graph_topic"),
+            ("node.pose_graph_topic:=a//b", "node.pose_graph_topic"),
+            ("node.lio_sam_topic:=/1loop", "node.lio_sam_topic"),
+            ("node.lio_sam_topic:=loop/", "node.lio_sam_topic"),
+            ("node.lio_sam_topic:=lo-op", "node.lio_sam_topic"),
+        ] {
+            let mut set = ParamSet::default();
+            set.set_override(bad).unwrap();
+            let refused = matches!(
+                NodeSettings::take_from(&set),
+                Err(ParamError::Invalid(e)) if e.name == name
+            );
+            assert!(refused, "{bad} accepted");
+        }
+        let mut set = ParamSet::default();
+        set.set_override("node.pose_graph_output:=1").unwrap();
+        assert!(matches!(
+            NodeSettings::take_from(&set),
             Err(ParamError::Type { .. })
         ));
     }

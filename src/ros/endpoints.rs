@@ -1,5 +1,6 @@
 //! The node's DDS endpoints with their QoS: the input subscriptions and the reception loop over them
-//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`]) and the service servers.
+//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`], with the optional back-end outputs
+//! of `node.pose_graph_output` and `node.lio_sam_output`) and the service servers.
 
 use std::sync::mpsc::SyncSender;
 use std::time::Duration;
@@ -12,6 +13,7 @@ use ros2_client::{
 use serde::de::DeserializeOwned;
 
 use super::args::RosArgs;
+use super::backends::{Float64MultiArray, PoseGraph};
 use super::convert::{DiagnosticArray, MarkerArray};
 use super::error::{NodeError, dds};
 use super::inputs::{self, Reception, TopicRadars};
@@ -23,6 +25,7 @@ use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::params::node::{BackendSettings, NodeSettings};
 use crate::pipeline::Config;
 
 /// The node's publishers, owned by the worker thread.
@@ -37,6 +40,10 @@ pub struct Outputs {
     pub diagnostics: Publisher<DiagnosticArray>,
     /// `~/relocalized`.
     pub relocalized: Publisher<PoseWithCovarianceStamped>,
+    /// `node.pose_graph_topic`, when `node.pose_graph_output` is on.
+    pub pose_graph: Option<Publisher<PoseGraph>>,
+    /// `node.lio_sam_topic`, when `node.lio_sam_output` is on.
+    pub lio_sam: Option<Publisher<Float64MultiArray>>,
 }
 
 /// The node's input subscriptions.
@@ -187,28 +194,22 @@ fn subscribe<M: DeserializeOwned + 'static>(
         .map_err(dds("subscription"))
 }
 
-/// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
-/// gets the history), `~/markers`, `~/submap`, `/diagnostics`.
+/// The publishers, with the back-end outputs the node's parameters (`ros_args`: files and `-p`) turn
+/// on; see [`outputs_with`].
 pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
-    fn publisher<M: serde::Serialize>(
-        node: &mut Node,
-        ros_args: &RosArgs,
-        name: &str,
-        (package, type_name): (&str, &str),
-        qos: QosProfile,
-    ) -> Result<ros2_client::Publisher<M>, NodeError> {
-        let resolved = ros_args.resolve_topic(name);
-        let t = node
-            .create_topic(
-                &topic_name(&resolved)?,
-                MessageTypeName::new(package, type_name),
-                &qos,
-            )
-            .map_err(dds("output topic"))?;
-        log::info!("publishing {package}/msg/{type_name} on {resolved}");
-        node.create_publisher(&t, Some(qos))
-            .map_err(dds("publisher"))
-    }
+    let (settings, _) = NodeSettings::take_from(&ros_args.param_set()?)?;
+    outputs_with(node, ros_args, &settings.backends)
+}
+
+/// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
+/// gets the history), `~/markers`, `~/submap`, `/diagnostics`, `~/relocalized`, and the back-end
+/// outputs `backends` turns on: the `pose_graph_tools_msgs/PoseGraph` topic (QoS of
+/// `~/loop_closures`) and the LIO-SAM topic (reliable, volatile: LIO-SAM takes its pairs as they come).
+pub fn outputs_with(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    backends: &BackendSettings,
+) -> Result<Outputs, NodeError> {
     Ok(Outputs {
         closures: publisher(
             node,
@@ -245,5 +246,48 @@ pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError
             ("geometry_msgs", "PoseWithCovarianceStamped"),
             reliable(1, Durability::TransientLocal),
         )?,
+        pose_graph: if backends.pose_graph_output {
+            Some(publisher(
+                node,
+                ros_args,
+                &backends.pose_graph_topic,
+                ("pose_graph_tools_msgs", "PoseGraph"),
+                reliable(100, Durability::TransientLocal),
+            )?)
+        } else {
+            None
+        },
+        lio_sam: if backends.lio_sam_output {
+            Some(publisher(
+                node,
+                ros_args,
+                &backends.lio_sam_topic,
+                ("std_msgs", "Float64MultiArray"),
+                reliable(100, Durability::Volatile),
+            )?)
+        } else {
+            None
+        },
     })
+}
+
+/// A publisher of `package/msg/type_name` on the topic `name` resolves to.
+fn publisher<M: serde::Serialize>(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    name: &str,
+    (package, type_name): (&str, &str),
+    qos: QosProfile,
+) -> Result<Publisher<M>, NodeError> {
+    let resolved = ros_args.resolve_topic(name);
+    let t = node
+        .create_topic(
+            &topic_name(&resolved)?,
+            MessageTypeName::new(package, type_name),
+            &qos,
+        )
+        .map_err(dds("output topic"))?;
+    log::info!("publishing {package}/msg/{type_name} on {resolved}");
+    node.create_publisher(&t, Some(qos))
+        .map_err(dds("publisher"))
 }

@@ -5,10 +5,12 @@
 //! command line and environment, which ros2-client does not parse), [`crate::params::node`] (the node's own
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
 //! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`services`] (`~/save_map`, `~/relocalized`), [`map_store`] (the map on disk), [`convert`] (the node's message
-//! types and conversions to them), [`merge`] (inputs back in stamp order). Topics and parameters:
-//! README_NODE.md.
+//! types and conversions to them), [`backends`] (the optional `pose_graph_tools_msgs/PoseGraph` and
+//! LIO-SAM outputs), [`merge`] (inputs back in stamp order). Topics and parameters: README_NODE.md.
 
 pub mod args;
+#[cfg(feature = "ros")]
+pub mod backends;
 pub mod convert;
 pub mod diagnostics;
 #[cfg(feature = "ros")]

@@ -9,6 +9,7 @@ use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
+use super::backends::{GraphFrames, lio_sam_pair, pose_graph};
 use super::convert::{MarkerArray, MarkerPoint, markers, submap_cloud};
 use super::diagnostics::{Diagnostics, Measures, Report};
 use super::endpoints::Outputs;
@@ -379,6 +380,33 @@ impl Worker {
             && let Err(e) = self.out.relocalized.publish(pose)
         {
             log::debug!("relocalized: {e:?}");
+        }
+        // The back ends' own formats (off unless `node.pose_graph_output`, `node.lio_sam_output`).
+        if let Some(p) = &self.out.pose_graph {
+            let frames = GraphFrames {
+                body: &self.body_frame,
+                odom: &self.markers.frame,
+                map: &self.settings.map_frame,
+                session,
+            };
+            // The range check of `node.robot_id` keeps it within i32.
+            let robot = i32::try_from(self.settings.backends.robot_id).unwrap_or(i32::MAX);
+            if let Err(e) = p.publish(pose_graph(c, robot, &frames)) {
+                log::warn!(
+                    "pose graph {} -> {}: publish failed: {e:?}",
+                    c.match_id,
+                    c.query_id
+                );
+            }
+        }
+        if let Some(p) = &self.out.lio_sam
+            && let Err(e) = p.publish(lio_sam_pair(c))
+        {
+            log::warn!(
+                "LIO-SAM pair {} -> {}: publish failed: {e:?}",
+                c.query_id,
+                c.match_id
+            );
         }
         if let Some(a) = arrived {
             self.measures

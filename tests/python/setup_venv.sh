@@ -5,11 +5,13 @@
 #   2. the venv with the pinned wheels of tests/python/requirements.txt (real ROS 2 Jazzy rclpy on Fast DDS,
 #      message packages, cyclonedds-python, rosbags, and the build tools for step 3);
 #   3. the wheels' exported CMake paths fixed (they name the wheel build machine's Python and numpy headers);
-#   4. the dc_loc interface package (msg/) built with cmake and installed into the venv;
-#   5. a check that `from dc_loc.msg import LoopClosure` works and its type support loads.
+#   4. the interface packages built with cmake and installed into the venv, each of INTERFACE_PACKAGES in
+#      turn: dc_loc's own (msg/) and the ones the tests read besides (tests/python/interfaces/*:
+#      pose_graph_tools_msgs);
+#   5. a check that each package's messages import and their type support loads.
 # A stamp file in the venv records what was built (hashes of the Python, requirements.txt, this script and
-# msg/): a rerun with nothing changed is a no-op, a change to msg/ rebuilds only the interface package, any
-# other change recreates the venv. A lock (flock on <venv>.lock) keeps concurrent callers from building
+# every file of the interface packages): a rerun with nothing changed is a no-op, a change to an interface
+# package rebuilds only the interface packages, any other change recreates the venv. A lock (flock on <venv>.lock) keeps concurrent callers from building
 # twice: the second one waits and then finds the stamp current.
 #
 # Usage: tests/python/setup_venv.sh [--system-deps]
@@ -25,7 +27,6 @@ venv=${DCLOC_VENV:-$repo/.venv}
 python=${DCLOC_PYTHON:-python3}
 requirements=$here/requirements.txt
 stamp=$venv/dcloc-setup.stamp
-build_dir=$venv/build/dc_loc_msg
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 # A sourced ROS installation must not leak into the venv's build or imports.
 unset PYTHONPATH PYTHONHOME AMENT_PREFIX_PATH CMAKE_PREFIX_PATH COLCON_PREFIX_PATH
@@ -94,15 +95,21 @@ env_hash=$({
     echo "$python_id"
     hash_files "$requirements" "$here/setup_venv.sh"
 } | sha256sum | awk '{ print $1 }')
-# The interface package: every file under msg/ (names and contents).
-msg_hash=$(cd "$repo" && find msg -type f -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | awk '{ print $1 }')
+# The interface packages (folders with a package.xml, relative to the repository), built in this order,
+# and one message of each that the check of step 5 imports.
+INTERFACE_PACKAGES=(msg tests/python/interfaces/pose_graph_tools_msgs)
+INTERFACE_CHECKS=("dc_loc.msg:LoopClosure" "pose_graph_tools_msgs.msg:PoseGraph")
+# Every file of every interface package (names and contents).
+interfaces_hash=$(cd "$repo" && find "${INTERFACE_PACKAGES[@]}" -type f -print0 | LC_ALL=C sort -z |
+    xargs -0 sha256sum | sha256sum | awk '{ print $1 }')
 
 stamp_get() { [ -f "$stamp" ] && awk -v k="$1" '$1 == k { print $2 }' "$stamp" || true; }
 stamp_write() { # atomically: key value [key value]
     printf '%s %s\n' "$@" >"$stamp.tmp" && mv "$stamp.tmp" "$stamp"
 }
 
-if [ -x "$venv/bin/python" ] && [ "$(stamp_get env)" = "$env_hash" ] && [ "$(stamp_get msg)" = "$msg_hash" ]; then
+if [ -x "$venv/bin/python" ] && [ "$(stamp_get env)" = "$env_hash" ] &&
+    [ "$(stamp_get interfaces)" = "$interfaces_hash" ]; then
     say "up to date: $venv"
     exit 0
 fi
@@ -111,7 +118,7 @@ system_deps
 
 # ---- 2. venv and wheels -----------------------------------------------------------------------------------
 if [ -x "$venv/bin/python" ] && [ "$(stamp_get env)" = "$env_hash" ]; then
-    say "venv current; rebuilding the interface package only (msg/ changed or its build was cut short)"
+    say "venv current; rebuilding the interface packages only (one changed or their build was cut short)"
 else
     say "creating $venv with $python_id"
     rm -f "$stamp"
@@ -142,35 +149,45 @@ else
     stage_done "CMake export paths fixed (${#exports[@]})"
 fi
 
-# ---- 4. build and install the interface package -----------------------------------------------------------
-rm -rf "$build_dir"
+# ---- 4. build and install the interface packages ----------------------------------------------------------
 cmake_env=(env "AMENT_PREFIX_PATH=$venv" "CMAKE_PREFIX_PATH=$venv" "PATH=$venv/bin:$PATH")
-build_log=$venv/build/dc_loc_msg.log
 mkdir -p "$venv/build"
-{
-    "${cmake_env[@]}" cmake -S "$repo/msg" -B "$build_dir" \
-        -DCMAKE_INSTALL_PREFIX="$venv" \
-        -DPython3_EXECUTABLE="$venv/bin/python" \
-        -DBUILD_TESTING=OFF &&
-        "${cmake_env[@]}" cmake --build "$build_dir" --parallel "$(nproc)" &&
-        "${cmake_env[@]}" cmake --install "$build_dir"
-} >"$build_log" 2>&1 || {
-    tail -n 40 "$build_log" >&2
-    die "building msg/ failed (full log: $build_log)"
-}
-stage_done "msg/ built and installed (cmake)"
+for package in "${INTERFACE_PACKAGES[@]}"; do
+    source_dir=$repo/$package
+    name=$(sed -n 's:.*<name>\(.*\)</name>.*:\1:p' "$source_dir/package.xml" | head -n 1)
+    [ -n "$name" ] || die "no <name> in $source_dir/package.xml"
+    build_dir=$venv/build/$name
+    build_log=$venv/build/$name.log
+    rm -rf "$build_dir"
+    {
+        "${cmake_env[@]}" cmake -S "$source_dir" -B "$build_dir" \
+            -DCMAKE_INSTALL_PREFIX="$venv" \
+            -DPython3_EXECUTABLE="$venv/bin/python" \
+            -DBUILD_TESTING=OFF &&
+            "${cmake_env[@]}" cmake --build "$build_dir" --parallel "$(nproc)" &&
+            "${cmake_env[@]}" cmake --install "$build_dir"
+    } >"$build_log" 2>&1 || {
+        tail -n 40 "$build_log" >&2
+        die "building $package ($name) failed (full log: $build_log)"
+    }
+    stage_done "$name built and installed (cmake)"
+done
 
 # ---- 5. check ---------------------------------------------------------------------------------------------
-# Loads the generated Python module and its C type support; serializing goes through rmw_fastrtps's CDR
-# code without creating any DDS participant.
-"$venv/bin/python" - <<'EOF' || die "the installed dc_loc interface package does not import"
-from dc_loc.msg import LoopClosure
+# Loads each package's generated Python module and its C type support; serializing goes through
+# rmw_fastrtps's CDR code without creating any DDS participant.
+"$venv/bin/python" - "${INTERFACE_CHECKS[@]}" <<'EOF' || die "an installed interface package does not import"
+import importlib
+import sys
+
 from rclpy.serialization import deserialize_message, serialize_message
 
-msg = LoopClosure()
-msg.query_id = 7
-assert deserialize_message(serialize_message(msg), LoopClosure).query_id == 7
+for check in sys.argv[1:]:
+    module, name = check.split(":")
+    cls = getattr(importlib.import_module(module), name)
+    msg = cls()
+    assert deserialize_message(serialize_message(msg), cls) == msg, check
 EOF
-stamp_write env "$env_hash" msg "$msg_hash"
+stamp_write env "$env_hash" interfaces "$interfaces_hash"
 stage_done "import check"
 say "$(awk -v a="$t_start" -v b="$EPOCHREALTIME" 'BEGIN { printf "ready in %.1f s", b - a }'): $venv"

@@ -163,7 +163,7 @@ for package in "${INTERFACE_PACKAGES[@]}"; do
         "${cmake_env[@]}" cmake -S "$source_dir" -B "$build_dir" \
             -DCMAKE_INSTALL_PREFIX="$venv" \
             -DPython3_EXECUTABLE="$venv/bin/python" \
-            -DBUILD_TESTING=OFF &&
+            -DBUILD_TESTING=OFF -DDC_LOC_BUILD_NODE=OFF &&
             "${cmake_env[@]}" cmake --build "$build_dir" --parallel "$(nproc)" &&
             "${cmake_env[@]}" cmake --install "$build_dir"
     } >"$build_log" 2>&1 || {

@@ -34,7 +34,10 @@ fn colcon_build_installs_interfaces_node_launch_file_and_parameters() {
         .arg("--cmake-args")
         .arg(format!("-DPython3_EXECUTABLE={}", python.display()))
         .arg("-DBUILD_TESTING=OFF")
-        .arg(format!("-DDC_LOC_NODE_BINARY={}", env!("CARGO_BIN_EXE_dc_loc")))
+        .arg(format!(
+            "-DDC_LOC_NODE_BINARY={}",
+            env!("CARGO_BIN_EXE_dc_loc")
+        ))
         .output()
         .expect("cannot start colcon (tests/python/setup_venv.sh installs it)");
     print!("{}", text(&out.stdout));

@@ -1,4 +1,4 @@
-//! Doppler ego-motion on the real sensor files (issue 2, item 4): the velocity fitted by RANSAC from the
+//! Doppler ego-motion on the real sensor files: the velocity fitted by RANSAC from the
 //! raw radial velocities alone must match the velocity implied by the sensors' own compensated fields
 //! (nuScenes: raw minus `*_comp`; View-of-Delft: `v_r - v_r_compensated`) within 0.05 m/s.
 //!

@@ -779,3 +779,52 @@ fn every_closure_within_1m_and_0_02rad_of_the_ground_truth() {
     }
     assert!(off.is_empty(), "{off:?}");
 }
+
+#[test]
+fn extrinsics_from_tf_static_give_the_offline_closures() {
+    let _serial = serial();
+    let d = drive();
+    // The extrinsic parameter is zeroed: only /tf_static (the bag's, published transient local before
+    // the node starts) gives the right one.
+    let r = replay(
+        "tf_static",
+        &["--tf-static"],
+        &[
+            "--params-file",
+            d.params.to_str().unwrap(),
+            "-p",
+            "node.extrinsics_from_tf:=true",
+            "-p",
+            "radars.front.extrinsic:=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+        ],
+    );
+    assert_eq!(r.node_exit, 0);
+    assert_same_as_offline(&r, &d.offline);
+}
+
+#[test]
+fn without_tf_static_the_node_stops_naming_the_missing_frame() {
+    let _serial = serial();
+    let d = drive();
+    let out = Command::new(env!("CARGO_BIN_EXE_dc_loc"))
+        .args([
+            "--ros-args",
+            "--params-file",
+            d.params.to_str().unwrap(),
+            "-p",
+            "node.extrinsics_from_tf:=true",
+            "-p",
+            "node.tf_timeout:=1.0",
+        ])
+        .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        .env("ROS_DOMAIN_ID", "229")
+        .output()
+        .expect("cannot start dc_loc");
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("no /tf_static transform from `base_link` to `radar_front` within 1.0 s"),
+        "{stderr}"
+    );
+    assert!(!text(&out.stdout).contains("running"), "never half-alive");
+}

@@ -1,7 +1,7 @@
 //! Revisit detection end to end on a simulated drive, judged against its ground truth: the five-radar
 //! nuScenes layout, Gaussian noise, 1 % odometry drift (1.8 % measured with the yaw-rate bias), a second
 //! lap in the same direction. Every published closure must be within 2 m of the truth (no false loop
-//! closure), and the bars of issue 5 hold for recall. Also the command line of `dc_loc revisits`.
+//! closure), and the recall bars hold. Also the command line of `dc_loc revisits`.
 
 use dc_loc::eval::revisits::{RevisitScenario, evaluate_scenario};
 use dc_loc::sim::{NoiseModel, RadarPreset};

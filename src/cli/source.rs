@@ -465,31 +465,8 @@ fn nuscenes_mcap_config(reader: &BagReader) -> Option<Config> {
 /// Replaces each radar's extrinsic by the bag's `body_frame -> frame_id` transform from `/tf_static` or
 /// `/tf`, when the bag has one (logged).
 fn apply_bag_extrinsics(reader: &BagReader, cfg: &mut Config) -> Result<(), CliError> {
-    let frames: Vec<String> = cfg
-        .radar_list()
-        .iter()
-        .map(|(_, r)| r.frame_id.clone())
-        .filter(|f| !f.is_empty())
-        .collect();
-    let found = crate::bag::foxglove::bag_extrinsics(reader, &cfg.body_frame, &frames)
+    let found = crate::bag::foxglove::bag_extrinsics(reader, &cfg.body_frame, &cfg.radar_frames())
         .map_err(|e| CliError::Runtime(e.to_string()))?;
-    for (name, r) in cfg.radars.iter_mut() {
-        if let Some(t) = found.get(&r.frame_id) {
-            let (roll, pitch, yaw) = t.rotation.euler_angles();
-            r.extrinsic = [
-                t.translation.x,
-                t.translation.y,
-                t.translation.z,
-                roll,
-                pitch,
-                yaw,
-            ];
-            log::info!(
-                "radar {name}: extrinsic from the bag's transforms ({} -> {})",
-                cfg.body_frame,
-                r.frame_id
-            );
-        }
-    }
+    cfg.set_extrinsics(&found, "the bag's transforms");
     Ok(())
 }

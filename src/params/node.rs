@@ -35,6 +35,10 @@ pub struct NodeSettings {
     pub log_level: String,
     /// `node.map_frame`: frame id of the `~/relocalized` poses.
     pub map_frame: String,
+    /// `node.extrinsics_from_tf`: take the radars' extrinsics from `/tf_static` at start.
+    pub extrinsics_from_tf: bool,
+    /// `node.tf_timeout`: longest wait, s, for those transforms.
+    pub tf_timeout: f64,
     /// The optional outputs for pose-graph back ends (`node.robot_id`, `node.pose_graph_*`,
     /// `node.lio_sam_*`).
     pub backends: BackendSettings,
@@ -87,6 +91,8 @@ impl Default for NodeSettings {
             markers_period: 1.0,
             log_level: String::new(),
             map_frame: "map".into(),
+            extrinsics_from_tf: false,
+            tf_timeout: 10.0,
             backends: BackendSettings::default(),
         }
     }
@@ -162,6 +168,18 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         name: "node.map_frame",
         doc: "Frame id of the `~/relocalized` poses: the odometry frame of the earlier session (the \
               loaded map) the robot was found in.",
+    },
+    NodeParam {
+        name: "node.extrinsics_from_tf",
+        doc: "Take each radar's extrinsic from `/tf_static` (the transform from `body_frame` to the \
+              radar's `frame_id`, published by robot_state_publisher or a static_transform_publisher) \
+              instead of `radars.<name>.extrinsic`: the node waits for them at start, before it \
+              subscribes to the radars, and stops (exit 1, naming the missing frames) when they do not \
+              come within `node.tf_timeout`. Radars without a `frame_id` keep their parameter.",
+    },
+    NodeParam {
+        name: "node.tf_timeout",
+        doc: "Longest wait, s, for the `/tf_static` extrinsics (`node.extrinsics_from_tf`).",
     },
     NodeParam {
         name: "node.robot_id",
@@ -241,6 +259,11 @@ impl NodeSettings {
             ),
             ("node.log_level".into(), Value::from(self.log_level.clone())),
             ("node.map_frame".into(), Value::from(self.map_frame.clone())),
+            (
+                "node.extrinsics_from_tf".into(),
+                Value::Bool(self.extrinsics_from_tf),
+            ),
+            ("node.tf_timeout".into(), Value::from(self.tf_timeout)),
             ("node.robot_id".into(), Value::from(self.backends.robot_id)),
             (
                 "node.pose_graph_output".into(),
@@ -302,6 +325,11 @@ impl NodeSettings {
             self.markers_period,
             Range::POSITIVE.up_to(3600.0),
         );
+        v.range(
+            "node.tf_timeout",
+            self.tf_timeout,
+            Range::POSITIVE.up_to(3600.0),
+        );
         v.require("node.map_frame", !self.map_frame.is_empty(), || {
             "must not be empty".into()
         });
@@ -339,6 +367,12 @@ impl NodeSettings {
                 "node.sync_timeout" => s.sync_timeout = number(name, v)?,
                 "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
                 "node.markers_period" => s.markers_period = number(name, v)?,
+                "node.tf_timeout" => s.tf_timeout = number(name, v)?,
+                "node.extrinsics_from_tf" => {
+                    s.extrinsics_from_tf = v
+                        .as_bool()
+                        .ok_or_else(|| type_error(name, "a boolean", v))?
+                }
                 "node.map_frame" => {
                     s.map_frame = v
                         .as_str()

@@ -5,6 +5,7 @@
 
 use crate::keyframe_db::{MapConfig, MapShape, RadarMount};
 use crate::loop_closure::LoopConfig;
+use crate::math::Iso3;
 use crate::place::PlaceConfig;
 use crate::radar::RadarConfig;
 use crate::radar::ego_motion::EgoMotionConfig;
@@ -101,6 +102,37 @@ impl Config {
             .iter()
             .filter_map(|n| self.radars.get(n).map(|r| (n.as_str(), r)))
             .collect()
+    }
+
+    /// The radars' frame ids (the child frames their extrinsics are transforms to), those set.
+    pub fn radar_frames(&self) -> Vec<String> {
+        self.radar_list()
+            .iter()
+            .map(|(_, r)| r.frame_id.clone())
+            .filter(|f| !f.is_empty())
+            .collect()
+    }
+
+    /// Replaces the extrinsic of each radar whose frame id `found` has (`body_frame -> frame_id`
+    /// transforms), logging each one with `source`; returns the names of the radars it set.
+    pub fn set_extrinsics(&mut self, found: &BTreeMap<String, Iso3>, source: &str) -> Vec<String> {
+        let mut set = Vec::new();
+        for (name, r) in self.radars.iter_mut() {
+            let Some(t) = found.get(&r.frame_id) else {
+                continue;
+            };
+            let (roll, pitch, yaw) = t.rotation.euler_angles();
+            let v = &t.translation.vector;
+            r.extrinsic = [v.x, v.y, v.z, roll, pitch, yaw];
+            log::info!(
+                "radar {name}: extrinsic from {source} ({} -> {}): {:?}",
+                self.body_frame,
+                r.frame_id,
+                r.extrinsic
+            );
+            set.push(name.clone());
+        }
+        set
     }
 
     /// The settings that shape the keyframes of a map (stored with it).

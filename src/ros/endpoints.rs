@@ -25,6 +25,7 @@ use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::msgs::tf2_msgs::TFMessage;
 use crate::params::node::{BackendSettings, NodeSettings};
 use crate::pipeline::Config;
 
@@ -192,6 +193,23 @@ fn subscribe<M: DeserializeOwned + 'static>(
         .map_err(dds("input topic"))?;
     node.create_subscription(&t, Some(qos))
         .map_err(dds("subscription"))
+}
+
+/// `/tf_static` (remappable) as tf2's listeners read it: reliable, transient local, keep last 100.
+pub fn tf_static(
+    node: &mut Node,
+    ros_args: &RosArgs,
+) -> Result<Subscription<TFMessage>, NodeError> {
+    let qos = reliable(100, Durability::TransientLocal);
+    let t = node
+        .create_topic(
+            &topic_name(&ros_args.resolve_topic("/tf_static"))?,
+            MessageTypeName::new("tf2_msgs", "TFMessage"),
+            &qos,
+        )
+        .map_err(dds("/tf_static topic"))?;
+    node.create_subscription(&t, Some(qos))
+        .map_err(dds("/tf_static subscription"))
 }
 
 /// The publishers, with the back-end outputs the node's parameters (`ros_args`: files and `-p`) turn

@@ -5,7 +5,7 @@
 //! command line and environment, which ros2-client does not parse), [`crate::params::node`] (the node's own
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
 //! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`services`] (`~/save_map`, `~/relocalized`), [`map_store`] (the map on disk), [`convert`] (the node's message
-//! types and conversions to them), [`backends`] (the optional `pose_graph_tools_msgs/PoseGraph` and
+//! types and conversions to them), [`tf`] (extrinsics from `/tf_static`), [`backends`] (the optional `pose_graph_tools_msgs/PoseGraph` and
 //! LIO-SAM outputs), [`merge`] (inputs back in stamp order). Topics and parameters: README_NODE.md.
 
 pub mod args;
@@ -28,5 +28,7 @@ pub mod rosout;
 #[cfg(feature = "ros")]
 pub mod services;
 pub mod shared;
+#[cfg(feature = "ros")]
+pub mod tf;
 #[cfg(feature = "ros")]
 pub mod worker;

@@ -9,7 +9,6 @@
 //! published), saves the map and ends; entities are dropped before the context.
 
 use std::net::Ipv4Addr;
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
@@ -19,16 +18,15 @@ use ros2_client::{Context, Node, NodeName, NodeOptions, ParameterValue};
 use serde_json::Value;
 
 use super::args::{DdsEnv, DiscoveryRange, RosArgs};
-use super::endpoints::{Subscriptions, outputs};
+use super::endpoints::{Subscriptions, outputs, tf_static};
 pub use super::error::NodeError;
 use super::error::dds;
 use super::inputs::Reception;
 use super::map_store::{LoadedMap, MapSaver, load_map};
 use super::services::SaveRequests;
 use super::shared::{Inbox, Shared, Work};
+use super::tf::static_extrinsics;
 use super::worker::{Controls, Worker};
-use crate::keyframe_db::KeyframeDb;
-use crate::keyframe_db::lock::MapLock;
 use crate::params::live::LiveParams;
 use crate::params::node::{NodeSettings, all_params, describe};
 use crate::params::{ParamSet, apply};
@@ -72,12 +70,9 @@ pub struct StartUp {
     pub cfg: Config,
     /// The node's own settings.
     pub settings: NodeSettings,
-    /// Loaded (or empty) keyframe map.
-    pub db: KeyframeDb,
-    /// Where the map is saved; `None` without persistence.
-    pub save_to: Option<PathBuf>,
-    /// The lock on the map file, held while the node runs.
-    pub lock: Option<MapLock>,
+    /// The keyframe map, loaded (or empty); `None` until the extrinsics are known when they come from
+    /// `/tf_static` (the map records the extrinsics it was made with).
+    pub map: Option<LoadedMap>,
     /// The parameters as given (what run-time changes start from).
     pub params: ParamSet,
 }
@@ -87,25 +82,47 @@ pub fn start_up(ros_args: &RosArgs) -> Result<StartUp, NodeError> {
     let params = ros_args.param_set()?;
     let (settings, rest) = NodeSettings::take_from(&params)?;
     let cfg = apply(&rest)?;
-    let LoadedMap { db, save_to, lock } = load_map(&cfg).map_err(NodeError::Map)?;
+    let map = if settings.extrinsics_from_tf {
+        None
+    } else {
+        Some(load_map(&cfg).map_err(NodeError::Map)?)
+    };
     Ok(StartUp {
         cfg,
         settings,
-        db,
-        save_to,
-        lock,
+        map,
         params,
     })
+}
+
+/// Replaces the radars' extrinsics by their `/tf_static` transforms, waiting for them at most
+/// `node.tf_timeout` (the spinner runs meanwhile: `runtime` drives it).
+fn tf_extrinsics(
+    runtime: &tokio::runtime::Runtime,
+    node: &mut Node,
+    ros_args: &RosArgs,
+    settings: &NodeSettings,
+    cfg: &mut Config,
+) -> Result<(), NodeError> {
+    let frames = cfg.radar_frames();
+    let sub = tf_static(node, ros_args)?;
+    log::info!(
+        "waiting up to {} s for the /tf_static transforms from `{}` to {frames:?}",
+        settings.tf_timeout,
+        cfg.body_frame
+    );
+    let timeout = Duration::from_secs_f64(settings.tf_timeout);
+    let found = runtime.block_on(static_extrinsics(&sub, &cfg.body_frame, &frames, timeout))?;
+    cfg.set_extrinsics(&found, "/tf_static");
+    cfg.validate().map_err(|e| NodeError::Param(e.into()))
 }
 
 fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let env = DdsEnv::from_env(|k| std::env::var(k).ok())?;
     let StartUp {
-        cfg,
+        mut cfg,
         settings,
-        db,
-        save_to,
-        lock: _lock,
+        map,
         params,
     } = start_up(ros_args)?;
     if let Some(level) = settings.log_filter() {
@@ -126,6 +143,17 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let mut node = make_node(&context, ros_args, &cfg, &settings, live.clone())?;
     super::rosout::forward(node.logging_handle(), ros_args.logger_name());
     let spin_task = tokio::spawn(node.spinner().map_err(dds("spinner"))?.spin());
+    if settings.extrinsics_from_tf {
+        tf_extrinsics(&runtime, &mut node, ros_args, &settings, &mut cfg)?;
+    }
+    let LoadedMap {
+        db,
+        save_to,
+        lock: _lock,
+    } = match map {
+        Some(m) => m,
+        None => load_map(&cfg).map_err(NodeError::Map)?,
+    };
     let subs = Subscriptions::new(&mut node, ros_args, &cfg, settings.use_sim_time)?;
     let outputs = outputs(&mut node, ros_args)?;
 

@@ -186,6 +186,8 @@ def main() -> int:
     ap.add_argument("--save-map", action="store_true", help="call ~/save_map before stopping the node")
     ap.add_argument("--set-at", nargs=2, metavar=("FRACTION", "NAME:=VALUE"),
                     help="set a parameter of the running node (set_parameters) at this fraction of the drive")
+    ap.add_argument("--tf-static", action="store_true",
+                    help="publish the bag's /tf_static (transient local) before the node starts")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
 
@@ -209,6 +211,11 @@ def main() -> int:
 
     from dc_loc.msg import LoopClosure
 
+    tf_pub = None
+    if a.tf_static:
+        tf_pub = tl.ManagedProcess([sys.executable, str(Path(__file__).resolve().parent / "tf_static_pub.py"),
+                                    "--bag", str(a.bag)], env, name="tf_static_pub")
+        tf_pub.wait_for_line(lambda l: l.startswith("tf_static published"), 60.0, "/tf_static published")
     node = tl.ManagedProcess([a.node, "--ros-args", *a.node_args], env, name="dc_loc")
     result = {"domain_id": domain}
     try:
@@ -401,6 +408,8 @@ def main() -> int:
             result["cyclone"] = got_cyclone
     finally:
         node.stop()
+        if tf_pub is not None:
+            tf_pub.stop()
         reservation.release()
     a.out.write_text(json.dumps(result, indent=1))
     print(f"replay: {result['sent']} in {result['replay_seconds']:.1f} s, "

@@ -4,6 +4,7 @@
 #
 #   fuzz/ci.sh                      # each target FUZZ_SECONDS (default 40) seconds
 #   FUZZ_SECONDS=600 fuzz/ci.sh     # longer
+#   FUZZ_SEED=7 fuzz/ci.sh          # other mutations (default seed 1)
 #
 # Each target starts from the committed seeds (fuzz/corpus/<target>/) and the regression inputs
 # (fuzz/regressions/<target>/); the inputs it finds go to a scratch corpus under fuzz/target/, so the
@@ -13,6 +14,8 @@ set -uo pipefail
 
 cd "$(dirname "$0")/.."
 seconds="${FUZZ_SECONDS:-40}"
+# A fixed seed: the same run explores the same mutations (up to how many fit in the time).
+seed="${FUZZ_SEED:-1}"
 
 if ! cargo +nightly --version >/dev/null 2>&1; then
     echo "SKIPPED fuzz: no nightly toolchain"
@@ -39,7 +42,7 @@ for target in $(cargo +nightly fuzz list); do
     fi
     echo "fuzz $target: ${seconds}s"
     if cargo +nightly fuzz run "$target" "${dirs[@]}" -- \
-        -max_total_time="$seconds" -rss_limit_mb=512 -malloc_limit_mb=512 -timeout=20 \
+        -max_total_time="$seconds" -seed="$seed" -rss_limit_mb=512 -malloc_limit_mb=512 -timeout=20 \
         -print_final_stats=1 >"$logs/$target.log" 2>&1; then
         grep -E '^stat::number_of_executed_units|^Done ' "$logs/$target.log" | sed "s/^/  /"
     else

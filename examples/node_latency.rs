@@ -6,7 +6,7 @@
 //!
 //! ```text
 //! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] \
-//!     [--node target/release/dc_loc] [-- NODE ROS ARGS, e.g. -p node.sync_timeout:=0.01]
+//!     [--node target/release/dc_loc] [--params FILE] [-- NODE ROS ARGS, e.g. -p node.sync_timeout:=0.01]
 //! ```
 //! DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; domain ROS_DOMAIN_ID, default 77).
 //! Prints one line per second and a summary; the figures go into README_NODE.md.
@@ -33,9 +33,11 @@ fn main() {
         drive.messages.len(),
         drive.duration()
     );
+    // `--params FILE` replaces the drive's parameter file (an older build may not know every parameter).
+    let params = arg("--params").map_or(drive.summary.params_file.clone(), Into::into);
     let node = start_node(
         &node_bin,
-        &drive.summary.params_file,
+        &params,
         &node_args(),
         domain,
         std::process::Stdio::inherit(),

@@ -11,9 +11,10 @@
 use crate::bag::BagError;
 use crate::math::{Iso3, Stamp, Vec3};
 use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::radar_msgs::RadarScan as RadarScanMsg;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
-use crate::radar::RadarScan;
+use crate::radar::{Detection, RadarScan};
 
 /// One input of the pipeline, from any source.
 #[derive(Debug, Clone, PartialEq)]
@@ -176,6 +177,39 @@ pub fn header_stamp(header: &Header, log_time: Stamp) -> Result<Stamp, IssueReas
     }
 }
 
+/// A `radar_msgs/RadarScan` as the scan of radar `radar` at `stamp`: each return becomes the detection
+/// at `(r cos el cos az, r cos el sin az, r sin el)` in the radar frame with `v_r = doppler_velocity`
+/// (positive away, dc_loc's convention). Returns that are not finite or at zero range are kept here and
+/// counted as invalid by the pipeline, as the points of a cloud are. `amplitude` (dB) is not an RCS and
+/// is not read.
+pub fn radar_scan_input(radar: usize, stamp: Stamp, msg: &RadarScanMsg) -> Input {
+    let detections = msg
+        .returns
+        .iter()
+        .map(|r| {
+            let (range, az, el) = (
+                f64::from(r.range),
+                f64::from(r.azimuth),
+                f64::from(r.elevation),
+            );
+            Detection {
+                p_radar: Vec3::new(
+                    range * el.cos() * az.cos(),
+                    range * el.cos() * az.sin(),
+                    range * el.sin(),
+                ),
+                v_r: f64::from(r.doppler_velocity),
+                rcs: None,
+            }
+        })
+        .collect();
+    Input::Scan(RadarScan {
+        radar,
+        stamp,
+        detections,
+    })
+}
+
 /// Stamp and body pose of an odometry message; `None` when the pose is not finite.
 pub fn odometry_pose(msg: &Odometry) -> Option<(Stamp, Iso3)> {
     Some((msg.header.stamp.into(), msg.pose.pose.to_iso3()?))
@@ -192,6 +226,40 @@ pub fn ground_truth_sample(msg: &Odometry) -> Option<(Stamp, Iso3, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::msgs::radar_msgs::RadarReturn;
+
+    #[test]
+    fn radar_scan_returns_become_detections_in_the_radar_frame() {
+        let ret = |range, azimuth, elevation, doppler_velocity| RadarReturn {
+            range,
+            azimuth,
+            elevation,
+            doppler_velocity,
+            amplitude: 30.0,
+        };
+        let msg = RadarScanMsg {
+            header: Header::default(),
+            returns: vec![
+                ret(10.0, 0.0, 0.0, -5.0),
+                ret(2.0, std::f32::consts::FRAC_PI_2, 0.0, 1.0),
+                ret(4.0, 0.0, -std::f32::consts::FRAC_PI_6, 0.0),
+                ret(f32::NAN, 0.0, 0.0, 0.0),
+            ],
+        };
+        let Input::Scan(scan) = radar_scan_input(2, Stamp(7), &msg) else {
+            panic!("not a scan");
+        };
+        assert_eq!(
+            (scan.radar, scan.stamp, scan.detections.len()),
+            (2, Stamp(7), 4)
+        );
+        let d = &scan.detections;
+        assert!((d[0].p_radar - Vec3::new(10.0, 0.0, 0.0)).norm() < 1e-9);
+        assert_eq!(d[0].v_r, -5.0);
+        assert!((d[1].p_radar - Vec3::new(0.0, 2.0, 0.0)).norm() < 1e-6);
+        assert!((d[2].p_radar - Vec3::new(4.0 * 0.75f64.sqrt(), 0.0, -2.0)).norm() < 1e-6);
+        assert!(d[3].p_radar.x.is_nan() && d[0].rcs.is_none());
+    }
     use crate::msgs::builtin_interfaces::Time;
 
     #[test]

@@ -2,7 +2,7 @@
 //! node, the bag reader/writer and the simulator. No DDS here: CDR bytes come from serialising these.
 //!
 //! Entry points: one module per ROS package ([`builtin_interfaces`], [`std_msgs`], [`geometry_msgs`],
-//! [`sensor_msgs`], [`nav_msgs`], [`tf2_msgs`], [`rosgraph_msgs`], [`dc_loc`]).
+//! [`sensor_msgs`], [`nav_msgs`], [`tf2_msgs`], [`radar_msgs`], [`rosgraph_msgs`], [`dc_loc`]).
 
 /// builtin_interfaces
 pub mod builtin_interfaces {
@@ -339,6 +339,36 @@ pub mod tf2_msgs {
     pub struct TFMessage {
         /// The transforms.
         pub transforms: Vec<TransformStamped>,
+    }
+}
+
+/// radar_msgs (ros-perception/radar_msgs)
+pub mod radar_msgs {
+    use super::std_msgs::Header;
+    use serde::{Deserialize, Serialize};
+
+    /// radar_msgs/msg/RadarReturn: one detection, in the radar frame (REP-103 angles).
+    #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+    pub struct RadarReturn {
+        /// Distance, m.
+        pub range: f32,
+        /// Angle in the azimuth plane, rad, anticlockwise from the boresight.
+        pub azimuth: f32,
+        /// Angle in the elevation plane, rad, negative below the sensor.
+        pub elevation: f32,
+        /// Doppler speed, m/s.
+        pub doppler_velocity: f32,
+        /// Amplitude, dB.
+        pub amplitude: f32,
+    }
+
+    /// radar_msgs/msg/RadarScan
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct RadarScan {
+        /// Stamp and radar frame.
+        pub header: Header,
+        /// The detections.
+        pub returns: Vec<RadarReturn>,
     }
 }
 

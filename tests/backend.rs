@@ -1,5 +1,5 @@
-//! The node as pose-graph back ends see it: a simulated drive whose odometry drifts by 3 % of distance
-//! (speed scale error 0.03, yaw-rate bias 0.1 deg/s) replayed into the `dc_loc` binary with its back-end
+//! The node as pose-graph back ends see it: a simulated drive whose odometry drifts by 3 % of the distance
+//! (speed scale error 0.01, yaw-rate bias 0.34 deg/s) replayed into the `dc_loc` binary with its back-end
 //! outputs on (tests/python/test_backend_replay.py), while examples/backend_gtsam.py runs beside it as a
 //! real rclpy + GTSAM back end.
 //!
@@ -29,10 +29,9 @@ use dc_loc::sim::{SimConfig, SimDrive, simulate};
 /// of 1 % and a yaw-rate bias (the part loop closures can correct: a scale error alone leaves a closed
 /// loop closed, and no closure can see it).
 fn drifting_drive() -> String {
-    let bias = std::env::var("DCLOC_TEST_BIAS").unwrap_or_else(|_| "0.006".into());
     let drive = SHORT_DRIVE.replace(
         "odometry:\n  rate: 25.0\n",
-        &format!("odometry:\n  rate: 25.0\n  scale_error: 0.01\n  yaw_rate_bias: {bias}\n"),
+        "odometry:\n  rate: 25.0\n  scale_error: 0.01\n  yaw_rate_bias: 0.006\n",
     );
     assert_ne!(drive, SHORT_DRIVE, "SHORT_DRIVE has no odometry section");
     drive

@@ -828,3 +828,41 @@ fn without_tf_static_the_node_stops_naming_the_missing_frame() {
     );
     assert!(!text(&out.stdout).contains("running"), "never half-alive");
 }
+
+#[test]
+fn radar_scan_input_gives_the_closures_of_the_same_detections_in_pointcloud2() {
+    let _serial = serial();
+    let d = drive();
+    // Each cloud goes out as the radar_msgs/RadarScan of its detections (float32 range, azimuth,
+    // elevation: the positions come back within a few micrometres).
+    let r = replay(
+        "radar_scan",
+        &["--radar-scan"],
+        &[
+            "--params-file",
+            d.params.to_str().unwrap(),
+            "-p",
+            "radars.front.message:=radar_scan",
+        ],
+    );
+    assert_eq!(r.node_exit, 0);
+    assert_eq!(
+        r.diag("front.received") as usize,
+        d.drive.scans.len(),
+        "every scan received"
+    );
+    let got = by_pair(&r.rclpy);
+    let want = by_pair(&d.offline);
+    let common: Vec<_> = want.keys().filter(|k| got.contains_key(k)).collect();
+    assert!(
+        common.len() * 100 >= want.len() * 98 && got.len() * 100 <= want.len() * 102,
+        "{} closures, {} of dc_loc run's {} pairs",
+        got.len(),
+        common.len(),
+        want.len()
+    );
+    for k in common {
+        let (dt, dr) = pose_difference(&got[k].relative_pose, &want[k].relative_pose);
+        assert!(dt < 0.01 && dr < 1e-3, "closure {k:?}: {dt} m, {dr} rad");
+    }
+}

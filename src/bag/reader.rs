@@ -98,6 +98,21 @@ pub struct BagMessage {
 }
 
 impl BagMessage {
+    /// The message of `header` with payload `data` on `channel`.
+    fn read(
+        channel: &Arc<ChannelMeta>,
+        header: &mcap::records::MessageHeader,
+        data: Vec<u8>,
+    ) -> Self {
+        BagMessage {
+            channel: channel.clone(),
+            log_time: stamp(header.log_time),
+            publish_time: stamp(header.publish_time),
+            sequence: header.sequence,
+            data,
+        }
+    }
+
     /// Topic name.
     pub fn topic(&self) -> &str {
         &self.channel.topic
@@ -466,13 +481,7 @@ impl IndexedSource {
                             channel_id: header.channel_id,
                         }));
                     };
-                    return Some(Ok(BagMessage {
-                        channel: channel.clone(),
-                        log_time: stamp(header.log_time),
-                        publish_time: stamp(header.publish_time),
-                        sequence: header.sequence,
-                        data,
-                    }));
+                    return Some(Ok(BagMessage::read(channel, &header, data)));
                 }
             }
         }

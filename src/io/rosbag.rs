@@ -1,7 +1,9 @@
 //! A rosbag2 bag as the pipeline's input stream: [`BagInputs`] reads the radar and odometry topics of
 //! a configuration (and optionally a ground-truth `nav_msgs/Odometry` topic) in log-time order.
 //!
-//! Radar clouds come from `radars.<name>.topic` (radar index = position in `radar_names`), odometry from
+//! Radar clouds (`sensor_msgs/PointCloud2`, or `radar_msgs/RadarScan` for a radar whose
+//! `radars.<name>.message` is `radar_scan`) come from `radars.<name>.topic` (radar index = position in
+//! `radar_names`), odometry from
 //! `odometry.topic`. Bad messages never stop a run: a message that does not decode, an odometry pose
 //! that is not finite, a cloud whose `header.frame_id` is not the radar's configured `frame_id` (when
 //! that is not empty), or damage in the bag file itself come out as [`InputIssue`]s and the stream
@@ -12,11 +14,15 @@
 use std::collections::BTreeMap;
 
 use crate::bag::{BagError, BagReader, Messages, schema};
-use crate::input::{Input, InputIssue, IssueReason, ground_truth_sample, header_stamp};
+use crate::input::{
+    Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, radar_scan_input,
+};
 use crate::math::Stamp;
 use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::radar_msgs::RadarScan as RadarScanMsg;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::pipeline::Config;
+use crate::radar::RadarMessage;
 
 /// Why a bag cannot be run with a configuration.
 #[derive(Debug, thiserror::Error)]
@@ -58,10 +64,30 @@ pub enum BagInputError {
 /// What a topic is read as.
 #[derive(Debug, Clone)]
 enum Route {
-    /// Radar clouds: the radars publishing on this topic, with their expected frame ids.
-    Radar(Vec<(usize, String)>),
+    /// Radar messages: the radars publishing on this topic, with their expected frame ids, and the
+    /// topic's message type.
+    Radar(Vec<(usize, String)>, RadarMessage),
     Odometry,
     GroundTruth,
+}
+
+/// The type name of `radar_msgs/RadarScan` in a bag.
+const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
+
+/// The radar of `radars` whose frame is `got` (an empty configured frame accepts any).
+fn radar_for(radars: &[(usize, String)], got: &str) -> Result<usize, IssueReason> {
+    radars
+        .iter()
+        .find(|(_, frame)| frame.is_empty() || frame == got)
+        .map(|&(radar, _)| radar)
+        .ok_or_else(|| IssueReason::FrameMismatch {
+            expected: radars
+                .iter()
+                .map(|(_, f)| f.as_str())
+                .collect::<Vec<_>>()
+                .join("|"),
+            got: got.to_string(),
+        })
 }
 
 /// The pipeline inputs of a bag, in log-time order (see the module documentation).
@@ -89,14 +115,14 @@ impl BagInputs {
             let Some(rc) = cfg.radars.get(name) else {
                 continue;
             };
-            wanted.push((
-                format!("radars.{name}.topic"),
-                rc.topic.clone(),
-                schema::POINT_CLOUD2,
-            ));
-            if let Route::Radar(list) = routes
+            let expected = match rc.message {
+                RadarMessage::PointCloud2 => schema::POINT_CLOUD2,
+                RadarMessage::RadarScan => RADAR_SCAN,
+            };
+            wanted.push((format!("radars.{name}.topic"), rc.topic.clone(), expected));
+            if let Route::Radar(list, _) = routes
                 .entry(rc.topic.clone())
-                .or_insert_with(|| Route::Radar(Vec::new()))
+                .or_insert_with(|| Route::Radar(Vec::new(), rc.message))
             {
                 list.push((i, rc.frame_id.clone()));
             }
@@ -186,34 +212,31 @@ impl Iterator for BagInputs {
                 reason,
             };
             return Some(match route {
-                Route::Radar(radars) => match msg.decode::<PointCloud2>() {
-                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
-                    Ok(mut cloud) => {
-                        let stamp = match header_stamp(&cloud.header, msg.log_time) {
-                            Ok(s) => s,
-                            Err(reason) => return Some(Err(issue(msg.log_time, reason))),
-                        };
-                        cloud.header.stamp = stamp.into();
-                        let got = &cloud.header.frame_id;
-                        match radars
-                            .iter()
-                            .find(|(_, frame)| frame.is_empty() || frame == got)
-                        {
-                            Some(&(radar, _)) => Ok(Input::Radar { radar, cloud }),
-                            None => Err(issue(
-                                stamp,
-                                IssueReason::FrameMismatch {
-                                    expected: radars
-                                        .iter()
-                                        .map(|(_, f)| f.as_str())
-                                        .collect::<Vec<_>>()
-                                        .join("|"),
-                                    got: got.clone(),
-                                },
-                            )),
-                        }
+                Route::Radar(radars, RadarMessage::PointCloud2) => {
+                    match msg.decode::<PointCloud2>() {
+                        Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                        Ok(mut cloud) => match header_stamp(&cloud.header, msg.log_time) {
+                            Err(reason) => Err(issue(msg.log_time, reason)),
+                            Ok(stamp) => {
+                                cloud.header.stamp = stamp.into();
+                                radar_for(radars, &cloud.header.frame_id)
+                                    .map(|radar| Input::Radar { radar, cloud })
+                                    .map_err(|reason| issue(stamp, reason))
+                            }
+                        },
                     }
-                },
+                }
+                Route::Radar(radars, RadarMessage::RadarScan) => {
+                    match msg.decode::<RadarScanMsg>() {
+                        Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                        Ok(scan) => match header_stamp(&scan.header, msg.log_time) {
+                            Err(reason) => Err(issue(msg.log_time, reason)),
+                            Ok(stamp) => radar_for(radars, &scan.header.frame_id)
+                                .map(|radar| radar_scan_input(radar, stamp, &scan))
+                                .map_err(|reason| issue(stamp, reason)),
+                        },
+                    }
+                }
                 Route::Odometry | Route::GroundTruth => match msg.decode::<Odometry>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(odom) => {

@@ -180,7 +180,21 @@ impl Config {
                 format!("`{n}` is listed twice")
             });
             match self.radars.get(n) {
-                Some(r) => v.section(&format!("radars.{n}"), |v| r.check(v)),
+                Some(r) => {
+                    v.section(&format!("radars.{n}"), |v| r.check(v));
+                    // One DDS topic carries one type.
+                    let clash = self.radar_names[..i]
+                        .iter()
+                        .filter_map(|m| self.radars.get(m).map(|o| (m, o)))
+                        .find(|(_, o)| o.topic == r.topic && o.message != r.message);
+                    v.require(&format!("radars.{n}.message"), clash.is_none(), || {
+                        format!(
+                            "radar `{}` on the same topic `{}` has another message type",
+                            clash.map_or("", |c| c.0.as_str()),
+                            r.topic
+                        )
+                    });
+                }
                 None => v.require(&format!("radars.{n}"), false, || {
                     "listed in radar_names but not configured".into()
                 }),

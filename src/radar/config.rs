@@ -44,12 +44,29 @@ impl Default for FieldsConfig {
     }
 }
 
+/// The message type a radar publishes.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
+pub enum RadarMessage {
+    /// `sensor_msgs/PointCloud2`, read through `fields`.
+    #[default]
+    #[serde(rename = "pointcloud2")]
+    PointCloud2,
+    /// `radar_msgs/RadarScan`: range, azimuth, elevation, doppler_velocity per return (`fields` unused;
+    /// `doppler_velocity` read as the radial velocity, positive away).
+    #[serde(rename = "radar_scan")]
+    RadarScan,
+}
+
 /// One radar: where it publishes, where it sits, and how it measures.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RadarConfig {
-    /// PointCloud2 topic (default `/radar/points`).
+    /// Topic (default `/radar/points`).
     pub topic: String,
+    /// Message type on `topic`: `pointcloud2` (default) or `radar_scan` (`radar_msgs/RadarScan`).
+    pub message: RadarMessage,
     /// Expected `header.frame_id` (default `radar`); empty accepts any.
     pub frame_id: String,
     /// Radar frame in the body frame: x, y, z (m), roll, pitch, yaw (rad). Default: 0.
@@ -71,6 +88,7 @@ impl Default for RadarConfig {
         let noise = RadarNoise::default();
         RadarConfig {
             topic: "/radar/points".into(),
+            message: RadarMessage::PointCloud2,
             frame_id: "radar".into(),
             extrinsic: [0.0; 6],
             beta: 0.04,

@@ -9,7 +9,7 @@ pub mod consistency;
 pub mod doppler;
 pub mod ego_motion;
 
-pub use config::{FieldsConfig, RadarConfig};
+pub use config::{FieldsConfig, RadarConfig, RadarMessage};
 
 use crate::math::{Stamp, Vec3};
 use serde::{Deserialize, Serialize};

@@ -16,7 +16,7 @@ use super::args::RosArgs;
 use super::backends::{Float64MultiArray, PoseGraph};
 use super::convert::{DiagnosticArray, MarkerArray};
 use super::error::{NodeError, dds};
-use super::inputs::{self, Reception, TopicRadars};
+use super::inputs::{self, RadarSubscription, Reception, TopicRadars};
 use super::services::{
     self, PoseWithCovarianceStamped, SaveRequest, TriggerRequest, TriggerResponse,
 };
@@ -28,6 +28,7 @@ use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::params::node::{BackendSettings, NodeSettings};
 use crate::pipeline::Config;
+use crate::radar::RadarMessage;
 
 /// The node's publishers, owned by the worker thread.
 pub struct Outputs {
@@ -50,11 +51,13 @@ pub struct Outputs {
 /// The node's input subscriptions.
 pub struct Subscriptions {
     /// Per radar topic (several radars may share one; the frame id tells them apart).
-    radars: Vec<(String, TopicRadars, Subscription<PointCloud2>)>,
+    radars: Vec<(String, TopicRadars, RadarSubscription)>,
     odometry: (String, Subscription<Odometry>),
     clock: Option<Subscription<Clock>>,
     /// `~/save_map`.
     save_map: Server<TriggerRequest, TriggerResponse>,
+    /// `~/markers` and `~/submap`, resolved: their readers are counted.
+    map_views: [String; 2],
 }
 
 impl Subscriptions {
@@ -65,18 +68,36 @@ impl Subscriptions {
         cfg: &Config,
         use_sim_time: bool,
     ) -> Result<Self, NodeError> {
-        let mut by_topic: std::collections::BTreeMap<String, TopicRadars> = Default::default();
+        // The radars sharing a topic share its message type (the configuration's check).
+        let mut by_topic: std::collections::BTreeMap<String, (RadarMessage, TopicRadars)> =
+            Default::default();
         for (i, (name, rc)) in cfg.radar_list().into_iter().enumerate() {
             by_topic
                 .entry(ros_args.resolve_topic(&rc.topic))
-                .or_default()
+                .or_insert_with(|| (rc.message, Vec::new()))
+                .1
                 .push((i, name.to_string(), rc.frame_id.clone()));
         }
         let mut radars = Vec::new();
-        for (topic, topic_radars) in by_topic {
-            let sub = subscribe(node, &topic, "sensor_msgs", "PointCloud2", INPUT_DEPTH)?;
+        for (topic, (message, topic_radars)) in by_topic {
+            let sub = match message {
+                RadarMessage::PointCloud2 => RadarSubscription::Cloud(subscribe(
+                    node,
+                    &topic,
+                    "sensor_msgs",
+                    "PointCloud2",
+                    INPUT_DEPTH,
+                )?),
+                RadarMessage::RadarScan => RadarSubscription::Scan(subscribe(
+                    node,
+                    &topic,
+                    "radar_msgs",
+                    "RadarScan",
+                    INPUT_DEPTH,
+                )?),
+            };
             let names: Vec<&str> = topic_radars.iter().map(|r| r.1.as_str()).collect();
-            log::info!("radar {} on {topic}", names.join(", "));
+            log::info!("radar {} on {topic} ({message:?})", names.join(", "));
             radars.push((topic, topic_radars, sub));
         }
         let odom_topic = ros_args.resolve_topic(&cfg.odometry.topic);
@@ -101,6 +122,10 @@ impl Subscriptions {
             odometry: (odom_topic, odometry),
             clock,
             save_map,
+            map_views: [
+                ros_args.resolve_topic("~/markers"),
+                ros_args.resolve_topic("~/submap"),
+            ],
         })
     }
 
@@ -118,9 +143,18 @@ impl Subscriptions {
         let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
         for (topic, radars, sub) in &self.radars {
             let shared = r.shared.clone();
-            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
-                inputs::radar_input(topic, radars, &limits, &shared, c)
-            })));
+            match sub {
+                RadarSubscription::Cloud(sub) => {
+                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
+                        inputs::radar_input(topic, radars, &limits, &shared, c)
+                    })))
+                }
+                RadarSubscription::Scan(sub) => {
+                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |s| {
+                        inputs::radar_scan(topic, radars, &limits, &shared, s)
+                    })))
+                }
+            }
         }
         let (topic, sub) = &self.odometry;
         let shared = r.shared.clone();
@@ -130,7 +164,13 @@ impl Subscriptions {
         if let Some(sub) = &self.clock {
             tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
         }
-        let counts = inputs::publisher_counts(node, &self.radars, &self.odometry.1, r.shared);
+        let counts = inputs::publisher_counts(
+            node,
+            &self.radars,
+            &self.odometry.1,
+            &self.map_views,
+            r.shared,
+        );
         tasks.push(Box::pin(counts));
         tasks.push(Box::pin(services::save_map(&self.save_map, save_requests)));
         // Every task runs as long as the node: the first to end is a failure.

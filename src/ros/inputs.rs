@@ -12,9 +12,10 @@ use ros2_client::{Node, Subscription};
 use serde::de::DeserializeOwned;
 
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
-use crate::input::{Input, InputLimits, header_stamp, odometry_pose};
+use crate::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
 use crate::math::Stamp;
 use crate::msgs::nav_msgs::Odometry;
+use crate::msgs::radar_msgs::RadarScan;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
@@ -27,6 +28,12 @@ pub trait Stamped {
 }
 
 impl Stamped for PointCloud2 {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Stamped for RadarScan {
     fn header_mut(&mut self) -> &mut Header {
         &mut self.header
     }
@@ -92,16 +99,22 @@ where
 /// The radars on one topic: (index in `radar_names`, name, expected `frame_id`; empty accepts any).
 pub type TopicRadars = Vec<(usize, String, String)>;
 
-/// A cloud of `topic` as the input of the radar its `frame_id` names (several radars may share a
-/// topic), refused when no configured radar has that frame or it is larger than `limits`.
-pub fn radar_input(
+/// A radar topic's subscription, by its message type (`radars.<name>.message`).
+pub enum RadarSubscription {
+    /// `sensor_msgs/PointCloud2`.
+    Cloud(Subscription<PointCloud2>),
+    /// `radar_msgs/RadarScan`.
+    Scan(Subscription<RadarScan>),
+}
+
+/// The radar of `radars` whose frame is `got` (several radars may share a topic), counted as received;
+/// refused when no configured radar has that frame.
+fn radar_of(
     topic: &str,
     radars: &TopicRadars,
-    limits: &InputLimits,
     shared: &Shared,
-    cloud: PointCloud2,
-) -> Result<(Input, Option<String>), Refusal> {
-    let got = &cloud.header.frame_id;
+    got: &str,
+) -> Result<usize, Refusal> {
     let Some((radar, name, _)) = radars
         .iter()
         .find(|(_, _, frame)| frame.is_empty() || frame == got)
@@ -112,14 +125,45 @@ pub fn radar_input(
         ));
     };
     shared.count_received(name);
+    Ok(*radar)
+}
+
+/// A cloud of `topic` as the input of the radar its `frame_id` names, refused when no configured radar
+/// has that frame or it is larger than `limits`.
+pub fn radar_input(
+    topic: &str,
+    radars: &TopicRadars,
+    limits: &InputLimits,
+    shared: &Shared,
+    cloud: PointCloud2,
+) -> Result<(Input, Option<String>), Refusal> {
+    let radar = radar_of(topic, radars, shared, &cloud.header.frame_id)?;
     // Refused before the queue, so that huge clouds never wait in it.
     if let Err(e) = limits.check(&cloud) {
         return Err(("cloud_too_large", format!("{topic}: {e}")));
     }
-    let input = Input::Radar {
-        radar: *radar,
-        cloud,
-    };
+    Ok((Input::Radar { radar, cloud }, None))
+}
+
+/// A `radar_msgs/RadarScan` of `topic` as the input of the radar its `frame_id` names, refused as a
+/// cloud is (its returns count as points, 20 bytes each).
+pub fn radar_scan(
+    topic: &str,
+    radars: &TopicRadars,
+    limits: &InputLimits,
+    shared: &Shared,
+    scan: RadarScan,
+) -> Result<(Input, Option<String>), Refusal> {
+    let radar = radar_of(topic, radars, shared, &scan.header.frame_id)?;
+    let n = scan.returns.len();
+    if n > limits.max_cloud_points || n.saturating_mul(20) > limits.max_cloud_bytes {
+        let detail = format!(
+            "{topic}: {n} returns, more than node.max_cloud_points ({}) or node.max_cloud_bytes ({})",
+            limits.max_cloud_points, limits.max_cloud_bytes
+        );
+        return Err(("cloud_too_large", detail));
+    }
+    let input = radar_scan_input(radar, scan.header.stamp.into(), &scan);
     Ok((input, None))
 }
 
@@ -152,17 +196,24 @@ pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
 }
 
 /// Matched publishers per input, every 250 ms, for `/diagnostics` (a user or test waits for them
-/// before sending).
+/// before sending), and the subscriptions discovered on the map views (`~/markers`, `~/submap`).
 pub async fn publisher_counts(
     node: &Node,
-    radars: &[(String, TopicRadars, Subscription<PointCloud2>)],
+    radars: &[(String, TopicRadars, RadarSubscription)],
     odometry: &Subscription<Odometry>,
+    map_views: &[String; 2],
     shared: Arc<Shared>,
 ) {
     loop {
+        for (topic, readers) in map_views.iter().zip(&shared.map_view_readers) {
+            readers.store(node.subscription_count(topic), Ordering::SeqCst);
+        }
         let mut counts = Vec::new();
         for (_, topic_radars, sub) in radars {
-            let n = sub.get_publisher_count(node);
+            let n = match sub {
+                RadarSubscription::Cloud(s) => s.get_publisher_count(node),
+                RadarSubscription::Scan(s) => s.get_publisher_count(node),
+            };
             counts.extend(topic_radars.iter().map(|(_, name, _)| (name.clone(), n)));
         }
         counts.push(("odometry".to_string(), odometry.get_publisher_count(node)));

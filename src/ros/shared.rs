@@ -29,6 +29,10 @@ pub struct Shared {
     pub clock_ns: AtomicI64,
     /// A shutdown was asked for: the worker saves the map first, then drains the queue.
     pub stopping: AtomicBool,
+    /// Subscriptions discovered on `~/markers` and `~/submap`: with none, the worker does not publish
+    /// them (rustdds keeps up to 8192 unread samples of a writer without readers, and ros2-client
+    /// cannot set the ResourceLimits that would bound them).
+    pub map_view_readers: [AtomicUsize; 2],
     /// Rate limiting of warnings: reason -> (last warning, suppressed since).
     warned: Mutex<BTreeMap<String, (Instant, u64)>>,
     /// `node.warn_interval`, ns.

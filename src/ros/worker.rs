@@ -56,6 +56,11 @@ impl Markers {
         }
     }
 
+    /// Points of the markers message: one per keyframe, two per edge.
+    fn point_count(&self) -> usize {
+        self.points.len() + 2 * self.edges.len()
+    }
+
     fn message(&self, now: Time) -> MarkerArray {
         let kfs: Vec<MarkerPoint> = self.points.values().copied().collect();
         let edges: Vec<(MarkerPoint, MarkerPoint)> = self.edges.iter().copied().collect();
@@ -422,17 +427,22 @@ impl Worker {
         );
     }
 
-    /// When the pending markers are due (`None`: nothing pending).
+    /// Subscriptions discovered on `~/markers` (0) or `~/submap` (1).
+    fn readers(&self, view: usize) -> usize {
+        self.shared.map_view_readers[view].load(Ordering::SeqCst)
+    }
+
+    /// When the pending markers are due (`None`: nothing pending, or nobody subscribes: they wait for
+    /// the first subscriber).
     fn markers_due(&self) -> Option<Instant> {
         let period = Duration::from_secs_f64(self.settings.markers_period);
-        self.markers_pending
+        (self.markers_pending && self.readers(0) > 0)
             .then(|| self.markers_sent.map_or_else(Instant::now, |t| t + period))
     }
 
     /// The session's keyframes and closures on `~/markers`.
     fn publish_markers(&mut self) {
         let msg = self.markers.message(self.now());
-        self.measures.markers_points = msg.markers.iter().map(|m| m.points.len()).sum();
         if let Err(e) = self.out.markers.publish(msg) {
             log::debug!("markers: {e:?}");
         }
@@ -440,10 +450,12 @@ impl Worker {
         self.markers_sent = Some(Instant::now());
     }
 
-    /// The markers (when due) and the current submap.
+    /// The markers (when due) and the current submap (when someone subscribes).
     fn publish_map_views(&mut self) {
         self.markers_pending = true;
-        if let Some(s) = self.pipeline.current_submap()
+        self.measures.markers_points = self.markers.point_count();
+        if self.readers(1) > 0
+            && let Some(s) = self.pipeline.current_submap()
             && let Err(e) = self.out.submap.publish(submap_cloud(&s, &self.body_frame))
         {
             log::debug!("submap: {e:?}");

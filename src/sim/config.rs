@@ -7,7 +7,7 @@
 
 use crate::math::Vec2;
 use crate::pipeline::Config;
-use crate::radar::{FieldsConfig, RadarConfig};
+use crate::radar::{FieldsConfig, RadarConfig, RadarMessage};
 use crate::sim::noise::{NoiseConfig, NoiseModel};
 use crate::sim::radar_config::{RadarPreset, SimRadarConfig};
 use crate::sim::world_config::WorldConfig;
@@ -118,6 +118,7 @@ impl SimConfig {
                 r.name.clone(),
                 RadarConfig {
                     topic: r.topic.clone(),
+                    message: RadarMessage::PointCloud2,
                     frame_id: r.frame_id.clone(),
                     extrinsic: r.extrinsic,
                     beta: r.beta,

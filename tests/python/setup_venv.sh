@@ -7,7 +7,7 @@
 #   3. the wheels' exported CMake paths fixed (they name the wheel build machine's Python and numpy headers);
 #   4. the interface packages built with cmake and installed into the venv, each of INTERFACE_PACKAGES in
 #      turn: dc_loc's own (msg/) and the ones the tests read besides (tests/python/interfaces/*:
-#      pose_graph_tools_msgs, tf2_msgs);
+#      pose_graph_tools_msgs, tf2_msgs, radar_msgs);
 #   5. a check that each package's messages import and their type support loads.
 # A stamp file in the venv records what was built (hashes of the Python, requirements.txt, this script and
 # every file of the interface packages): a rerun with nothing changed is a no-op, a change to an interface
@@ -97,8 +97,10 @@ env_hash=$({
 } | sha256sum | awk '{ print $1 }')
 # The interface packages (folders with a package.xml, relative to the repository), built in this order,
 # and one message of each that the check of step 5 imports.
-INTERFACE_PACKAGES=(msg tests/python/interfaces/pose_graph_tools_msgs tests/python/interfaces/tf2_msgs)
-INTERFACE_CHECKS=("dc_loc.msg:LoopClosure" "pose_graph_tools_msgs.msg:PoseGraph" "tf2_msgs.msg:TFMessage")
+INTERFACE_PACKAGES=(msg tests/python/interfaces/pose_graph_tools_msgs tests/python/interfaces/tf2_msgs
+    tests/python/interfaces/radar_msgs)
+INTERFACE_CHECKS=("dc_loc.msg:LoopClosure" "pose_graph_tools_msgs.msg:PoseGraph" "tf2_msgs.msg:TFMessage"
+    "radar_msgs.msg:RadarScan")
 # Every file of every interface package (names and contents).
 interfaces_hash=$(cd "$repo" && find "${INTERFACE_PACKAGES[@]}" -type f -print0 | LC_ALL=C sort -z |
     xargs -0 sha256sum | sha256sum | awk '{ print $1 }')

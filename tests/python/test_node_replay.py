@@ -3,16 +3,19 @@
 Run by tests/node.rs with the venv's interpreter:
 
     test_node_replay.py --node BIN --bag DIR --out RESULT.json [--rate R] [--malformed]
-                        [--stop-after FRACTION --kill] [--skip-before FRACTION] [-- NODE ARGS...]
+                        [--stop-after FRACTION --kill] [--skip-before FRACTION] [--tf-static]
+                        [--radar-scan] [-- NODE ARGS...]
 
 1. Reserves a ROS domain id of its own; everything stays on loopback (dcloc_testlib).
-2. Starts the node (``BIN --ros-args NODE ARGS``) and waits for its "running" line.
+2. Starts the node (``BIN --ros-args NODE ARGS``) and waits for its "running" line. ``--tf-static``
+   first starts tf_static_pub.py, which publishes the bag's /tf_static (transient local).
 3. rclpy publishers (reliable, keep-all-ish depth 1000) for the bag's radar and odometry topics; an rclpy
    subscriber typed ``dc_loc.msg.LoopClosure`` and a Cyclone DDS subscriber on ``/dc_loc/loop_closures``
    (reliable, transient-local); an rclpy ``/diagnostics`` subscriber. Waits for every match.
 4. Publishes the bag's messages (their raw CDR, original stamps) in log-time order at ``--rate`` times
    real time. ``--malformed`` interleaves bad messages (rclpy-built) on the same topics: each kind
-   ``MALFORMED_REPEAT`` times (see ``malformed``).
+   ``MALFORMED_REPEAT`` times (see ``malformed``). ``--radar-scan`` publishes each cloud as the
+   radar_msgs/RadarScan of the same detections (``as_radar_scans``).
 5. Waits until the node's diagnostics show every message received and processed and both subscribers have
    as many closures as the node published; then SIGINT, and the node must exit 0.
    ``--stop-after F --kill``: publishes only the first fraction F of the drive, waits for it to be
@@ -104,6 +107,40 @@ def read_bag(bag: Path):
     return out
 
 
+def as_radar_scans(messages):
+    """``messages`` with every PointCloud2 (fields x, y, z, v_r) turned into the radar_msgs/RadarScan of the
+    same detections (range, azimuth, elevation, doppler_velocity = v_r), serialized, on the same topic."""
+    import numpy as np
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import PointCloud2
+
+    from radar_msgs.msg import RadarReturn, RadarScan
+
+    kinds = {7: "f4", 8: "f8"}
+    out = []
+    for t, topic, msgtype, raw in messages:
+        if msgtype != "sensor_msgs/msg/PointCloud2":
+            out.append((t, topic, msgtype, raw))
+            continue
+        c = deserialize_message(raw, PointCloud2)
+        order = ">" if c.is_bigendian else "<"
+        dtype = np.dtype({"names": [f.name for f in c.fields],
+                          "formats": [order + kinds[f.datatype] for f in c.fields],
+                          "offsets": [f.offset for f in c.fields], "itemsize": c.point_step})
+        pts = np.frombuffer(bytes(c.data), dtype=dtype, count=c.width * c.height)
+        x, y, z = (pts[k].astype(float) for k in ("x", "y", "z"))
+        r = np.sqrt(x * x + y * y + z * z)
+        scan = RadarScan()
+        scan.header = c.header
+        for i in range(len(pts)):
+            el = float(np.arcsin(z[i] / r[i])) if r[i] > 0 else 0.0
+            scan.returns.append(RadarReturn(range=float(r[i]), azimuth=float(np.arctan2(y[i], x[i])),
+                                            elevation=el, doppler_velocity=float(pts["v_r"][i]),
+                                            amplitude=0.0))
+        out.append((t, topic, "radar_msgs/msg/RadarScan", serialize_message(scan)))
+    return out
+
+
 def malformed(good_cloud, last_odom):
     """(kind, topic role, message, expected diagnostics key) of each bad input, built with rclpy types from
     the newest good cloud (same topic, frame and stamp, so that nothing else changes)."""
@@ -188,6 +225,8 @@ def main() -> int:
                     help="set a parameter of the running node (set_parameters) at this fraction of the drive")
     ap.add_argument("--tf-static", action="store_true",
                     help="publish the bag's /tf_static (transient local) before the node starts")
+    ap.add_argument("--radar-scan", action="store_true",
+                    help="publish the radars as radar_msgs/RadarScan instead of PointCloud2")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
 
@@ -196,6 +235,8 @@ def main() -> int:
     lo = t0 + a.skip_before * (t1 - t0)
     hi = t0 + a.stop_after * (t1 - t0)
     messages = [m for m in messages if lo <= m[0] <= hi]
+    if a.radar_scan:
+        messages = as_radar_scans(messages)
 
     reservation = tl.reserve_domain_id()
     domain = reservation.domain_id
@@ -225,6 +266,9 @@ def main() -> int:
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.VOLATILE)
             types = {"sensor_msgs/msg/PointCloud2": PointCloud2, "nav_msgs/msg/Odometry": Odometry}
+            if a.radar_scan:
+                from radar_msgs.msg import RadarScan
+                types["radar_msgs/msg/RadarScan"] = RadarScan
             pubs = {}
             for _, topic, msgtype, _ in messages:
                 if topic not in pubs:
@@ -298,7 +342,7 @@ def main() -> int:
             rs.spin_until(node_matched, 30.0, "the node's readers to match the publishers")
 
             # Replay at --rate, malformed messages interleaved.
-            radar_topic = next(t for _, t, ty, _ in messages if ty.endswith("PointCloud2"))
+            radar_topic = next(t for _, t, ty, _ in messages if ty != "nav_msgs/msg/Odometry")
             bad_plan = []
             sent = {"radar": 0, "odometry": 0, "malformed": {}}
             start = time.monotonic()
@@ -316,7 +360,7 @@ def main() -> int:
                     rs.executor.spin_once(timeout_sec=min(left, 0.01))
                 poll_cyclone()
                 pubs[topic].publish(raw)
-                if msgtype.endswith("PointCloud2"):
+                if msgtype != "nav_msgs/msg/Odometry":
                     sent["radar"] += 1
                     if a.malformed:
                         last_cloud = raw

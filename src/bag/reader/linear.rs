@@ -16,7 +16,7 @@ use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::guard::strings_fit;
-use super::{BagError, BagMessage, ChannelMeta, READ_SIZE, io_err, mcap_err, oversize, stamp};
+use super::{BagError, BagMessage, ChannelMeta, READ_SIZE, io_err, mcap_err, oversize};
 
 /// The records messages need: schemas and channels (for the channel of each message) and messages.
 const NEEDED: [u8; 3] = [0x03, 0x04, 0x05];
@@ -169,13 +169,7 @@ impl LinearSource {
             {
                 continue;
             }
-            return Some(Ok(BagMessage {
-                channel: channel.clone(),
-                log_time: stamp(header.log_time),
-                publish_time: stamp(header.publish_time),
-                sequence: header.sequence,
-                data,
-            }));
+            return Some(Ok(BagMessage::read(channel, &header, data)));
         }
     }
 }

@@ -229,7 +229,13 @@ fn oversize_chunk(path: &Path, limit: usize) -> std::io::Result<Option<(u64, Str
         if next > len {
             return Ok(None);
         }
-        file.seek_relative(i64::try_from(next - at - read).unwrap_or(i64::MAX))?;
+        // A chunk shorter than the head read above is damage the reader reports when it gets there.
+        let Some(rest) = (next - at).checked_sub(read) else {
+            let why =
+                format!("chunk at byte {at} is shorter than a chunk header ({record_len} bytes)");
+            return Ok(Some((at, why)));
+        };
+        file.seek_relative(i64::try_from(rest).unwrap_or(i64::MAX))?;
         at = next;
     }
 }

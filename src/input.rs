@@ -146,16 +146,20 @@ impl InputLimits {
     /// Why `cloud` is too large, or `Ok`.
     pub fn check(&self, cloud: &PointCloud2) -> Result<(), String> {
         let points = u64::from(cloud.width) * u64::from(cloud.height);
+        self.check_size(points, cloud.data.len())
+    }
+
+    /// Why a message of `points` points in `bytes` bytes of point data is too large, or `Ok`.
+    pub fn check_size(&self, points: u64, bytes: usize) -> Result<(), String> {
         if points > self.max_cloud_points as u64 {
             return Err(format!(
                 "{points} points > node.max_cloud_points ({})",
                 self.max_cloud_points
             ));
         }
-        if cloud.data.len() > self.max_cloud_bytes {
+        if bytes > self.max_cloud_bytes {
             return Err(format!(
-                "{} bytes > node.max_cloud_bytes ({})",
-                cloud.data.len(),
+                "{bytes} bytes > node.max_cloud_bytes ({})",
                 self.max_cloud_bytes
             ));
         }

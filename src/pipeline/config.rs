@@ -104,13 +104,18 @@ impl Config {
             .collect()
     }
 
-    /// The radars' frame ids (the child frames their extrinsics are transforms to), those set.
+    /// The radars' frame ids (the child frames their extrinsics are transforms to), those set, each
+    /// once (radars may share a frame).
     pub fn radar_frames(&self) -> Vec<String> {
-        self.radar_list()
+        let mut frames: Vec<String> = self
+            .radar_list()
             .iter()
             .map(|(_, r)| r.frame_id.clone())
             .filter(|f| !f.is_empty())
-            .collect()
+            .collect();
+        frames.sort();
+        frames.dedup();
+        frames
     }
 
     /// Replaces the extrinsic of each radar whose frame id `found` has (`body_frame -> frame_id`

@@ -155,13 +155,10 @@ pub fn radar_scan(
     scan: RadarScan,
 ) -> Result<(Input, Option<String>), Refusal> {
     let radar = radar_of(topic, radars, shared, &scan.header.frame_id)?;
+    // Each return is five float32 fields.
     let n = scan.returns.len();
-    if n > limits.max_cloud_points || n.saturating_mul(20) > limits.max_cloud_bytes {
-        let detail = format!(
-            "{topic}: {n} returns, more than node.max_cloud_points ({}) or node.max_cloud_bytes ({})",
-            limits.max_cloud_points, limits.max_cloud_bytes
-        );
-        return Err(("cloud_too_large", detail));
+    if let Err(e) = limits.check_size(n as u64, n.saturating_mul(20)) {
+        return Err(("cloud_too_large", format!("{topic}: {e}")));
     }
     let input = radar_scan_input(radar, scan.header.stamp.into(), &scan);
     Ok((input, None))

@@ -27,6 +27,9 @@ fi
 
 # Release build with debug assertions, overflow checks and AddressSanitizer (cargo-fuzz's defaults);
 # the sanitizer's allocator hooks are what make -malloc_limit_mb catch a single oversized allocation.
+# Limits: one allocation over 512 MB is a crash (no reader asks for that much: the bag reader holds at
+# most 256 MiB of chunks); the whole process may reach 2048 MB, because a bag input may fill the
+# reader's 256 MiB and AddressSanitizer's quarantine keeps up to 256 MB of freed memory on top.
 cargo +nightly fuzz build || exit 1
 
 logs=fuzz/target/ci-logs
@@ -42,7 +45,7 @@ for target in $(cargo +nightly fuzz list); do
     fi
     echo "fuzz $target: ${seconds}s"
     if cargo +nightly fuzz run "$target" "${dirs[@]}" -- \
-        -max_total_time="$seconds" -seed="$seed" -rss_limit_mb=512 -malloc_limit_mb=512 -timeout=20 \
+        -max_total_time="$seconds" -seed="$seed" -rss_limit_mb=2048 -malloc_limit_mb=512 -timeout=20 \
         -print_final_stats=1 >"$logs/$target.log" 2>&1; then
         grep -E '^stat::number_of_executed_units|^Done ' "$logs/$target.log" | sed "s/^/  /"
     else

@@ -15,7 +15,8 @@ use crate::eval::revisits::{
 };
 use crate::params::{ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
-use crate::sim::{NoiseModel, RadarPreset};
+use crate::sim::families::{self, ProtocolWorld};
+use crate::sim::{NoiseModel, RadarPreset, WorldFamily};
 
 /// Arguments of `dc_loc revisits`.
 #[derive(Debug, Clone, clap::Args)]
@@ -35,6 +36,13 @@ pub struct RevisitArgs {
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Kinds of street: `city` (the default world), `suburb`, `industrial`, `arterial`, `parking`.
+    #[arg(long, value_delimiter = ',', default_value = "city")]
+    pub world: Vec<String>,
+    /// A protocol set instead of `--world` and `--seed`: `dev` (the worlds tuning may look at: the city
+    /// with seeds 1 and 2) or `test` (held out: every other family, each with its own seed).
+    #[arg(long, value_name = "dev|test", conflicts_with_all = ["world", "seed"])]
+    pub set: Option<String>,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -64,9 +72,51 @@ fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
     }
 }
 
+/// The worlds of `args`: the protocol set, or each `--world` family with `--seed`.
+fn worlds(args: &RevisitArgs) -> Result<Vec<ProtocolWorld>, CliError> {
+    match args.set.as_deref() {
+        Some("dev") => return Ok(families::DEV.to_vec()),
+        Some("test") => return Ok(families::TEST.to_vec()),
+        Some(other) => {
+            return Err(CliError::Usage(format!(
+                "--set: `{other}` is not `dev` or `test`"
+            )));
+        }
+        None => {}
+    }
+    args.world
+        .iter()
+        .map(|w| {
+            WorldFamily::parse(w)
+                .map(|family| ProtocolWorld {
+                    family,
+                    seed: args.seed,
+                })
+                .ok_or_else(|| {
+                    let names: Vec<&str> = WorldFamily::ALL.iter().map(|f| f.name()).collect();
+                    CliError::Usage(format!(
+                        "--world: unknown family `{w}` ({})",
+                        names.join(", ")
+                    ))
+                })
+        })
+        .collect()
+}
+
 /// The scenario matrix of `args`.
 pub fn scenarios(args: &RevisitArgs) -> Result<Vec<RevisitScenario>, CliError> {
     let mut out = Vec::new();
+    for world in worlds(args)? {
+        scenarios_in(args, world, &mut out)?;
+    }
+    Ok(out)
+}
+
+fn scenarios_in(
+    args: &RevisitArgs,
+    world: ProtocolWorld,
+    out: &mut Vec<RevisitScenario>,
+) -> Result<(), CliError> {
     for r in &args.radars {
         let radars = parse_preset(r)?;
         for n in &args.noise {
@@ -92,13 +142,14 @@ pub fn scenarios(args: &RevisitArgs) -> Result<Vec<RevisitScenario>, CliError> {
                         noise,
                         drift: d / 100.0,
                         reverse,
-                        seed: args.seed,
+                        seed: world.seed,
+                        world: world.family,
                     });
                 }
             }
         }
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Applies `-p` overrides to a scenario's own configuration.

@@ -11,7 +11,7 @@ use clap::ValueEnum;
 use super::CliError;
 use crate::bag::BagError;
 use crate::sim::export::{ExportError, drive_description, export_drive};
-use crate::sim::{NoiseModel, RadarPreset, SimConfig, simulate};
+use crate::sim::{NoiseModel, RadarPreset, SimConfig, WorldFamily, simulate};
 
 /// Radar sets of `--preset`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -20,6 +20,21 @@ pub enum PresetArg {
     Carla,
     /// The five ARS408-21 radars of the nuScenes car.
     Nuscenes,
+}
+
+/// Kinds of street of `--world` ([`WorldFamily`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum WorldArg {
+    /// The default city: four lanes, parking, buildings with gaps and setbacks.
+    City,
+    /// Two lanes, detached houses behind gardens, tree rows.
+    Suburb,
+    /// Long flat warehouse walls with few gaps.
+    Industrial,
+    /// Six lanes, guard rail posts, distant buildings, no parking.
+    Arterial,
+    /// Streets lined by the same parked cars on every lap.
+    Parking,
 }
 
 /// Noise models of `--noise`.
@@ -50,6 +65,9 @@ pub struct SimArgs {
     /// Radar set.
     #[arg(long, value_enum)]
     pub preset: Option<PresetArg>,
+    /// Kind of street: replaces the `world` section of `--config`.
+    #[arg(long, value_enum)]
+    pub world: Option<WorldArg>,
     /// Radar measurement noise model.
     #[arg(long, value_enum)]
     pub noise: Option<NoiseArg>,
@@ -94,6 +112,16 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
         };
         // A preset replaces the custom radars of a config file.
         cfg.radars.clear();
+    }
+    if let Some(w) = args.world {
+        cfg.world = match w {
+            WorldArg::City => WorldFamily::City,
+            WorldArg::Suburb => WorldFamily::Suburb,
+            WorldArg::Industrial => WorldFamily::Industrial,
+            WorldArg::Arterial => WorldFamily::Arterial,
+            WorldArg::Parking => WorldFamily::Parking,
+        }
+        .world();
     }
     if let Some(n) = args.noise {
         cfg.noise.model = match n {

@@ -17,11 +17,13 @@
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
 use crate::loop_closure::LoopClosure;
-use crate::math::{Iso2, Stamp, iso2_from_iso3, wrap_angle};
+use crate::math::{Iso2, Mat3, Mat6, Stamp, iso2_from_iso3, se2_log, wrap_angle};
 use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
 use crate::sim::inputs::{ScanEncoding, SimInputs};
-use crate::sim::{NoiseModel, RadarPreset, SimConfig, SimDrive, config::LapConfig, simulate};
+use crate::sim::{
+    NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig, simulate,
+};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -44,6 +46,8 @@ pub struct RevisitScenario {
     pub reverse: bool,
     /// Simulator seed.
     pub seed: u64,
+    /// Kind of street ([`WorldFamily::City`] is the simulator's default world).
+    pub world: WorldFamily,
 }
 
 impl RevisitScenario {
@@ -51,6 +55,7 @@ impl RevisitScenario {
     pub fn sim_config(&self) -> SimConfig {
         let mut c = SimConfig::with_preset(self.radars);
         c.seed = self.seed;
+        c.world = self.world.world();
         c.noise.model = self.noise;
         c.odometry.scale_error = self.drift;
         c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
@@ -67,10 +72,16 @@ impl RevisitScenario {
         c
     }
 
-    /// A short label, e.g. `nuscenes gaussian 3% reverse`.
+    /// A short label, e.g. `nuscenes gaussian 3% reverse`, prefixed by the family and seed outside the
+    /// default city with seed 1 (`suburb/101 nuscenes gaussian 3% reverse`).
     pub fn label(&self) -> String {
+        let world = if self.world == WorldFamily::City && self.seed == 1 {
+            String::new()
+        } else {
+            format!("{}/{} ", self.world.name(), self.seed)
+        };
         format!(
-            "{} {} {}% {}",
+            "{world}{} {} {}% {}",
             preset_name(self.radars),
             noise_name(self.noise),
             fmt_pct(self.drift),
@@ -126,6 +137,9 @@ pub struct JudgedClosure {
     pub inliers: u32,
     /// Overlap score.
     pub score: f64,
+    /// Normalised estimation error squared of `(x, y, yaw)` under the closure's covariance (chi-square
+    /// with 3 degrees of freedom when the covariance is right; `inf` when it is singular).
+    pub nees: f64,
 }
 
 /// Counts for one direction of travel.
@@ -178,6 +192,8 @@ pub struct RevisitReport {
     pub rejected: BTreeMap<String, u64>,
     /// Every published closure, judged.
     pub closures: Vec<JudgedClosure>,
+    /// NEES of the published closures: mean, and the share above the chi-square(3) 99 % bound.
+    pub nees: NeesSummary,
     /// Missed opportunities by what happened to their candidates: the reasons their candidates were
     /// rejected for, `no_candidate` when none was registered, `held` when a closure passed every gate
     /// but waited for confirmation, `false_only` when only false closures were published.
@@ -268,10 +284,12 @@ fn judge(
             .map(|(r, n)| (r.name().to_string(), *n))
             .collect(),
         closures: Vec::new(),
+        nees: NeesSummary::default(),
         missed: BTreeMap::new(),
         missed_ids: Vec::new(),
     };
     let closed = judge_closures(&mut report, &truth, closures);
+    report.nees = NeesSummary::of(report.closures.iter().map(|c| c.nees));
     count_opportunities(&mut report, &opportunity, &closed, rejections);
     report
 }
@@ -347,6 +365,7 @@ fn judge_closures(
         let et = (t.translation.vector - est.translation.vector).norm();
         let er = wrap_angle(t.rotation.angle() - est.rotation.angle()).abs();
         let reverse = is_reverse(tq, tm);
+        let nees = closure_nees(&est, &t, &c.covariance);
         let counts = if reverse {
             &mut report.reverse
         } else {
@@ -372,9 +391,60 @@ fn judge_closures(
             distance: t.translation.vector.norm(),
             inliers: c.inliers,
             score: c.score,
+            nees,
         });
     }
     closed
+}
+
+/// The chi-square(3) 99 % quantile: a correct 3-DOF covariance leaves 1 % of NEES values above it.
+pub const CHI2_3_99: f64 = 11.345;
+
+/// NEES of a set of closures against their truth.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct NeesSummary {
+    /// Closures counted.
+    pub count: usize,
+    /// Mean NEES (3 when the covariances are right; `NaN` without closures).
+    pub mean: f64,
+    /// Closures with NEES above [`CHI2_3_99`].
+    pub above_99: usize,
+}
+
+impl NeesSummary {
+    /// Summarises NEES values (a singular covariance counts as infinite).
+    pub fn of(values: impl Iterator<Item = f64>) -> Self {
+        let mut s = NeesSummary::default();
+        let mut sum = 0.0;
+        for v in values {
+            s.count += 1;
+            sum += v;
+            if !(v <= CHI2_3_99) {
+                s.above_99 += 1;
+            }
+        }
+        s.mean = sum / s.count as f64;
+        s
+    }
+
+    /// Share of closures above the 99 % bound (0 without closures).
+    pub fn share_above_99(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.above_99 as f64 / self.count as f64
+        }
+    }
+}
+
+/// NEES of an estimated `T_match_query` against the truth, with `covariance` (ROS order, over the
+/// right perturbation `T_true = T_est * Exp(delta)`) reduced to its `(x, y, yaw)` block.
+pub fn closure_nees(est: &Iso2, truth: &Iso2, covariance: &Mat6) -> f64 {
+    let e = se2_log(&(est.inverse() * truth));
+    let idx = [0usize, 1, 5];
+    let c = Mat3::from_fn(|i, j| covariance[(idx[i], idx[j])]);
+    c.try_inverse()
+        .map_or(f64::INFINITY, |ci| e.dot(&(ci * e)).max(0.0))
 }
 
 /// Counts the opportunities and those closed per direction; each missed one is counted under the
@@ -438,8 +508,8 @@ fn measured_drift(drive: &SimDrive) -> f64 {
 /// The README table: one row per scenario.
 pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     let mut s = String::new();
-    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) |\n");
-    s.push_str("|---|---|---|---|---|---|\n");
+    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) | NEES mean / above 99 % |\n");
+    s.push_str("|---|---|---|---|---|---|---|\n");
     let dir = |c: &DirectionCounts| {
         if c.opportunities == 0 && c.published == 0 {
             "-".to_string()
@@ -457,14 +527,16 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     };
     for r in reports {
         s.push_str(&format!(
-            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} |\n",
+            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} | {:.1} / {:.1} % |\n",
             r.scenario,
             100.0 * r.measured_drift,
             r.keyframes,
             dir(&r.same),
             dir(&r.reverse),
             r.max_error.0,
-            r.max_error.1
+            r.max_error.1,
+            r.nees.mean,
+            100.0 * r.nees.share_above_99()
         ));
     }
     s

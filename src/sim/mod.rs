@@ -5,7 +5,8 @@
 //! Entry points: [`simulate`] (the whole drive in memory, [`SimDrive`]), [`Simulator`] (the same drive as a
 //! time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
 //! [`SimConfig::to_config`] for the pipeline's radar section), [`RevisitIndex`] (revisit ground truth).
-//! Parts: [`config`], [`route`] (centre line, trajectory), [`world`] (city generation), [`sensor`] (one
+//! Parts: [`config`], [`families`] (kinds of street and the held-out protocol), [`route`] (centre line,
+//! trajectory), [`world`] (city generation), [`sensor`] (one
 //! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive
 //! as a rosbag2 bag with its params YAML.
 //!
@@ -24,6 +25,7 @@
 
 pub mod config;
 pub mod export;
+pub mod families;
 pub mod inputs;
 pub mod noise;
 pub mod nuscenes;
@@ -36,6 +38,7 @@ pub mod world;
 pub mod world_config;
 
 pub use config::SimConfig;
+pub use families::WorldFamily;
 pub use noise::{NoiseConfig, NoiseModel};
 pub use odometry::{OdometrySample, PoseSample};
 pub use radar_config::{RadarPreset, SimRadarConfig};

@@ -1,0 +1,193 @@
+//! World families: kinds of street the simulator builds besides the default city, each a change of
+//! the [`WorldConfig`] sections, and the held-out protocol that splits families and seeds into a
+//! `dev` set (what tuning may look at) and a `test` set (what it may not).
+//!
+//! The families differ in what the registration has to hold on to: short detached houses with gardens
+//! and trees (`suburb`), long flat walls with few corners (`industrial`), a wide road lined by guard
+//! rail posts and distant buildings, nearly featureless along the road (`arterial`), and streets lined
+//! by the same parked cars on every lap (`parking`).
+
+use super::world_config::WorldConfig;
+use serde::Serialize;
+
+/// A kind of street.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+pub enum WorldFamily {
+    /// The default city: four lanes, parking, buildings with gaps and setbacks.
+    City,
+    /// Two lanes, detached houses set back behind gardens, tree rows, little traffic.
+    Suburb,
+    /// Long flat warehouse walls with few gaps, little vegetation, sparse parking.
+    Industrial,
+    /// Six lanes, guard rail posts every 4 m, buildings 35 m from the centre line, no parking.
+    Arterial,
+    /// Streets lined by parked cars that stay on every lap, long facades with few gaps.
+    Parking,
+}
+
+impl WorldFamily {
+    /// Every family, in table order.
+    pub const ALL: [WorldFamily; 5] = [
+        WorldFamily::City,
+        WorldFamily::Suburb,
+        WorldFamily::Industrial,
+        WorldFamily::Arterial,
+        WorldFamily::Parking,
+    ];
+
+    /// The family's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            WorldFamily::City => "city",
+            WorldFamily::Suburb => "suburb",
+            WorldFamily::Industrial => "industrial",
+            WorldFamily::Arterial => "arterial",
+            WorldFamily::Parking => "parking",
+        }
+    }
+
+    /// The family of a command-line name.
+    pub fn parse(s: &str) -> Option<WorldFamily> {
+        Self::ALL.into_iter().find(|f| f.name() == s)
+    }
+
+    /// The family's world: the default city with this family's changes.
+    pub fn world(self) -> WorldConfig {
+        let mut w = WorldConfig::default();
+        match self {
+            WorldFamily::City => {}
+            WorldFamily::Suburb => suburb(&mut w),
+            WorldFamily::Industrial => industrial(&mut w),
+            WorldFamily::Arterial => arterial(&mut w),
+            WorldFamily::Parking => parking(&mut w),
+        }
+        w
+    }
+}
+
+fn suburb(w: &mut WorldConfig) {
+    let s = &mut w.street;
+    (s.lane_width, s.lanes_per_direction) = (3.25, 1);
+    (s.parking_offset, s.pole_offset, s.sidewalk_offset) = (5.5, 7.0, 8.0);
+    (s.building_line, s.side_street_building_line) = (14.0, 12.0);
+    let f = &mut w.facades;
+    (f.length, f.gap_probability, f.gap) = ([9.0, 16.0], 0.8, [6.0, 15.0]);
+    (f.setback_probability, f.setback, f.depth) = (0.9, [2.0, 8.0], [8.0, 12.0]);
+    f.density = 0.5;
+    let u = &mut w.furniture;
+    (u.pole_spacing, u.tree_row_probability) = (40.0, 0.7);
+    (u.garden_probability, u.vegetation_density) = (0.9, 0.5);
+    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.2, 0.4);
+    (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (3.0, 6.0);
+}
+
+fn industrial(w: &mut WorldConfig) {
+    w.street.building_line = 16.0;
+    let f = &mut w.facades;
+    (f.length, f.gap_probability, f.gap) = ([60.0, 160.0], 0.15, [8.0, 20.0]);
+    (f.setback_probability, f.setback, f.depth) = (0.2, [1.0, 4.0], [30.0, 60.0]);
+    (f.rcs, f.roughness) = ([4.0, 10.0], 0.05);
+    let u = &mut w.furniture;
+    (u.pole_spacing, u.tree_row_probability, u.garden_probability) = (45.0, 0.05, 0.05);
+    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.1, 0.2);
+    w.traffic.pedestrians_per_km = 2.0;
+}
+
+fn arterial(w: &mut WorldConfig) {
+    let s = &mut w.street;
+    (s.lane_width, s.lanes_per_direction) = (3.75, 3);
+    (s.parking_offset, s.pole_offset, s.sidewalk_offset) = (12.5, 13.5, 15.0);
+    s.building_line = 35.0;
+    let f = &mut w.facades;
+    (f.gap_probability, f.density) = (0.6, 0.3);
+    let u = &mut w.furniture;
+    (u.pole_spacing, u.pole_missing_probability, u.pole_rcs) = (4.0, 0.05, -2.0);
+    (u.tree_row_probability, u.garden_probability) = (0.2, 0.1);
+    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.0, 0.0);
+    (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (15.0, 1.0);
+}
+
+fn parking(w: &mut WorldConfig) {
+    let f = &mut w.facades;
+    (f.length, f.gap_probability) = ([40.0, 80.0], 0.1);
+    let p = &mut w.parking;
+    (
+        p.slot_length,
+        p.persistent_fraction,
+        p.changing_fraction,
+        p.occupancy,
+    ) = (5.5, 0.85, 0.1, 0.9);
+    w.furniture.tree_row_probability = 0.1;
+}
+
+/// One world of the held-out protocol: a family and a seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct ProtocolWorld {
+    /// The family.
+    pub family: WorldFamily,
+    /// The simulator seed.
+    pub seed: u64,
+}
+
+/// The worlds that tuning may look at: the default city with two seeds.
+pub const DEV: [ProtocolWorld; 2] = [
+    ProtocolWorld {
+        family: WorldFamily::City,
+        seed: 1,
+    },
+    ProtocolWorld {
+        family: WorldFamily::City,
+        seed: 2,
+    },
+];
+
+/// The held-out worlds: every other family with seeds tuning never used. Results on these are
+/// reported, never tuned on.
+pub const TEST: [ProtocolWorld; 4] = [
+    ProtocolWorld {
+        family: WorldFamily::Suburb,
+        seed: 101,
+    },
+    ProtocolWorld {
+        family: WorldFamily::Industrial,
+        seed: 102,
+    },
+    ProtocolWorld {
+        family: WorldFamily::Arterial,
+        seed: 103,
+    },
+    ProtocolWorld {
+        family: WorldFamily::Parking,
+        seed: 104,
+    },
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::validate::Validator;
+
+    #[test]
+    fn every_family_is_a_valid_world_that_differs_from_the_city() {
+        for f in WorldFamily::ALL {
+            let w = f.world();
+            let mut v = Validator::at("world");
+            w.check(&mut v);
+            if let Err(e) = v.finish() {
+                panic!("{}: {e}", f.name());
+            }
+            assert_eq!(WorldFamily::parse(f.name()), Some(f));
+            assert_eq!(w == WorldConfig::default(), f == WorldFamily::City);
+        }
+    }
+
+    #[test]
+    fn dev_and_test_share_no_family_and_no_seed() {
+        for d in DEV {
+            for t in TEST {
+                assert_ne!(d.family, t.family);
+                assert_ne!(d.seed, t.seed);
+            }
+        }
+    }
+}

@@ -4,8 +4,9 @@
 //!
 //! `cargo bench --bench registration`. Targets: 1000-point pair <= 3 ms median, 5000-point pair
 //! <= 20 ms median on one core. `pair_1000_points_paper_steps` times the paper's steps alone
-//! ([`RegistrationConfig::paper_steps`]); the other cases the default pipeline with its stages
-//! beyond the paper (screening of 32 RANSAC motions, three refined, the dense stage).
+//! ([`RegistrationConfig::paper_steps`]), `pair_1000_points_without_bias_probe` the default without
+//! the reverse dense run that widens the covariance; the other cases the default pipeline with its
+//! stages beyond the paper (screening of 32 RANSAC motions, three refined, the dense stage).
 //!
 //! `DC_LOC_BENCH_PARAMS` times the default pipeline under parameter overrides instead (node
 //! parameters, `name:=value` separated by spaces), e.g.
@@ -98,6 +99,21 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // The default without the reverse dense run that widens the covariance by the association bias
+    // (`registration.dense.bias_probe`), 1000 points: the probe's cost as a ratio in the same run.
+    let mut no_probe = cfg.clone();
+    no_probe.dense.bias_probe = false;
+    let set = pairs(1000, 1000);
+    let mut k = 0usize;
+    c.bench_function("pair_1000_points_without_bias_probe", |b| {
+        b.iter(|| {
+            let p = &set[k % set.len()];
+            k += 1;
+            let s = PreparedSubmap::new(p.source.set.clone(), &no_probe).unwrap();
+            let t = PreparedSubmap::new(p.target.set.clone(), &no_probe).unwrap();
+            black_box(register_prepared(&s, &t, &no_probe).unwrap())
+        })
+    });
     // The paper's steps alone (descriptors, KNN, RANSAC, LM; no dense stage, no screening), 1000 points.
     let paper = RegistrationConfig::paper_steps();
     let set = pairs(1000, 1000);

@@ -27,6 +27,7 @@ fn main() {
         drift: w[2].trim_end_matches('%').parse::<f64>().unwrap() / 100.0,
         reverse: w[3] == "reverse",
         seed: 1,
+        world: dc_loc::sim::WorldFamily::City,
     };
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

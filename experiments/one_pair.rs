@@ -22,6 +22,7 @@ fn main() {
         drift: a[3].parse::<f64>().unwrap() / 100.0,
         reverse: a[4] == "reverse",
         seed: 1,
+        world: dc_loc::sim::WorldFamily::City,
     };
     let (qid, mid): (u64, u64) = (a[5].parse().unwrap(), a[6].parse().unwrap());
     let drive = simulate(&sc.sim_config()).unwrap();

@@ -419,7 +419,7 @@ impl NeesSummary {
         for v in values {
             s.count += 1;
             sum += v;
-            if !(v <= CHI2_3_99) {
+            if v.is_nan() || v > CHI2_3_99 {
                 s.above_99 += 1;
             }
         }

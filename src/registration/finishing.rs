@@ -9,7 +9,7 @@ use super::{
     PointSet2, RegistrationConfig, RegistrationDetail, RegistrationError, RegistrationResult,
     correlative, covariance_ros_from_se2, dense, lm, ransac, robust,
 };
-use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
+use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_log};
 
 /// The winner `d` finished (polished, symmetrised, softened) and its alternatives: the other refined
 /// alignments, and the screened motions that were not refined, by their coverage relative to the
@@ -23,7 +23,8 @@ pub fn finish(
     let cfg = ctx.cfg;
     let d = polish(ctx, d);
     let d = symmetrise(ctx, d);
-    let mut d = soften(ctx, d);
+    let d = soften(ctx, d);
+    let mut d = probe_bias(ctx, d);
     let win = d.result.t_target_source;
     let far = |t: &Iso2| !cfg.same_alignment(&win, t);
     let mut alternatives: Vec<(Iso2, f64)> =
@@ -323,6 +324,45 @@ pub(super) fn symmetrise(ctx: &PairContext<'_>, best: RegistrationDetail) -> Reg
         best.dense_settled.map(|s| s && rev.settled),
     );
     reconclude(ctx, best, fit)
+}
+
+/// The winner's covariance widened by the association bias the pairs cannot show, when
+/// `registration.dense.bias_probe` is on and the dense stage ran.
+///
+/// Nearest-neighbour pairs join a point of one pass with the nearest sample of the other, so the
+/// dense estimate carries a bias `b_f` that the pairs' scatter does not reveal (along a flat wall it
+/// is as large as the spacing of the samples). The same stage run the other way round (the target's
+/// points paired with their nearest source points, from the inverse pose) carries its own bias `b_b`.
+/// With the two biases independent and alike (covariance `B`), their difference `d = b_b - b_f`
+/// has `E[d d^T] = 2 B`, so `d d^T / 2` is an unbiased one-sample estimate of the forward estimate's
+/// bias covariance, and is added to it: large along the direction in which the two directions of
+/// association disagree, nothing across it. The pose stays the forward estimate. A reverse stage that
+/// fails leaves the covariance as it was.
+pub(super) fn probe_bias(
+    ctx: &PairContext<'_>,
+    mut best: RegistrationDetail,
+) -> RegistrationDetail {
+    let PairContext { sets, cfg, .. } = *ctx;
+    if !(cfg.dense.enabled && cfg.dense.bias_probe) || best.dense_settled.is_none() {
+        return best;
+    }
+    let forward = best.result.t_target_source;
+    let reverse = dense::refine_dense(
+        sets.tgt_as_source,
+        sets.src_as_target,
+        sets.src_tree,
+        &forward.inverse(),
+        &cfg.dense,
+        &cfg.lm,
+        dense::Rounds::Plain,
+    );
+    let Ok(Some(rev)) = reverse else {
+        return best;
+    };
+    let d = se2_log(&(forward.inverse() * rev.t_target_source.inverse()));
+    best.covariance_se2 += 0.5 * d * d.transpose();
+    best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
+    best
 }
 
 /// Enough inliers, not all on a line.

@@ -79,6 +79,11 @@ pub struct DenseConfig {
     /// registration; off by default because it moves some first closures of a session across the
     /// slide gate (`loop.maximum_slide_ratio`).
     pub symmetric: bool,
+    /// Widen the reported covariance by the association bias (default true): this stage runs once
+    /// more the other way round (target points paired with their nearest source points) and half the
+    /// outer product of the two poses' difference is added (docs/algorithm.md, "The covariance
+    /// reported"). Costs one more run of this stage per registration.
+    pub bias_probe: bool,
     /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
     /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
     /// every reflector several times.
@@ -111,6 +116,7 @@ impl Default for DenseConfig {
             surface_smoothing: true,
             polish_rounds: 0,
             symmetric: false,
+            bias_probe: true,
             max_source_points: 2000,
             covariance_scale: 0.35,
             soft_rounds: 0,

@@ -28,6 +28,7 @@ fn main() {
         reverse: w[3] == "reverse",
         seed: 1,
         world: dc_loc::sim::WorldFamily::City,
+        calibration: Default::default(),
     };
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

@@ -23,6 +23,7 @@ fn main() {
         reverse: a[4] == "reverse",
         seed: 1,
         world: dc_loc::sim::WorldFamily::City,
+        calibration: Default::default(),
     };
     let (qid, mid): (u64, u64) = (a[5].parse().unwrap(), a[6].parse().unwrap());
     let drive = simulate(&sc.sim_config()).unwrap();

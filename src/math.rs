@@ -108,6 +108,24 @@ pub fn interpolate_iso3(a: &Iso3, b: &Iso3, s: f64) -> Iso3 {
     Iso3::from_parts(nalgebra::Translation3::from(t), rot)
 }
 
+/// Adjoint of a planar rigid motion on se(2) tangents `(x, y, theta)`: `Log(T Exp(xi) T^-1) = Ad_T xi`,
+/// `Ad_T = [[R, (t_y, -t_x)^T], [0, 0, 1]]`.
+pub fn se2_adjoint(t: &Iso2) -> Mat3 {
+    let r = t.rotation.to_rotation_matrix();
+    let v = t.translation.vector;
+    Mat3::new(
+        r[(0, 0)],
+        r[(0, 1)],
+        v.y,
+        r[(1, 0)],
+        r[(1, 1)],
+        -v.x,
+        0.0,
+        0.0,
+        1.0,
+    )
+}
+
 /// `Exp` of se(2): `delta = (x, y, theta)` to a rigid motion (`t = V(theta) (x, y)`).
 pub fn se2_exp(delta: &Vec3) -> Iso2 {
     let th = delta[2];

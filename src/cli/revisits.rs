@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::CliError;
 use crate::eval::revisits::{
-    RevisitReport, RevisitScenario, evaluate_scenario, format_revisit_table,
+    CalibrationError, RevisitReport, RevisitScenario, evaluate_scenario, format_revisit_table,
 };
 use crate::params::{ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
@@ -43,6 +43,15 @@ pub struct RevisitArgs {
     /// with seeds 1 and 2) or `test` (held out: every other family, each with its own seed).
     #[arg(long, value_name = "dev|test", conflicts_with_all = ["world", "seed"])]
     pub set: Option<String>,
+    /// Extrinsic calibration error of every radar the pipeline is given: yaw in degrees and offset in
+    /// metres (e.g. `1.5,0.05`), sign and direction varying from radar to radar.
+    #[arg(
+        long,
+        value_name = "DEG,M",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub calibration_error: Vec<f64>,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -103,6 +112,22 @@ fn worlds(args: &RevisitArgs) -> Result<Vec<ProtocolWorld>, CliError> {
         .collect()
 }
 
+/// The calibration error of `--calibration-error`.
+fn calibration(args: &RevisitArgs) -> Result<CalibrationError, CliError> {
+    match args.calibration_error[..] {
+        [] => Ok(CalibrationError::default()),
+        [yaw_deg, offset]
+            if (0.0..=10.0).contains(&yaw_deg.abs()) && (0.0..=1.0).contains(&offset.abs()) =>
+        {
+            Ok(CalibrationError { yaw_deg, offset })
+        }
+        _ => Err(CliError::Usage(format!(
+            "--calibration-error: {:?} is not DEG,M within 10 degrees and 1 m",
+            args.calibration_error
+        ))),
+    }
+}
+
 /// The scenario matrix of `args`.
 pub fn scenarios(args: &RevisitArgs) -> Result<Vec<RevisitScenario>, CliError> {
     let mut out = Vec::new();
@@ -144,6 +169,7 @@ fn scenarios_in(
                         reverse,
                         seed: world.seed,
                         world: world.family,
+                        calibration: calibration(args)?,
                     });
                 }
             }

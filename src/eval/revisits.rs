@@ -48,6 +48,39 @@ pub struct RevisitScenario {
     pub seed: u64,
     /// Kind of street ([`WorldFamily::City`] is the simulator's default world).
     pub world: WorldFamily,
+    /// Extrinsic calibration error of the radars the pipeline is given (zero: the true extrinsics).
+    pub calibration: CalibrationError,
+}
+
+/// An extrinsic calibration error: each radar's extrinsic as the pipeline is told it is off from the
+/// simulated mount by `yaw_deg` of yaw (sign alternating from radar to radar) and `offset` metres in
+/// the horizontal plane (in a direction turning by 72 degrees from radar to radar), so that five radars
+/// carry five different errors. Deterministic, so runs compare.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct CalibrationError {
+    /// Yaw error, degrees.
+    pub yaw_deg: f64,
+    /// Position error, m.
+    pub offset: f64,
+}
+
+impl CalibrationError {
+    /// True when the pipeline is given the true extrinsics.
+    pub fn is_zero(&self) -> bool {
+        self.yaw_deg == 0.0 && self.offset == 0.0
+    }
+
+    /// Applies the error to the radars of `cfg` (in name order).
+    pub fn apply(&self, cfg: &mut Config) {
+        for (i, radar) in cfg.radars.values_mut().enumerate() {
+            let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+            let dir = (72.0 * i as f64).to_radians();
+            let e = &mut radar.extrinsic;
+            e[0] += self.offset * dir.cos();
+            e[1] += self.offset * dir.sin();
+            e[5] = wrap_angle(e[5] + sign * self.yaw_deg.to_radians());
+        }
+    }
 }
 
 impl RevisitScenario {
@@ -80,8 +113,16 @@ impl RevisitScenario {
         } else {
             format!("{}/{} ", self.world.name(), self.seed)
         };
+        let calibration = if self.calibration.is_zero() {
+            String::new()
+        } else {
+            format!(
+                " calibration {}deg/{}m",
+                self.calibration.yaw_deg, self.calibration.offset
+            )
+        };
         format!(
-            "{world}{} {} {}% {}",
+            "{world}{} {} {}% {}{calibration}",
             preset_name(self.radars),
             noise_name(self.noise),
             fmt_pct(self.drift),
@@ -210,6 +251,7 @@ pub fn evaluate_scenario(
 ) -> Result<RevisitReport, crate::validate::ConfigError> {
     let drive = simulate(&scenario.sim_config())?;
     let mut cfg = drive.to_config();
+    scenario.calibration.apply(&mut cfg);
     tweak(&mut cfg);
     let mut r = evaluate_revisits(&drive, cfg)?;
     r.scenario = scenario.label();

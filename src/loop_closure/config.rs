@@ -40,6 +40,13 @@ pub struct LoopConfig {
     pub maximum_translation_std: f64,
     /// Largest yaw standard deviation, rad (default 0.02).
     pub maximum_rotation_std: f64,
+    /// Standard deviations of the radars' extrinsic calibration, `[translation m (each axis), yaw
+    /// rad]` (default `[0.0, 0.0]`: exact). Set them to how well the mounts are known (e.g. `[0.05,
+    /// 0.026]` for 5 cm and 1.5 degrees): the published covariance then adds what such an error does to
+    /// a closure, nothing between keyframes at the same pose, most to closures across the street in the
+    /// other direction (docs/algorithm.md, "The covariance reported"). The gates judge the registration
+    /// without it.
+    pub extrinsic_std: [f64; 2],
     /// Largest ratio of the best *other* alignment's overlap to the result's (`runner_up_overlap /
     /// overlap`, 0..1; default 0.8; 1 disables): a street whose facades still fit when slid along
     /// itself gives two alignments of nearly equal support, and picking one of them is a guess. A
@@ -123,6 +130,7 @@ impl Default for LoopConfig {
             minimum_overlap: 0.3,
             maximum_translation_std: 0.5,
             maximum_rotation_std: 0.02,
+            extrinsic_std: [0.0, 0.0],
             maximum_ambiguity: 0.8,
             maximum_slide_ratio: 0.7,
             minimum_common_view: 0.25,
@@ -148,6 +156,16 @@ impl LoopConfig {
         v.positive("trusted_prior_std", self.trusted_prior_std);
         v.positive("maximum_translation_std", self.maximum_translation_std);
         v.positive("maximum_rotation_std", self.maximum_rotation_std);
+        let std_ok = self
+            .extrinsic_std
+            .iter()
+            .all(|x| x.is_finite() && (0.0..=10.0).contains(x));
+        v.require("extrinsic_std", std_ok, || {
+            format!(
+                "{:?} must be two values in [0, 10] (m, rad)",
+                self.extrinsic_std
+            )
+        });
         v.non_negative("drift_rate", self.drift_rate);
         v.non_negative("drift_yaw_rate", self.drift_yaw_rate);
         v.non_negative("minimum_path_gap", self.minimum_path_gap);

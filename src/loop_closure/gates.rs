@@ -9,6 +9,7 @@
 
 use std::collections::BTreeMap;
 
+use super::calibration::{add_planar, calibration_covariance};
 use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason};
 use crate::keyframe_db::KeyframeRecord;
@@ -146,15 +147,16 @@ pub fn gate(
         first,
     });
     Ok(Gated {
-        closure: closure(p, &r),
+        closure: closure(p, &r, lc),
         agrees,
         prediction,
         slide,
     })
 }
 
-/// The closure a result gives.
-fn closure(p: &Pair<'_>, r: &RegistrationResult) -> LoopClosure {
+/// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`).
+fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure {
+    let calibration = calibration_covariance(&r.t_target_source, lc.extrinsic_std);
     LoopClosure {
         query_id: p.query.id,
         match_id: p.cand.id,
@@ -163,7 +165,7 @@ fn closure(p: &Pair<'_>, r: &RegistrationResult) -> LoopClosure {
         query_odom_pose: p.query.odom_pose_iso3(),
         match_odom_pose: p.cand.odom_pose_iso3(),
         t_match_query: iso3_from_iso2(&r.t_target_source),
-        covariance: r.covariance,
+        covariance: add_planar(&r.covariance, &calibration),
         inliers: r.inliers as u32,
         score: r.overlap,
         match_session: p.cand.session,
@@ -615,7 +617,7 @@ mod tests {
         let g = f.gates();
         let c = |t: Iso2| LoopClosure {
             t_match_query: iso3_from_iso2(&t),
-            ..closure(&f.pair(), &result(t, 0.05))
+            ..closure(&f.pair(), &result(t, 0.05), &LoopConfig::default())
         };
         // The submap fits itself at the identity: a prediction near it ends there.
         let near = Iso2::new(Vec2::new(0.3, -0.2), 0.01);

@@ -11,6 +11,7 @@
 //! Entry points: [`LoopCloser`], [`LoopClosure`], [`Decision`], [`RejectReason`], [`LoopConfig`];
 //! the state of acceptance is [`Session`], the drift model [`drift`].
 
+pub mod calibration;
 mod config;
 pub mod drift;
 pub mod gates;

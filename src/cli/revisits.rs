@@ -21,7 +21,8 @@ use crate::sim::{NoiseModel, RadarPreset, WorldFamily};
 /// Arguments of `dc_loc revisits`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RevisitArgs {
-    /// Radar sets: `carla` (one forward radar), `nuscenes` (five ARS408).
+    /// Radar sets: `carla` (one forward radar), `nuscenes` (five ARS408), `ti` (one forward TI
+    /// AWR1843-class radar).
     #[arg(long, value_delimiter = ',', default_value = "carla,nuscenes")]
     pub radars: Vec<String>,
     /// Noise models: `gaussian`, `gamma`, `student-t`.
@@ -64,8 +65,9 @@ fn parse_preset(s: &str) -> Result<RadarPreset, CliError> {
     match s {
         "carla" => Ok(RadarPreset::Carla),
         "nuscenes" => Ok(RadarPreset::Nuscenes),
+        "ti" => Ok(RadarPreset::Ti),
         _ => Err(CliError::Usage(format!(
-            "--radars: unknown radar set `{s}` (carla, nuscenes)"
+            "--radars: unknown radar set `{s}` (carla, nuscenes, ti)"
         ))),
     }
 }

@@ -20,6 +20,8 @@ pub enum PresetArg {
     Carla,
     /// The five ARS408-21 radars of the nuScenes car.
     Nuscenes,
+    /// One forward TI AWR1843-class radar (50 m, 120 deg, 15 Hz, noisier azimuth).
+    Ti,
 }
 
 /// Kinds of street of `--world` ([`WorldFamily`]).
@@ -109,7 +111,15 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
         cfg.radar_preset = match p {
             PresetArg::Carla => RadarPreset::Carla,
             PresetArg::Nuscenes => RadarPreset::Nuscenes,
+            PresetArg::Ti => RadarPreset::Ti,
         };
+        // The TI radar's noise scales, the model kept (--noise below may change it); the other presets
+        // keep the noise of the config file.
+        if p == PresetArg::Ti {
+            let model = cfg.noise.model;
+            cfg.noise = RadarPreset::Ti.noise();
+            cfg.noise.model = model;
+        }
         // A preset replaces the custom radars of a config file.
         cfg.radars.clear();
     }

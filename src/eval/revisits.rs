@@ -145,6 +145,7 @@ pub fn preset_name(p: RadarPreset) -> &'static str {
     match p {
         RadarPreset::Carla => "carla",
         RadarPreset::Nuscenes => "nuscenes",
+        RadarPreset::Ti => "ti",
         RadarPreset::Custom => "custom",
     }
 }

@@ -89,10 +89,11 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
-    /// The default drive with another radar preset.
+    /// The default drive with another radar preset (and that preset's noise).
     pub fn with_preset(preset: RadarPreset) -> Self {
         SimConfig {
             radar_preset: preset,
+            noise: preset.noise(),
             ..SimConfig::default()
         }
     }
@@ -184,7 +185,7 @@ impl SimConfig {
         }
         let radars_ok = match self.radar_preset {
             RadarPreset::Custom => !self.radars.is_empty(),
-            RadarPreset::Carla | RadarPreset::Nuscenes => self.radars.is_empty(),
+            RadarPreset::Carla | RadarPreset::Nuscenes | RadarPreset::Ti => self.radars.is_empty(),
         };
         v.require("radars", radars_ok, || {
             if self.radars.is_empty() {
@@ -469,6 +470,23 @@ mod tests {
         assert_eq!(cfg.radar_names[1], "front_left");
         assert_eq!(cfg.radars["back_right"].topic, "/radar_back_right/points");
         assert_eq!(cfg.radars["back_right"].frame_id, "radar_back_right");
+    }
+
+    /// The TI preset: one short-range radar whose pipeline section carries its own beta and the
+    /// noisier azimuth.
+    #[test]
+    fn ti_preset_is_a_short_range_radar_with_its_noise() {
+        let c = SimConfig::with_preset(RadarPreset::Ti);
+        c.validate().unwrap();
+        let r = c.radar_list();
+        assert_eq!(r.len(), 1);
+        assert_eq!(r[0].max_range(), 50.0);
+        assert_eq!(r[0].range_at(60f64.to_radians()), 25.0);
+        let cfg = c.to_config();
+        let radar = &cfg.radars[&cfg.radar_names[0]];
+        assert_eq!(radar.beta, 0.0026);
+        assert!((radar.sigma_azimuth - 1.5f64.to_radians()).abs() < 1e-12);
+        assert_eq!(radar.sigma_range, 0.1);
     }
 
     #[test]

@@ -213,6 +213,7 @@ pub fn drive_description(cfg: &SimConfig) -> String {
     let preset = match cfg.radar_preset {
         RadarPreset::Carla => "carla",
         RadarPreset::Nuscenes => "nuscenes",
+        RadarPreset::Ti => "ti",
         RadarPreset::Custom => "custom",
     };
     let noise = match cfg.noise.model {

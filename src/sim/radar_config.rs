@@ -1,6 +1,7 @@
 //! Simulated radars: the presets ([`RadarPreset`]: the paper's CARLA radar, the five nuScenes
 //! ARS408-21) and one radar's mounting, coverage and detection model ([`SimRadarConfig`]).
 
+use super::noise::NoiseConfig;
 use crate::math::Quat;
 use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};
@@ -14,6 +15,11 @@ pub enum RadarPreset {
     /// The five nuScenes Continental ARS408-21 radars with their real extrinsics (from the nuScenes calibration), each at
     /// 13 Hz with its own phase.
     Nuscenes,
+    /// A TI AWR1843-class radar: one forward radar with a short range (50 m ahead, 25 m at +-60 deg),
+    /// 15 Hz, a fast chirp (beta 0.0026 s), wide beams (15 deg), more false alarms, and a noisier
+    /// azimuth (1.5 deg: [`RadarPreset::noise`], which `dc_loc sim --preset ti` and `dc_loc revisits
+    /// --radars ti` apply; a config file sets `noise` itself).
+    Ti,
     /// The radars listed in `radars`.
     Custom,
 }
@@ -196,8 +202,39 @@ impl RadarPreset {
         match self {
             RadarPreset::Carla => vec![SimRadarConfig::default()],
             RadarPreset::Nuscenes => nuscenes_radars(),
+            RadarPreset::Ti => vec![ti_radar()],
             RadarPreset::Custom => Vec::new(),
         }
+    }
+
+    /// The measurement noise of this preset's radars: the paper's for `carla`, `nuscenes` and `custom`;
+    /// for `ti` a finer range (0.1 m) and a three times coarser azimuth (1.5 deg Gaussian).
+    pub fn noise(self) -> NoiseConfig {
+        let mut n = NoiseConfig::default();
+        if self == RadarPreset::Ti {
+            for s in [&mut n.gaussian, &mut n.gamma, &mut n.student_t] {
+                s.range = 0.1;
+                s.azimuth *= 3.0;
+            }
+        }
+        n
+    }
+}
+
+/// The TI AWR1843-class radar of [`RadarPreset::Ti`], where the CARLA radar sits.
+fn ti_radar() -> SimRadarConfig {
+    SimRadarConfig {
+        beta: 0.0026,
+        rate: 15.0,
+        coverage: vec![[0.0, 50.0], [60f64.to_radians(), 25.0]],
+        range_resolution: 0.2,
+        azimuth_resolution: 15f64.to_radians(),
+        velocity_resolution: 0.1,
+        reference_rcs: 0.0,
+        max_detections: 100,
+        false_alarm_rate: 8.0,
+        empty_scan_probability: 0.01,
+        ..SimRadarConfig::default()
     }
 }
 

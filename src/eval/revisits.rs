@@ -17,9 +17,10 @@
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
 use crate::loop_closure::LoopClosure;
-use crate::math::{Iso2, Mat3, Mat6, Stamp, iso2_from_iso3, se2_log, wrap_angle};
+use crate::math::{Iso2, Mat6, Stamp, iso2_from_iso3, se2_log, wrap_angle};
 use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
+use crate::registration::covariance_se2_from_ros;
 use crate::sim::inputs::{ScanEncoding, SimInputs};
 use crate::sim::{
     NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig, simulate,
@@ -484,9 +485,8 @@ impl NeesSummary {
 /// right perturbation `T_true = T_est * Exp(delta)`) reduced to its `(x, y, yaw)` block.
 pub fn closure_nees(est: &Iso2, truth: &Iso2, covariance: &Mat6) -> f64 {
     let e = se2_log(&(est.inverse() * truth));
-    let idx = [0usize, 1, 5];
-    let c = Mat3::from_fn(|i, j| covariance[(idx[i], idx[j])]);
-    c.try_inverse()
+    covariance_se2_from_ros(covariance)
+        .try_inverse()
         .map_or(f64::INFINITY, |ci| e.dot(&(ci * e)).max(0.0))
 }
 

@@ -3,7 +3,8 @@
 
 use super::{Alignment, LoopConfig};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, Mat3, Mat6, se2_log};
+use crate::math::{Iso2, Mat6, se2_log};
+use crate::registration::covariance_se2_from_ros;
 
 /// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
 /// predicts.
@@ -90,13 +91,7 @@ pub fn inconsistency(
     };
     let predicted = predict(&alignment, query, cand);
     let e = se2_log(&(t.inverse() * predicted));
-    // The planar block of the ROS-order covariance: x, y and yaw (row and column 5).
-    let mut cov = Mat3::zeros();
-    for (i, a) in [0usize, 1, 5].into_iter().enumerate() {
-        for (j, b) in [0usize, 1, 5].into_iter().enumerate() {
-            cov[(i, j)] = cov6[(a, b)];
-        }
-    }
+    let mut cov = covariance_se2_from_ros(cov6);
     cov[(0, 0)] += sigma_t * sigma_t;
     cov[(1, 1)] += sigma_t * sigma_t;
     cov[(2, 2)] += sigma_r * sigma_r;

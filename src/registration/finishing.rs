@@ -288,25 +288,15 @@ pub(super) fn soften(ctx: &PairContext<'_>, best: RegistrationDetail) -> Registr
 /// Kept as it was when the reverse stage fails or ends farther apart than the ambiguity distances
 /// (then the two directions disagree about the alignment, not its last centimetres).
 pub(super) fn symmetrise(ctx: &PairContext<'_>, best: RegistrationDetail) -> RegistrationDetail {
-    let PairContext { sets, cfg, .. } = *ctx;
+    let cfg = ctx.cfg;
     if !(cfg.dense.enabled && cfg.dense.symmetric) || best.dense_settled.is_none() {
         return best;
     }
     let r = &best.result;
     let forward = r.t_target_source;
-    let reverse = dense::refine_dense(
-        sets.tgt_as_source,
-        sets.src_as_target,
-        sets.src_tree,
-        &forward.inverse(),
-        &cfg.dense,
-        &cfg.lm,
-        dense::Rounds::Plain,
-    );
-    let Ok(Some(rev)) = reverse else {
+    let Some((backward, rev)) = reverse_dense(ctx, &forward) else {
         return best;
     };
-    let backward = rev.t_target_source.inverse();
     if !cfg.same_alignment(&forward, &backward) {
         return best;
     }
@@ -342,12 +332,26 @@ pub(super) fn probe_bias(
     ctx: &PairContext<'_>,
     mut best: RegistrationDetail,
 ) -> RegistrationDetail {
-    let PairContext { sets, cfg, .. } = *ctx;
+    let cfg = ctx.cfg;
     if !(cfg.dense.enabled && cfg.dense.bias_probe) || best.dense_settled.is_none() {
         return best;
     }
     let forward = best.result.t_target_source;
-    let reverse = dense::refine_dense(
+    let Some((backward, _)) = reverse_dense(ctx, &forward) else {
+        return best;
+    };
+    let d = se2_log(&(forward.inverse() * backward));
+    best.covariance_se2 += 0.5 * d * d.transpose();
+    best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
+    best
+}
+
+/// The dense stage run the other way round from `forward` (the target's points paired with their
+/// nearest source points, from the inverse pose): the source-in-target pose it ends at, and its
+/// result; `None` when it fails.
+fn reverse_dense(ctx: &PairContext<'_>, forward: &Iso2) -> Option<(Iso2, dense::DenseResult)> {
+    let PairContext { sets, cfg, .. } = *ctx;
+    let rev = dense::refine_dense(
         sets.tgt_as_source,
         sets.src_as_target,
         sets.src_tree,
@@ -355,14 +359,9 @@ pub(super) fn probe_bias(
         &cfg.dense,
         &cfg.lm,
         dense::Rounds::Plain,
-    );
-    let Ok(Some(rev)) = reverse else {
-        return best;
-    };
-    let d = se2_log(&(forward.inverse() * rev.t_target_source.inverse()));
-    best.covariance_se2 += 0.5 * d * d.transpose();
-    best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
-    best
+    )
+    .ok()??;
+    Some((rev.t_target_source.inverse(), rev))
 }
 
 /// Enough inliers, not all on a line.

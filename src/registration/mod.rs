@@ -141,6 +141,13 @@ pub fn covariance_ros_from_se2(cov_xy_theta: &Mat3) -> Mat6 {
     c
 }
 
+/// The planar block `(x, y, yaw)` of a 6x6 covariance in ROS order (rows and columns 0, 1, 5): the
+/// inverse of [`covariance_ros_from_se2`] on what it embeds.
+pub fn covariance_se2_from_ros(cov: &Mat6) -> Mat3 {
+    let idx = [0usize, 1, 5];
+    Mat3::from_fn(|i, j| cov[(idx[i], idx[j])])
+}
+
 /// Everything [`register_detailed`] found, for evaluation and plots.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegistrationDetail {
@@ -322,5 +329,6 @@ mod tests {
         assert_eq!(r[(4, 4)], UNOBSERVED_VARIANCE);
         assert_eq!(r[(2, 5)], 0.0);
         assert_eq!(r, r.transpose());
+        assert_eq!(covariance_se2_from_ros(&r), c);
     }
 }

@@ -291,7 +291,8 @@ pub struct CornerConfig {
     pub junction: bool,
 }
 
-/// The road loop: a closed polygon of corners, driven in list order.
+/// The road: a closed polygon of corners, driven in list order: a loop (one full turn), or a figure
+/// eight (no net turn) whose two halves cross, with the buildings cut back where they do.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RouteConfig {
@@ -327,14 +328,15 @@ impl Default for RouteConfig {
 }
 
 impl RouteConfig {
-    /// Rejects corner lists that do not form a simple closed loop of proper corners.
+    /// Rejects corner lists that do not form a closed loop or figure eight of proper corners.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let mut v = Validator::at("route");
         self.check(&mut v);
         v.finish()
     }
 
-    /// Declares each field's range; the corners must form a simple closed loop of proper corners.
+    /// Declares each field's range; the corners must form a closed loop or a figure eight of proper
+    /// corners.
     pub fn check(&self, v: &mut Validator) {
         let n = self.corners.len();
         v.require("corners", n >= 3, || {
@@ -352,7 +354,7 @@ impl RouteConfig {
         if n < 3 {
             return;
         }
-        // Turning angles must be proper corners and add up to one full turn (a simple closed loop).
+        // Turning angles must be proper corners.
         let mut total = 0.0;
         for i in 0..n {
             let at = |k: usize| {
@@ -375,12 +377,14 @@ impl RouteConfig {
             });
             total += turn;
         }
+        // One full turn is a loop; no net turn is a figure eight, whose two halves cross.
+        let net = total.abs();
         v.require(
             "corners",
-            (total.abs() - std::f64::consts::TAU).abs() <= 1e-6,
+            (net - std::f64::consts::TAU).abs() <= 1e-6 || net <= 1e-6,
             || {
                 format!(
-                    "turns add up to {:.1} deg, not +-360: not a simple loop",
+                    "turns add up to {:.1} deg, not +-360 (a loop) or 0 (a figure eight)",
                     total.to_degrees()
                 )
             },
@@ -510,9 +514,24 @@ mod tests {
         let mut c = SimConfig::default();
         c.route.corners[2].radius = 6.0;
         assert_eq!(c.validate().unwrap_err().name, "route.corners[2].radius");
+        // A pentagram turns twice around: neither a loop nor a figure eight.
+        let mut c = SimConfig::default();
+        c.route.corners = (0..5)
+            .map(|k| {
+                let a = (k as f64 * 144.0).to_radians();
+                CornerConfig {
+                    x: 300.0 * a.cos(),
+                    y: 300.0 * a.sin(),
+                    radius: 15.0,
+                    junction: false,
+                }
+            })
+            .collect();
+        assert_eq!(c.validate().unwrap_err().name, "route.corners");
+        // The default loop with two corners swapped crosses itself: a figure eight.
         let mut c = SimConfig::default();
         c.route.corners.swap(1, 2);
-        assert!(c.validate().unwrap_err().name.starts_with("route.corners"));
+        assert!(c.validate().is_ok());
         let mut c = SimConfig::default();
         c.radars.push(SimRadarConfig::default());
         assert_eq!(c.validate().unwrap_err().name, "radars");

@@ -312,7 +312,7 @@ fn lay_out(route: &RouteConfig, locals: &[LocalCorner], straight_len: &[f64]) ->
 }
 
 impl Centerline {
-    /// Builds the loop; `ConfigError` when the corners do not form a simple loop or two corners overlap
+    /// Builds the loop; `ConfigError` when the corners do not form a loop or figure eight, or two corners overlap
     /// (a straight would get a negative length).
     pub fn new(route: &RouteConfig) -> Result<Self, ConfigError> {
         route.validate()?;

@@ -1,6 +1,6 @@
-//! World generation, in order: the street corridors (the loop, the streets continuing past junction
-//! corners, the side streets off the straights), the buildings closing the street ends and those along
-//! every street, then furniture, parked cars and traffic.
+//! World generation, in order: the street corridors (the loop, the stretches through its crossings if it
+//! crosses itself, the streets continuing past junction corners, the side streets off the straights), the
+//! buildings closing the street ends and those along every street, then furniture, parked cars and traffic.
 
 use super::buildings::Garden;
 use super::{Street, World};
@@ -53,6 +53,7 @@ impl World {
         let wc = &cfg.world;
         let mut w = World::empty(line, cfg.laps.len());
         w.loop_corridor(wc);
+        w.crossings(wc);
         let mut layout = Layout::default();
         w.junction_streets(wc, &mut layout);
         w.side_streets(&mut rng, wc, &mut layout);
@@ -73,6 +74,32 @@ impl World {
         loop_pts.push(loop_pts[0]);
         self.streets
             .push(Street::new(loop_pts, wc.street.building_line));
+    }
+
+    /// Where the loop crosses itself (a figure eight): a short corridor along each of the two stretches
+    /// through the crossing, so that neither street's furniture and parked cars stand in the other.
+    fn crossings(&mut self, wc: &WorldConfig) {
+        let hw = wc.street.building_line;
+        let pts = &self.streets[0].points;
+        let step = self.line.length() / (pts.len() - 1) as f64;
+        // Segments this many apart along the loop cannot touch unless the loop crosses itself.
+        let apart = ((4.0 * hw) / step).ceil() as usize + 1;
+        let n = pts.len() - 1;
+        let mut pieces = Vec::new();
+        for i in 0..n {
+            for j in i + apart..n {
+                if n - j + i < apart {
+                    continue;
+                }
+                if let Some(x) = segment_intersection(pts[i], pts[i + 1], pts[j], pts[j + 1]) {
+                    for (a, b) in [(pts[i], pts[i + 1]), (pts[j], pts[j + 1])] {
+                        let d = (b - a).normalize() * (hw + 2.0);
+                        pieces.push(Street::new(vec![x - d, x + d], hw));
+                    }
+                }
+            }
+        }
+        self.streets.extend(pieces);
     }
 
     /// Streets continuing past junction corners, each closed by a building at its end.
@@ -161,4 +188,16 @@ impl World {
         }
         gardens
     }
+}
+
+/// The point where segments `a b` and `c d` cross, if they do.
+fn segment_intersection(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> Option<Vec2> {
+    let (r, q) = (b - a, d - c);
+    let den = r.perp(&q);
+    if den.abs() < 1e-12 {
+        return None;
+    }
+    let t = (c - a).perp(&q) / den;
+    let u = (c - a).perp(&r) / den;
+    ((0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&u)).then(|| a + r * t)
 }

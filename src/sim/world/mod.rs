@@ -296,11 +296,57 @@ mod tests {
         World::generate(&cfg, Centerline::new(&cfg.route).unwrap()).unwrap()
     }
 
-    /// No wall stands inside a street and the ego lane is clear of every object.
+    /// City blocks in a figure eight whose halves cross at right angles at the origin.
+    fn figure_eight() -> SimConfig {
+        let c = |x: f64, y: f64| crate::sim::config::CornerConfig {
+            x,
+            y,
+            radius: 15.0,
+            junction: false,
+        };
+        let mut cfg = SimConfig::default();
+        cfg.route.corners = vec![
+            c(100.0, 0.0),
+            c(100.0, 100.0),
+            c(0.0, 100.0),
+            c(0.0, -100.0),
+            c(-100.0, -100.0),
+            c(-100.0, 0.0),
+        ];
+        cfg
+    }
+
+    /// No wall stands inside a street and the ego lane is clear of every object, on the default loop
+    /// and on a figure eight (whose crossing cuts the buildings of both streets back).
     #[test]
     fn streets_are_clear() {
-        let w = world();
-        let cfg = SimConfig::default();
+        let w = streets_are_clear_in(&SimConfig::default());
+        // The world has each kind of object.
+        assert!(w.walls.len() > 300);
+        assert!(w.scatterers.iter().any(|s| s.kind == TargetKind::Pole));
+        assert!(w.scatterers.iter().any(|s| s.kind == TargetKind::Tree));
+        assert!(
+            w.scatterers
+                .iter()
+                .any(|s| s.kind == TargetKind::BuildingEdge)
+        );
+        assert!(!w.bushes.is_empty());
+        assert!(w.parked.iter().any(|c| c.lap.is_none()));
+        assert!(w.parked.iter().any(|c| c.lap == Some(0)));
+        assert!(w.movers.iter().any(|m| m.kind == TargetKind::Pedestrian));
+        assert!(w.side_streets.len() >= 4);
+        let cfg = figure_eight();
+        let w = streets_are_clear_in(&cfg);
+        assert!(w.line.total_turn().abs() < 1e-9, "a figure eight");
+        assert_eq!(
+            w.streets.len() - 1,
+            2 + w.side_streets.len(),
+            "one crossing"
+        );
+    }
+
+    fn streets_are_clear_in(cfg: &SimConfig) -> World {
+        let w = World::generate(cfg, Centerline::new(&cfg.route).unwrap()).unwrap();
         for wall in &w.walls {
             for i in 0..=10 {
                 let p = wall.a + (wall.b - wall.a) * (i as f64 / 10.0);
@@ -333,20 +379,7 @@ mod tests {
             }
             s += 1.0;
         }
-        // The world has each kind of object.
-        assert!(w.walls.len() > 300);
-        assert!(w.scatterers.iter().any(|s| s.kind == TargetKind::Pole));
-        assert!(w.scatterers.iter().any(|s| s.kind == TargetKind::Tree));
-        assert!(
-            w.scatterers
-                .iter()
-                .any(|s| s.kind == TargetKind::BuildingEdge)
-        );
-        assert!(!w.bushes.is_empty());
-        assert!(w.parked.iter().any(|c| c.lap.is_none()));
-        assert!(w.parked.iter().any(|c| c.lap == Some(0)));
-        assert!(w.movers.iter().any(|m| m.kind == TargetKind::Pedestrian));
-        assert!(w.side_streets.len() >= 4);
+        w
     }
 
     /// Mover velocities are the time derivative of their positions (central differences).

@@ -591,6 +591,101 @@ fn a_damaged_bag_gives_the_closures_before_the_damage_and_exit_1() {
     );
 }
 
+/// A bag whose radar publishes `radar_msgs/RadarScan` (written by rosbags alone,
+/// tests/python/radar_scan_bag.py: each cloud's detections as range, azimuth, elevation and Doppler)
+/// gives the closures of the same detections in PointCloud2; a scan with more returns than
+/// `node.max_cloud_points` is dropped and counted, and the run goes on.
+#[test]
+fn a_radar_scan_bag_gives_the_closures_of_its_pointcloud2_twin() {
+    let bag = sim_bag();
+    let root = scratch("radar_scan");
+    let params = bag.dir.join("dc_loc.yaml");
+    let scans = root.join("scans");
+    let out = venv::python_script("radar_scan_bag.py")
+        .arg(&bag.dir)
+        .arg(&scans)
+        .output()
+        .expect("cannot start the venv's python");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let run = |bag: &Path, name: &str, extra: &[&str]| {
+        let path = root.join(name);
+        let mut args = vec![
+            "run",
+            "--bag",
+            bag.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out",
+            path.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = dc_loc(&args);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let records: Vec<ClosureRecord> = std::fs::read_to_string(&path)
+            .unwrap()
+            .lines()
+            .map(|l| ClosureRecord::from_json_line(l).unwrap())
+            .collect();
+        (records, text(&out.stdout))
+    };
+    let (want, _) = run(&bag.dir, "clouds.jsonl", &[]);
+    let scan_param = ["-p", "radars.front.message:=radar_scan"];
+    let (got, stdout) = run(&scans, "scans.jsonl", &scan_param);
+    let n = bag.drive.scans.len();
+    assert!(
+        stdout.contains(&format!("inputs: {n} radar clouds")),
+        "{stdout}"
+    );
+    let key = |r: &ClosureRecord| (r.query_id, r.match_id);
+    let common: Vec<(&ClosureRecord, &ClosureRecord)> = want
+        .iter()
+        .filter_map(|w| got.iter().find(|g| key(g) == key(w)).map(|g| (w, g)))
+        .collect();
+    println!(
+        "{} closures from RadarScan, {} from PointCloud2, {} pairs in common",
+        got.len(),
+        want.len(),
+        common.len()
+    );
+    assert!(want.len() >= 20);
+    assert!(
+        common.len() * 100 >= want.len() * 98 && got.len() * 100 <= want.len() * 102,
+        "{} closures, {} of the PointCloud2 run's {} pairs",
+        got.len(),
+        common.len(),
+        want.len()
+    );
+    for (w, g) in common {
+        let (a, b) = (&w.relative_pose, &g.relative_pose);
+        let dt = ((a.x - b.x).powi(2) + (a.y - b.y).powi(2)).sqrt();
+        let dr = wrap_angle(yaw(a.qz, a.qw) - yaw(b.qz, b.qw)).abs();
+        assert!(
+            dt < 0.01 && dr < 1e-3,
+            "closure {:?}: {dt} m, {dr} rad",
+            key(w)
+        );
+    }
+
+    // Scans of more than 100 returns are refused; the smaller ones still make keyframes.
+    let mut limited = scan_param.to_vec();
+    limited.extend_from_slice(&["-p", "node.max_cloud_points:=100"]);
+    let (_, stdout) = run(&scans, "limited.jsonl", &limited);
+    let big = bag
+        .drive
+        .scans
+        .iter()
+        .filter(|s| s.scan.detections.len() > 100)
+        .count();
+    assert!(
+        big > 0 && big < n,
+        "{big} of {n} scans have over 100 returns"
+    );
+    assert!(
+        stdout.contains(&format!("cloud_too_large {big}")),
+        "{stdout}"
+    );
+}
+
 /// `dc_loc eval` on the short drive: it pairs the two laps, registers every pair with every method,
 /// writes the plot and the per-pair results, and DC-Loc is more accurate than ICP from the identity.
 #[test]

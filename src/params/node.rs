@@ -123,13 +123,14 @@ pub const NODE_PARAMS: &[NodeParam] = &[
     },
     NodeParam {
         name: "node.max_cloud_points",
-        doc: "Clouds with more points (width x height) are refused (`cloud_too_large`), here and in \
-              `dc_loc run`.",
+        doc: "Clouds with more points (width x height), and `radar_msgs/RadarScan`s with more returns, \
+              are refused (`cloud_too_large`), here and in `dc_loc run`.",
     },
     NodeParam {
         name: "node.max_cloud_bytes",
-        doc: "Clouds with more data bytes are refused (`cloud_too_large`), here and in `dc_loc run`: \
-              with the point count, the decoder's memory stays bounded whatever a cloud claims.",
+        doc: "Clouds with more data bytes (a `radar_msgs/RadarScan`: 20 bytes a return) are refused \
+              (`cloud_too_large`), here and in `dc_loc run`: with the point count, the decoder's memory \
+              stays bounded whatever a cloud claims.",
     },
     NodeParam {
         name: "node.warn_interval",

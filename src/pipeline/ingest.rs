@@ -320,6 +320,25 @@ impl Ingest {
         }
     }
 
+    /// Whether a scan that came decoded (a `radar_msgs/RadarScan`, five float32 fields a return) fits
+    /// the input limits; a larger one is dropped as [`DropReason::CloudTooLarge`], as a cloud is.
+    pub fn scan_fits(
+        &self,
+        cfg: &Config,
+        scan: &RadarScan,
+        stats: &mut PipelineStats,
+        out: &mut Vec<Event>,
+    ) -> bool {
+        let n = scan.detections.len();
+        let Err(e) = self.limits.check_size(n as u64, n.saturating_mul(20)) else {
+            return true;
+        };
+        let name = cfg.radar_names.get(scan.radar).map_or("?", String::as_str);
+        let detail = format!("radar `{name}`: {e}");
+        dropped(stats, out, DropReason::CloudTooLarge, detail);
+        false
+    }
+
     /// Queues a decoded scan (of a configured radar whose stamp passed [`Ingest::check_time`]) until
     /// odometry covers it; empty scans are counted, a second scan of one radar with the same stamp
     /// (a re-sent or bogus message) and the oldest scan of a full queue are dropped.

@@ -119,8 +119,8 @@ impl Pipeline {
         self.ingest.set_restart_after(n);
     }
 
-    /// The largest cloud the pipeline decodes (default [`InputLimits::default`]); larger ones are
-    /// dropped as [`DropReason::CloudTooLarge`].
+    /// The largest cloud the pipeline decodes, and the largest scan it takes decoded (default
+    /// [`InputLimits::default`]); larger ones are dropped as [`DropReason::CloudTooLarge`].
     pub fn set_input_limits(&mut self, limits: InputLimits) {
         self.ingest.set_input_limits(limits);
     }
@@ -138,7 +138,14 @@ impl Pipeline {
                     self.scan(scan, &mut out);
                 }
             }
-            Input::Scan(scan) => self.scan(scan.clone(), &mut out),
+            Input::Scan(scan) => {
+                if self
+                    .ingest
+                    .scan_fits(&self.cfg, scan, &mut self.stats, &mut out)
+                {
+                    self.scan(scan.clone(), &mut out);
+                }
+            }
             Input::Odometry { stamp, t_odom_body } => self.odometry(*stamp, *t_odom_body, &mut out),
             Input::GroundTruth { .. } => {}
         }

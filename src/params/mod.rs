@@ -13,12 +13,14 @@
 //!
 //! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`live`] (what changes at
 //! run time), [`file`] (params files written), [`reference`] (every
-//! parameter with its default, range and description: `dc_loc params`, README_NODE.md).
+//! parameter with its default, range and description: `dc_loc params`, README_NODE.md), [`tiers`]
+//! (sensor setup, tuning knobs, internal constants).
 
 pub mod file;
 pub mod live;
 pub mod node;
 pub mod reference;
+pub mod tiers;
 
 use crate::pipeline::Config;
 use crate::radar::RadarConfig;

@@ -2,7 +2,8 @@
 //! values and description. Names and defaults come from [`Config::default`] and
 //! [`NodeSettings::default`], ranges from the sections' `check` declarations ([`Validator`]),
 //! descriptions from the config fields' doc comments (through their JSON schema, `schemars`) and
-//! [`NODE_PARAMS`]. `dc_loc params` prints it; README_NODE.md carries it and a test keeps the two equal.
+//! [`NODE_PARAMS`]. `dc_loc params` prints it; README_NODE.md (setup and tuning) and docs/parameters.md
+//! (the rest) carry it, and a test keeps them equal.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -11,6 +12,7 @@ use serde_json::Value;
 
 use super::live::is_live;
 use super::node::{LOG_LEVELS, NODE_PARAMS, NodeSettings, all_params};
+use super::tiers::{Tier, guidance, tier};
 use crate::pipeline::Config;
 use crate::validate::{Range, Validator};
 
@@ -29,6 +31,8 @@ pub struct ParamDoc {
     pub description: String,
     /// It may change while the node runs ([`super::live`]).
     pub live: bool,
+    /// Who it is for ([`super::tiers`]).
+    pub tier: Tier,
 }
 
 /// The name with a radar's own name replaced by `<name>`.
@@ -65,6 +69,7 @@ pub fn reference() -> Vec<ParamDoc> {
                 choices: described.choices.get(&name).cloned().unwrap_or_default(),
                 description: described.text.get(&name).cloned().unwrap_or_default(),
                 live: is_live(&name),
+                tier: tier(&name),
                 default,
                 name,
             }
@@ -248,8 +253,44 @@ fn section_of(name: &str) -> &str {
     }
 }
 
-/// The reference as Markdown: one table per section.
+/// The user-facing reference as Markdown: the sensor setup, then the tuning knobs with their guidance.
 pub fn markdown(params: &[ParamDoc]) -> String {
+    let mut out = String::new();
+    let header = "| parameter | type | default | accepts | live | description |";
+    for (tier, title, intro) in [
+        (
+            Tier::Setup,
+            "Sensor setup",
+            "What your robot is: set these to describe it.",
+        ),
+        (
+            Tier::Tuning,
+            "Tuning knobs",
+            "The defaults serve the radars and worlds tested; the last column says when to turn one.",
+        ),
+    ] {
+        let _ = writeln!(out, "#### {title}\n\n{intro}\n");
+        let guided = tier == Tier::Tuning;
+        out.push_str(header);
+        out.push_str(if guided {
+            " when to change it |\n|---|---|---|---|---|---|---|\n"
+        } else {
+            "\n|---|---|---|---|---|---|\n"
+        });
+        for p in params.iter().filter(|p| p.tier == tier) {
+            out.push_str(&row(p));
+            if guided {
+                let _ = write!(out, " {} |", guidance(&p.name).replace('|', "\\|"));
+            }
+            out.push('\n');
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// The internal constants and operational limits as Markdown: one table per section.
+pub fn markdown_internal(params: &[ParamDoc]) -> String {
     let mut sections = Described::default();
     let schema = schemars::schema_for!(Config);
     sections.walk(schema.as_value(), "", schema.as_value());
@@ -259,7 +300,7 @@ pub fn markdown(params: &[ParamDoc]) -> String {
             .into(),
     );
     let mut by_section: BTreeMap<&str, Vec<&ParamDoc>> = BTreeMap::new();
-    for p in params {
+    for p in params.iter().filter(|p| p.tier == Tier::Internal) {
         by_section.entry(section_of(&p.name)).or_default().push(p);
     }
     let mut out = String::new();
@@ -276,20 +317,25 @@ pub fn markdown(params: &[ParamDoc]) -> String {
         out.push_str("| parameter | type | default | accepts | live | description |\n");
         out.push_str("|---|---|---|---|---|---|\n");
         for p in params {
-            let _ = writeln!(
-                out,
-                "| `{}` | {} | {} | {} | {} | {} |",
-                p.name,
-                type_of(&p.default),
-                shown(&p.default),
-                accepted(p).replace('|', "\\|"),
-                if p.live { "yes" } else { "" },
-                p.description.replace('|', "\\|")
-            );
+            out.push_str(&row(p));
+            out.push('\n');
         }
         out.push('\n');
     }
     out
+}
+
+/// One table row, without its line end.
+fn row(p: &ParamDoc) -> String {
+    format!(
+        "| `{}` | {} | {} | {} | {} | {} |",
+        p.name,
+        type_of(&p.default),
+        shown(&p.default),
+        accepted(p).replace('|', "\\|"),
+        if p.live { "yes" } else { "" },
+        p.description.replace('|', "\\|")
+    )
 }
 
 #[cfg(test)]

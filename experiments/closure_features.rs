@@ -29,6 +29,7 @@ fn main() {
         seed: 1,
         world: dc_loc::sim::WorldFamily::City,
         calibration: Default::default(),
+        fleet: 0,
     };
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

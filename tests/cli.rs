@@ -591,6 +591,41 @@ fn a_damaged_bag_gives_the_closures_before_the_damage_and_exit_1() {
     );
 }
 
+/// `dc_loc sim --fleet 3` writes one bag and params file per robot, each robot's drive starting
+/// elsewhere on the one loop; `--fleet 0` is a usage error.
+#[test]
+fn sim_fleet_writes_a_bag_per_robot() {
+    let root = scratch("fleet");
+    let config = root.join("short.yaml");
+    std::fs::write(&config, SHORT_DRIVE).unwrap();
+    let out_dir = root.join("fleet");
+    let out = dc_loc(&[
+        "sim",
+        "--config",
+        config.to_str().unwrap(),
+        "--fleet",
+        "3",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    for k in 0..3 {
+        let bag = out_dir.join(format!("robot_{k}"));
+        assert!(bag.join("metadata.yaml").is_file() && bag.join("dc_loc.yaml").is_file());
+    }
+    assert!(stdout.contains("robot 1 from "), "{stdout}");
+    assert!(stdout.contains("laps [36 km/h reverse]"), "{stdout}");
+    let out = dc_loc(&[
+        "sim",
+        "--fleet",
+        "0",
+        "--out",
+        root.join("none").to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+}
+
 /// A bag whose radar publishes `radar_msgs/RadarScan` (written by rosbags alone,
 /// tests/python/radar_scan_bag.py: each cloud's detections as range, azimuth, elevation and Doppler)
 /// gives the closures of the same detections in PointCloud2; a scan with more returns than

@@ -53,6 +53,11 @@ pub struct RevisitArgs {
         allow_negative_numbers = true
     )]
     pub calibration_error: Vec<f64>,
+    /// Robots of a fleet per world (2 or more; 0: one robot): each drives one lap from its own start,
+    /// every other one the other way, and the table counts the closures between robots
+    /// (`--direction` is not used then).
+    #[arg(long, default_value_t = 0)]
+    pub fleet: u32,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -154,7 +159,12 @@ fn scenarios_in(
                         "--drift: {d} is not a percentage in [0, 20]"
                     )));
                 }
-                for dir in &args.direction {
+                let directions = if args.fleet >= 2 {
+                    &args.direction[..args.direction.len().min(1)]
+                } else {
+                    &args.direction[..]
+                };
+                for dir in directions {
                     let reverse = match dir.as_str() {
                         "same" => false,
                         "reverse" => true,
@@ -172,6 +182,7 @@ fn scenarios_in(
                         seed: world.seed,
                         world: world.family,
                         calibration: calibration(args)?,
+                        fleet: args.fleet,
                     });
                 }
             }

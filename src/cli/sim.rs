@@ -89,6 +89,12 @@ pub struct SimArgs {
     /// per lap) for `dc_loc eval --nuscenes DIR`; needs `--preset nuscenes`.
     #[arg(long, value_name = "DIR")]
     pub nuscenes_out: Option<PathBuf>,
+    /// A fleet of this many robots on the drive's world instead of one drive: `<DIR>/robot_<k>` holds
+    /// robot k's bag and params file. Each robot drives one lap from its own start (evenly spaced
+    /// round the loop, every other one the other way), an hour after the one before, with noise and an
+    /// odometry frame of its own.
+    #[arg(long, value_name = "N")]
+    pub fleet: Option<u32>,
 }
 
 /// The simulator configuration the arguments describe (file, then flags), validated.
@@ -183,10 +189,41 @@ pub fn main(args: &SimArgs) -> Result<(), CliError> {
             "--nuscenes-out needs the five nuScenes radars: add --preset nuscenes".into(),
         ));
     }
-    log::info!("simulating: {}", drive_description(&cfg));
+    if let Some(n) = args.fleet {
+        if args.nuscenes_out.is_some() {
+            return Err(CliError::Usage(
+                "--nuscenes-out writes one drive: not with --fleet".into(),
+            ));
+        }
+        let robots = crate::sim::fleet::fleet(&cfg, n)
+            .map_err(|e| CliError::Usage(format!("--fleet: {e}")))?;
+        for (k, robot) in robots.iter().enumerate() {
+            println!("robot {k}:");
+            write_drive(robot, &args.out.join(format!("robot_{k}")))?;
+        }
+        return Ok(());
+    }
+    let drive = write_drive(&cfg, &args.out)?;
+    if let Some(dir) = &args.nuscenes_out {
+        let ex = crate::sim::nuscenes::export_nuscenes(&drive, dir, "v1.0-mini", "sim-city")
+            .map_err(|e| CliError::Runtime(e.to_string()))?;
+        println!(
+            "nuScenes: {} (v1.0-mini, scenes {}, {} sweeps of which {} keyframes)",
+            dir.display(),
+            ex.scenes.join(", "),
+            ex.sweeps,
+            ex.keyframes
+        );
+    }
+    Ok(())
+}
+
+/// Simulates `cfg`, writes it to the bag directory `out` with its params file and prints a summary.
+fn write_drive(cfg: &SimConfig, out: &std::path::Path) -> Result<crate::sim::SimDrive, CliError> {
+    log::info!("simulating: {}", drive_description(cfg));
     let drive =
-        simulate(&cfg).map_err(|e| CliError::Usage(format!("simulator configuration: {e}")))?;
-    let summary = export_drive(&drive, &args.out).map_err(|e| match e {
+        simulate(cfg).map_err(|e| CliError::Usage(format!("simulator configuration: {e}")))?;
+    let summary = export_drive(&drive, out).map_err(|e| match e {
         ExportError::Bag(BagError::AlreadyExists { .. } | BagError::InvalidBagPath { .. }) => {
             CliError::Usage(format!("--out: {e}"))
         }
@@ -194,7 +231,7 @@ pub fn main(args: &SimArgs) -> Result<(), CliError> {
     })?;
     let detections: usize = drive.scans.iter().map(|s| s.scan.detections.len()).sum();
     let traj = &drive.setup.trajectory;
-    println!("drive: {}", drive_description(&cfg));
+    println!("drive: {}", drive_description(cfg));
     println!(
         "duration {:.1} s, distance {:.0} m, {} lap{}",
         traj.duration(),
@@ -221,16 +258,5 @@ pub fn main(args: &SimArgs) -> Result<(), CliError> {
         println!("  {} {} x{}", t.topic, t.type_name, t.count);
     }
     println!("params: {}", summary.params_file.display());
-    if let Some(dir) = &args.nuscenes_out {
-        let ex = crate::sim::nuscenes::export_nuscenes(&drive, dir, "v1.0-mini", "sim-city")
-            .map_err(|e| CliError::Runtime(e.to_string()))?;
-        println!(
-            "nuScenes: {} (v1.0-mini, scenes {}, {} sweeps of which {} keyframes)",
-            dir.display(),
-            ex.scenes.join(", "),
-            ex.sweeps,
-            ex.keyframes
-        );
-    }
-    Ok(())
+    Ok(drive)
 }

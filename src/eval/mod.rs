@@ -16,6 +16,7 @@
 //! (learned) is not reproduced.
 
 pub mod drives;
+pub mod fleet;
 pub mod report;
 pub mod revisits;
 

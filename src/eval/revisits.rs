@@ -23,7 +23,8 @@ use crate::pipeline::{Event, Pipeline, PipelineStats};
 use crate::registration::covariance_se2_from_ros;
 use crate::sim::inputs::{ScanEncoding, SimInputs};
 use crate::sim::{
-    NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig, simulate,
+    EgoState, NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig,
+    simulate,
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -51,6 +52,9 @@ pub struct RevisitScenario {
     pub world: WorldFamily,
     /// Extrinsic calibration error of the radars the pipeline is given (zero: the true extrinsics).
     pub calibration: CalibrationError,
+    /// Robots of a fleet on this world, each driving one lap ([`crate::sim::fleet`]; `reverse` then
+    /// unused); 0 or 1: one robot driving the two laps.
+    pub fleet: u32,
 }
 
 /// An extrinsic calibration error: each radar's extrinsic as the pipeline is told it is off from the
@@ -122,12 +126,16 @@ impl RevisitScenario {
                 self.calibration.yaw_deg, self.calibration.offset
             )
         };
+        let passes = match (self.fleet, self.reverse) {
+            (0 | 1, false) => "same".to_string(),
+            (0 | 1, true) => "reverse".to_string(),
+            (n, _) => format!("fleet of {n}"),
+        };
         format!(
-            "{world}{} {} {}% {}{calibration}",
+            "{world}{} {} {}% {passes}{calibration}",
             preset_name(self.radars),
             noise_name(self.noise),
             fmt_pct(self.drift),
-            if self.reverse { "reverse" } else { "same" }
         )
     }
 }
@@ -251,6 +259,15 @@ pub fn evaluate_scenario(
     scenario: &RevisitScenario,
     tweak: impl FnOnce(&mut Config),
 ) -> Result<RevisitReport, crate::validate::ConfigError> {
+    if scenario.fleet >= 2 {
+        let robots = crate::sim::fleet::fleet(&scenario.sim_config(), scenario.fleet)?;
+        let mut r = super::fleet::evaluate_fleet(&robots, |cfg| {
+            scenario.calibration.apply(cfg);
+            tweak(cfg);
+        })?;
+        r.scenario = scenario.label();
+        return Ok(r);
+    }
     let drive = simulate(&scenario.sim_config())?;
     let mut cfg = drive.to_config();
     scenario.calibration.apply(&mut cfg);
@@ -267,24 +284,47 @@ pub fn evaluate_revisits(
 ) -> Result<RevisitReport, crate::validate::ConfigError> {
     cfg.r#loop.enabled = true;
     let mut p = Pipeline::new(cfg)?;
-    let mut keyframes: Vec<(u64, Stamp)> = Vec::new();
-    let mut closures: Vec<LoopClosure> = Vec::new();
-    let mut rejections: Vec<(u64, String)> = Vec::new();
-    let mut collect = |events: Vec<Event>| {
+    let mut seen = Collected::default();
+    feed(drive, &mut p, |events| seen.take(events));
+    seen.take(p.finish());
+    let truth = keyframe_truth(drive, &seen.keyframes, |s| s.lap.lap);
+    Ok(judge(
+        truth,
+        reverse_radius(drive),
+        measured_drift(drive),
+        &seen,
+        p.stats(),
+    ))
+}
+
+/// The radius of a reverse revisit: [`SAME_RADIUS`] plus twice the ego lane's offset (the other
+/// carriageway).
+pub(crate) fn reverse_radius(drive: &SimDrive) -> f64 {
+    SAME_RADIUS + 2.0 * drive.setup.config.world.street.ego_lane_offset()
+}
+
+/// What a run of the pipeline published: keyframes, closures and the rejected candidates' reasons.
+#[derive(Default)]
+pub(crate) struct Collected {
+    pub keyframes: Vec<(u64, Stamp)>,
+    pub closures: Vec<LoopClosure>,
+    pub rejections: Vec<(u64, String)>,
+}
+
+impl Collected {
+    /// Keeps what `events` tell.
+    pub fn take(&mut self, events: Vec<Event>) {
         for e in events {
             match e {
-                Event::Keyframe { id, stamp, .. } => keyframes.push((id, stamp)),
-                Event::Closure(c) => closures.push(*c),
+                Event::Keyframe { id, stamp, .. } => self.keyframes.push((id, stamp)),
+                Event::Closure(c) => self.closures.push(*c),
                 Event::Rejected {
                     query_id, reason, ..
-                } => rejections.push((query_id, reason.name().to_string())),
+                } => self.rejections.push((query_id, reason.name().to_string())),
                 _ => {}
             }
         }
-    };
-    feed(drive, &mut p, &mut collect);
-    collect(p.finish());
-    Ok(judge(drive, &keyframes, &closures, &rejections, p.stats()))
+    }
 }
 
 /// Pushes a simulated drive's inputs through `p` in time order (its scans as decoded detections),
@@ -296,29 +336,29 @@ pub fn feed(drive: &SimDrive, p: &mut Pipeline, mut sink: impl FnMut(Vec<Event>)
 }
 
 /// The ground truth of one keyframe.
-struct KfTruth {
+pub(crate) struct KfTruth {
     pose: Iso2,
     heading: f64,
-    lap: usize,
+    /// Its pass: the lap of a drive, or the robot of a fleet (opportunities pair later passes with
+    /// earlier ones).
+    pass: usize,
     turning: bool,
 }
 
 /// Judges the published closures against the ground truth of their keyframes and counts the revisit
 /// opportunities closed and missed (see the module documentation).
-fn judge(
-    drive: &SimDrive,
-    keyframes: &[(u64, Stamp)],
-    closures: &[LoopClosure],
-    rejections: &[(u64, String)],
+pub(crate) fn judge(
+    truth: BTreeMap<u64, KfTruth>,
+    reverse_radius: f64,
+    measured_drift: f64,
+    seen: &Collected,
     stats: &PipelineStats,
 ) -> RevisitReport {
-    let truth = keyframe_truth(drive, keyframes);
-    let reverse_radius = SAME_RADIUS + 2.0 * drive.setup.config.world.street.ego_lane_offset();
     let opportunity = opportunities(&truth, reverse_radius);
     let mut report = RevisitReport {
         scenario: String::new(),
         keyframes: stats.keyframes,
-        measured_drift: measured_drift(drive),
+        measured_drift,
         same: DirectionCounts::default(),
         reverse: DirectionCounts::default(),
         max_error: (0.0, 0.0),
@@ -332,14 +372,18 @@ fn judge(
         missed: BTreeMap::new(),
         missed_ids: Vec::new(),
     };
-    let closed = judge_closures(&mut report, &truth, closures);
+    let closed = judge_closures(&mut report, &truth, &seen.closures);
     report.nees = NeesSummary::of(report.closures.iter().map(|c| c.nees));
-    count_opportunities(&mut report, &opportunity, &closed, rejections);
+    count_opportunities(&mut report, &opportunity, &closed, &seen.rejections);
     report
 }
 
-/// The ground truth of each keyframe, by id.
-fn keyframe_truth(drive: &SimDrive, keyframes: &[(u64, Stamp)]) -> BTreeMap<u64, KfTruth> {
+/// The ground truth of each keyframe of `drive`, by id; `pass` names the pass a state belongs to.
+pub(crate) fn keyframe_truth(
+    drive: &SimDrive,
+    keyframes: &[(u64, Stamp)],
+    pass: impl Fn(&EgoState) -> usize,
+) -> BTreeMap<u64, KfTruth> {
     keyframes
         .iter()
         .map(|&(id, stamp)| {
@@ -349,7 +393,7 @@ fn keyframe_truth(drive: &SimDrive, keyframes: &[(u64, Stamp)]) -> BTreeMap<u64,
                 KfTruth {
                     pose: s.t_map_body,
                     heading: s.heading,
-                    lap: s.lap.lap,
+                    pass: pass(&s),
                     turning: s.lap.turning,
                 },
             )
@@ -368,12 +412,12 @@ fn is_reverse(a: &KfTruth, b: &KfTruth) -> bool {
 fn opportunities(truth: &BTreeMap<u64, KfTruth>, reverse_radius: f64) -> BTreeMap<u64, bool> {
     let mut opportunity: BTreeMap<u64, bool> = BTreeMap::new();
     for (&q, tq) in truth {
-        if tq.lap == 0 || tq.turning {
+        if tq.pass == 0 || tq.turning {
             continue;
         }
         let (mut same, mut rev) = (false, false);
         for tm in truth.values() {
-            if tm.lap >= tq.lap || tm.turning {
+            if tm.pass >= tq.pass || tm.turning {
                 continue;
             }
             let d = (tq.pose.translation.vector - tm.pose.translation.vector).norm();
@@ -531,7 +575,7 @@ fn count_opportunities(
 }
 
 /// Odometry position error at the end of the first lap over the ground-truth path driven.
-fn measured_drift(drive: &SimDrive) -> f64 {
+pub(crate) fn measured_drift(drive: &SimDrive) -> f64 {
     let Some(end) = drive.ground_truth.iter().rfind(|g| g.lap.lap == 0) else {
         return f64::NAN;
     };

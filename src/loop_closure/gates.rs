@@ -13,7 +13,7 @@ use super::calibration::{add_planar, calibration_covariance};
 use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, iso3_from_iso2};
+use crate::math::{Iso2, iso3_from_iso2, se2_log};
 use crate::registration::{
     PreparedSubmap, RegistrationConfig, RegistrationError, RegistrationResult, common_view,
     overlap_near, slide_overlap,
@@ -304,10 +304,17 @@ pub fn consistency(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Resul
         .distance(p, r, t, false)
         .filter(|&d2| d2 > lc.consistency_chi2)
     {
+        // Only a closure within its own session has an odometry prediction: how far off it lies.
+        let e = se2_log(&(t.inverse() * predict(&Iso2::identity(), p.query, p.cand)));
+        let off = format!(
+            " ({:.1} m, {:.1} deg from it)",
+            e.xy().norm(),
+            e.z.to_degrees()
+        );
         return Err((
             RejectReason::Inconsistent,
             format!(
-                "squared Mahalanobis distance {d2:.1} to the odometry prediction, {:.1} to the accepted alignment's",
+                "squared Mahalanobis distance {d2:.1} to the odometry prediction{off}, {:.1} to the accepted alignment's",
                 aligned.unwrap_or(f64::NAN)
             ),
         ));

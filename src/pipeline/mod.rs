@@ -95,6 +95,11 @@ impl Pipeline {
         &self.db
     }
 
+    /// Ends the run and hands over its keyframe map (e.g. to the next session's [`Pipeline::with_map`]).
+    pub fn into_db(self) -> KeyframeDb {
+        self.db
+    }
+
     /// This session's number.
     pub fn session(&self) -> u32 {
         self.session

@@ -26,6 +26,9 @@ use std::collections::BTreeMap;
 pub struct SimConfig {
     /// Seed of every random choice (world, traffic, detections, noise, odometry). Default 1.
     pub seed: u64,
+    /// Which robot of a fleet drives (default 0): robots sharing a `seed` drive one world, each with
+    /// detection, stamp and odometry noise of its own.
+    pub robot: u32,
     /// Time of the first sample, s since the Unix epoch (default 1_700_000_000, so bag times look real).
     pub start_time: f64,
     /// The laps, in driving order (default: 72 km/h, then 40 km/h, both forward, as the paper's CARLA
@@ -62,6 +65,7 @@ impl Default for SimConfig {
     fn default() -> Self {
         SimConfig {
             seed: 1,
+            robot: 0,
             start_time: 1_700_000_000.0,
             laps: vec![
                 LapConfig {
@@ -254,6 +258,9 @@ pub struct DriveConfig {
     pub max_deceleration: f64,
     /// Speed limit in a U-turn (between a forward and a reverse lap), m/s (default 4).
     pub uturn_speed: f64,
+    /// Where the drive starts and each lap ends: metres along the loop from the middle of its first
+    /// straight (default 0). The robots of a fleet start at different places on one world.
+    pub start: f64,
 }
 
 impl Default for DriveConfig {
@@ -263,6 +270,7 @@ impl Default for DriveConfig {
             max_acceleration: 1.5,
             max_deceleration: 2.5,
             uturn_speed: 4.0,
+            start: 0.0,
         }
     }
 }
@@ -273,6 +281,7 @@ impl DriveConfig {
         v.positive("max_acceleration", self.max_acceleration);
         v.positive("max_deceleration", self.max_deceleration);
         v.range("uturn_speed", self.uturn_speed, Range::at_least(1.0));
+        v.non_negative("start", self.start);
     }
 }
 

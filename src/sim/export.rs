@@ -233,9 +233,17 @@ pub fn drive_description(cfg: &SimConfig) -> String {
             )
         })
         .collect();
+    let robot = if cfg.robot == 0 && cfg.drive.start == 0.0 {
+        String::new()
+    } else {
+        format!(
+            ", robot {} from {:.0} m along the loop",
+            cfg.robot, cfg.drive.start
+        )
+    };
     format!(
-        "seed {}, radar preset {preset} ({} radar{}), noise {noise}, laps [{}], odometry scale error {}, \
-         yaw-rate bias {:.3} deg/s",
+        "seed {}{robot}, radar preset {preset} ({} radar{}), noise {noise}, laps [{}], odometry scale \
+         error {}, yaw-rate bias {:.3} deg/s",
         cfg.seed,
         cfg.radar_list().len(),
         if cfg.radar_list().len() == 1 { "" } else { "s" },

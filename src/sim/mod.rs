@@ -5,7 +5,8 @@
 //! Entry points: [`simulate`] (the whole drive in memory, [`SimDrive`]), [`Simulator`] (the same drive as a
 //! time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
 //! [`SimConfig::to_config`] for the pipeline's radar section), [`RevisitIndex`] (revisit ground truth).
-//! Parts: [`config`], [`families`] (kinds of street and the held-out protocol), [`route`] (centre line,
+//! Parts: [`config`], [`families`] (kinds of street and the held-out protocol), [`fleet`] (robots on one
+//! world), [`route`] (centre line,
 //! trajectory), [`world`] (city generation), [`sensor`] (one
 //! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive
 //! as a rosbag2 bag with its params YAML.
@@ -26,6 +27,7 @@
 pub mod config;
 pub mod export;
 pub mod families;
+pub mod fleet;
 pub mod inputs;
 pub mod noise;
 pub mod nuscenes;
@@ -75,6 +77,16 @@ pub(crate) fn stream_seed(seed: u64, tag: u64, index: u64) -> u64 {
 
 const TAG_SCAN: u64 = 0x5343_414e;
 const TAG_ODOM: u64 = 0x4f44_4f4d;
+const TAG_ROBOT: u64 = 0x0052_4f42_4f54;
+
+/// The seed of a robot's own noise (detections, stamps, odometry): the configuration seed for robot 0,
+/// so a single robot's drive does not depend on fleets existing.
+fn robot_seed(cfg: &SimConfig) -> u64 {
+    match cfg.robot {
+        0 => cfg.seed,
+        r => stream_seed(cfg.seed, TAG_ROBOT, u64::from(r)),
+    }
+}
 
 /// One scan of one radar with its truth.
 #[derive(Debug, Clone, PartialEq)]
@@ -198,7 +210,7 @@ impl SimSetup {
         Some((r.phase + k as f64 / r.rate + jitter).max(0.0))
     }
     fn scan_seed(&self, radar: usize, k: u64) -> u64 {
-        stream_seed(self.config.seed, TAG_SCAN + radar as u64, k)
+        stream_seed(robot_seed(&self.config), TAG_SCAN + radar as u64, k)
     }
 
     /// Simulates scan `k` of radar `radar` (`None` for an unknown radar index); `noise` from
@@ -265,7 +277,8 @@ impl Simulator {
     pub fn new(cfg: &SimConfig) -> Result<Self, ConfigError> {
         let setup = SimSetup::new(cfg)?;
         let noise = NoiseSampler::new(&cfg.noise)?;
-        let odometry = OdometryIntegrator::new(cfg.odometry, stream_seed(cfg.seed, TAG_ODOM, 0));
+        let odometry =
+            OdometryIntegrator::new(cfg.odometry, stream_seed(robot_seed(cfg), TAG_ODOM, 0));
         let n = setup.radars.len();
         let mut sim = Simulator {
             setup,

@@ -69,6 +69,8 @@ enum LegKind {
     Lap {
         offset: f64,
         reverse: bool,
+        /// Centre-line arc length where the lap starts and ends, m.
+        start: f64,
     },
     UTurn {
         center: Vec2,
@@ -104,8 +106,8 @@ pub struct Trajectory {
 }
 
 impl Trajectory {
-    /// Plans the drive: `laps` in order, with a left U-turn around the start point whenever the
-    /// direction changes; `ego_offset` is the lane offset to the right of the direction of travel, m.
+    /// Plans the drive: `laps` in order from `drive.start`, with a left U-turn around the start point
+    /// whenever the direction changes; `ego_offset` is the lane offset to the right of the direction of travel, m.
     /// The drive starts at the first lap's cruise speed (or slower if it starts in a corner).
     pub fn new(
         line: Centerline,
@@ -139,7 +141,8 @@ impl Trajectory {
             ));
         }
         let l = line.length();
-        let th0 = line.heading(0.0);
+        let start = drive.start.rem_euclid(l);
+        let th0 = line.heading(start);
         let mut legs: Vec<Leg> = Vec::new();
         let mut u = 0.0;
         let mut heading = th0;
@@ -154,7 +157,7 @@ impl Trajectory {
                 let len = PI * ego_offset;
                 legs.push(Leg {
                     kind: LegKind::UTurn {
-                        center: line.point(0.0),
+                        center: line.point(start),
                         radius: ego_offset,
                         alpha0,
                     },
@@ -178,6 +181,7 @@ impl Trajectory {
                 kind: LegKind::Lap {
                     offset,
                     reverse: lap.reverse,
+                    start,
                 },
                 lap: LapInfo {
                     lap: k,
@@ -324,11 +328,19 @@ impl Trajectory {
                     1.0 / radius,
                 )
             }
-            LegKind::Lap { offset, reverse } => {
+            LegKind::Lap {
+                offset,
+                reverse,
+                start,
+            } => {
                 let line = &self.line;
                 let l = line.length();
                 // Progress sig along the centre line; u(sig) = sig - offset * (turned curvature integral).
-                let (s_of, dir) = if reverse { (l, -1.0) } else { (0.0, 1.0) };
+                let (s_of, dir) = if reverse {
+                    (start + l, -1.0)
+                } else {
+                    (start, 1.0)
+                };
                 let th_start = line.heading(s_of);
                 let u_of = |sig: f64| {
                     let s = s_of + dir * sig;

@@ -30,6 +30,7 @@ fn main() {
         world: dc_loc::sim::WorldFamily::City,
         calibration: Default::default(),
         fleet: 0,
+        time_offset: 0.0,
     };
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

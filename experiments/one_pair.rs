@@ -25,6 +25,7 @@ fn main() {
         world: dc_loc::sim::WorldFamily::City,
         calibration: Default::default(),
         fleet: 0,
+        time_offset: 0.0,
     };
     let (qid, mid): (u64, u64) = (a[5].parse().unwrap(), a[6].parse().unwrap());
     let drive = simulate(&sc.sim_config()).unwrap();

@@ -236,6 +236,7 @@ fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -
         world: WorldFamily::City,
         calibration: Default::default(),
         fleet: 0,
+        time_offset: 0.0,
     }
 }
 

@@ -518,3 +518,21 @@ fn pipeline_config_matches_the_radars() {
     let stamps: Vec<Stamp> = ev.iter().map(|e| e.stamp()).collect();
     assert!(stamps.windows(2).all(|w| w[0] <= w[1]));
 }
+
+/// A radar clock offset moves the scans' stamps by exactly the offset and leaves what they measured
+/// unchanged.
+#[test]
+fn a_clock_offset_moves_stamps_not_measurements() {
+    let cfg = SimConfig::default();
+    let mut shifted = cfg.clone();
+    shifted.radars = cfg.radar_list();
+    shifted.radar_preset = RadarPreset::Custom;
+    shifted.radars[0].stamp_offset = -0.03;
+    let (a, b) = (events(&cfg, 3000), events(&shifted, 3000));
+    let (a, b): (Vec<_>, Vec<_>) = (scans(&a).collect(), scans(&b).collect());
+    assert!(a.len() > 100 && a.len() == b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(y.scan.stamp.0 - x.scan.stamp.0, -30_000_000);
+        assert_eq!(x.scan.detections, y.scan.detections);
+    }
+}

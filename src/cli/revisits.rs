@@ -53,6 +53,10 @@ pub struct RevisitArgs {
         allow_negative_numbers = true
     )]
     pub calibration_error: Vec<f64>,
+    /// Radar clock offset, milliseconds: every other radar's stamps run this far ahead of the time it
+    /// measured, the others' as far behind (one radar: ahead). 0: synchronised.
+    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    pub time_offset: f64,
     /// Robots of a fleet per world (2 or more; 0: one robot): each drives one lap from its own start,
     /// every other one the other way, and the table counts the closures between robots
     /// (`--direction` is not used then).
@@ -149,6 +153,12 @@ fn scenarios_in(
     world: ProtocolWorld,
     out: &mut Vec<RevisitScenario>,
 ) -> Result<(), CliError> {
+    if !(args.time_offset.is_finite() && args.time_offset.abs() <= 500.0) {
+        return Err(CliError::Usage(format!(
+            "--time-offset: {} ms is not within +-500 ms",
+            args.time_offset
+        )));
+    }
     for r in &args.radars {
         let radars = parse_preset(r)?;
         for n in &args.noise {
@@ -183,6 +193,7 @@ fn scenarios_in(
                         world: world.family,
                         calibration: calibration(args)?,
                         fleet: args.fleet,
+                        time_offset: args.time_offset / 1e3,
                     });
                 }
             }

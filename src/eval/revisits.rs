@@ -52,6 +52,9 @@ pub struct RevisitScenario {
     pub world: WorldFamily,
     /// Extrinsic calibration error of the radars the pipeline is given (zero: the true extrinsics).
     pub calibration: CalibrationError,
+    /// Radar clock offset, s: radar `i`'s stamps run this far ahead of the time it measured (`i` even)
+    /// or behind it (`i` odd); 0: synchronised clocks.
+    pub time_offset: f64,
     /// Robots of a fleet on this world, each driving one lap ([`crate::sim::fleet`]; `reverse` then
     /// unused); 0 or 1: one robot driving the two laps.
     pub fleet: u32,
@@ -97,6 +100,14 @@ impl RevisitScenario {
         c.noise.model = self.noise;
         c.odometry.scale_error = self.drift;
         c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
+        if self.time_offset != 0.0 {
+            c.radars = c.radar_list();
+            c.radar_preset = RadarPreset::Custom;
+            for (i, r) in c.radars.iter_mut().enumerate() {
+                let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                r.stamp_offset = sign * self.time_offset;
+            }
+        }
         c.laps = vec![
             LapConfig {
                 speed: 72.0 / 3.6,
@@ -126,13 +137,18 @@ impl RevisitScenario {
                 self.calibration.yaw_deg, self.calibration.offset
             )
         };
+        let clock = if self.time_offset == 0.0 {
+            String::new()
+        } else {
+            format!(" clock +-{}ms", (self.time_offset * 1e3).round())
+        };
         let passes = match (self.fleet, self.reverse) {
             (0 | 1, false) => "same".to_string(),
             (0 | 1, true) => "reverse".to_string(),
             (n, _) => format!("fleet of {n}"),
         };
         format!(
-            "{world}{} {} {}% {passes}{calibration}",
+            "{world}{} {} {}% {passes}{calibration}{clock}",
             preset_name(self.radars),
             noise_name(self.noise),
             fmt_pct(self.drift),

@@ -244,10 +244,12 @@ impl SimSetup {
             noise,
             &mut rng,
         );
+        // Measured at `stamp`, stamped by the radar's own clock.
+        let offset = (rc.stamp_offset * 1e9).round() as i64;
         Some(SimScan {
             scan: RadarScan {
                 radar,
-                stamp,
+                stamp: Stamp((stamp.0 + offset).max(0)),
                 detections,
             },
             truth,

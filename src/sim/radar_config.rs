@@ -45,6 +45,9 @@ pub struct SimRadarConfig {
     pub phase: f64,
     /// Standard deviation of the scan time jitter, s (default 0.0005).
     pub stamp_jitter: f64,
+    /// How far the scans' stamps run ahead of the time they were measured, s (default 0; negative:
+    /// behind): a radar whose clock is not synchronised with the odometry's.
+    pub stamp_offset: f64,
     /// Coverage: `[|azimuth| (rad), max range (m)]` breakpoints, azimuth increasing, range linear in
     /// between; nothing is seen beyond the last azimuth. Default: 100 m out to +-75 deg (the CARLA radar).
     pub coverage: Vec<[f64; 2]>,
@@ -85,6 +88,7 @@ impl Default for SimRadarConfig {
             rate: 13.0,
             phase: 0.0,
             stamp_jitter: 0.0005,
+            stamp_offset: 0.0,
             coverage: vec![[0.0, 100.0], [75f64.to_radians(), 100.0]],
             min_range: 0.2,
             range_resolution: 0.39,
@@ -157,6 +161,7 @@ impl SimRadarConfig {
             self.stamp_jitter,
             Range::NON_NEGATIVE.below(0.1 / self.rate),
         );
+        v.range("stamp_offset", self.stamp_offset, Range::closed(-0.5, 0.5));
         v.require("coverage", !self.coverage.is_empty(), || {
             "needs at least one [azimuth, range] pair".into()
         });

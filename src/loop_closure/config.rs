@@ -71,12 +71,16 @@ pub struct LoopConfig {
     /// drift model's (default 16.27, the 99.9 % chi-square quantile; 0 disables the check).
     pub consistency_chi2: f64,
     /// Mutually consistent closures (from different query keyframes) needed before the first closure
-    /// to a session is published (default 2; 1 publishes at once): until then nothing but odometry
-    /// (or, for a loaded map, nothing at all) vouches for them, and a single aliased match would
-    /// misalign everything after it. Until a session has an accepted alignment, the candidate search
+    /// to the robot's own earlier keyframes is published (default 2; 1 publishes at once): until then
+    /// nothing but odometry vouches for them, and a single aliased match would misalign everything
+    /// after it (another session's: `foreign_confirmations`). Until a session has an accepted alignment, the candidate search
     /// also looks around the position the newest held closure predicts, so that the closures that
     /// would confirm it are registered.
     pub confirmations: usize,
+    /// The same for the first closures to another session, a loaded map or another robot (default 3):
+    /// no odometry links the two sessions, and two streets far apart in a grid of look-alike blocks
+    /// can alias consistently from two keyframes (docs/experiments.md, "Fleets").
+    pub foreign_confirmations: usize,
     /// The confirming closures' query keyframes must lie at least this many metres of path apart
     /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two
     /// places along the route rarely alias the same way.
@@ -136,6 +140,7 @@ impl Default for LoopConfig {
             minimum_common_view: 0.25,
             consistency_chi2: 16.27,
             confirmations: 2,
+            foreign_confirmations: 3,
             confirmation_span: 30.0,
             confirmation_overlap: 0.6,
             confirmation_horizon: 150.0,
@@ -172,6 +177,7 @@ impl LoopConfig {
         v.non_negative("consistency_chi2", self.consistency_chi2);
         v.non_negative("confirmation_span", self.confirmation_span);
         v.at_least("confirmations", self.confirmations, 1);
+        v.at_least("foreign_confirmations", self.foreign_confirmations, 1);
         v.range(
             "confirmation_horizon",
             self.confirmation_horizon,

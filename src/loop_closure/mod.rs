@@ -184,7 +184,15 @@ impl LoopCloser {
                 path: query.path_distance,
                 t_odom_body: query.t_odom_body,
             };
-            let publish = self.state.accept(&place, c, session, a, agrees, &self.lc);
+            let lc = if session == self.session {
+                self.lc.clone()
+            } else {
+                LoopConfig {
+                    confirmations: self.lc.foreign_confirmations,
+                    ..self.lc.clone()
+                }
+            };
+            let publish = self.state.accept(&place, c, session, a, agrees, &lc);
             self.publish(publish, out);
         }
     }

@@ -100,8 +100,8 @@ pub const TUNING: &[(&str, &str)] = &[
     ),
     (
         "loop.confirmations",
-        "1 publishes the first closure to a session at once (faster relocalisation, at the risk of one \
-         aliased match); 3 for worlds that repeat.",
+        "1 publishes the first closure onto the robot's own trail at once (at the risk of one aliased \
+         match); 3 for worlds that repeat.",
     ),
     (
         "registration.dense.bias_probe",

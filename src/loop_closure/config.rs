@@ -73,9 +73,9 @@ pub struct LoopConfig {
     /// Mutually consistent closures (from different query keyframes) needed before the first closure
     /// to the robot's own earlier keyframes is published (default 2; 1 publishes at once): until then
     /// nothing but odometry vouches for them, and a single aliased match would misalign everything
-    /// after it (another session's: `foreign_confirmations`). Until a session has an accepted alignment, the candidate search
-    /// also looks around the position the newest held closure predicts, so that the closures that
-    /// would confirm it are registered.
+    /// after it (another session's: `foreign_confirmations`). Until a session has an accepted
+    /// alignment, the candidate search also looks around the position the newest held closure
+    /// predicts, so that the closures that would confirm it are registered.
     pub confirmations: usize,
     /// The same for the first closures to another session, a loaded map or another robot (default 3):
     /// no odometry links the two sessions, and two streets far apart in a grid of look-alike blocks

@@ -154,7 +154,7 @@ impl LoopCloser {
             lc,
             rc,
             session,
-            state: Session::default(),
+            state: Session::new(session),
         }
     }
 
@@ -184,15 +184,7 @@ impl LoopCloser {
                 path: query.path_distance,
                 t_odom_body: query.t_odom_body,
             };
-            let lc = if session == self.session {
-                self.lc.clone()
-            } else {
-                LoopConfig {
-                    confirmations: self.lc.foreign_confirmations,
-                    ..self.lc.clone()
-                }
-            };
-            let publish = self.state.accept(&place, c, session, a, agrees, &lc);
+            let publish = self.state.accept(&place, c, session, a, agrees, &self.lc);
             self.publish(publish, out);
         }
     }

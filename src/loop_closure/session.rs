@@ -43,6 +43,9 @@ pub struct QueryPlace {
 /// Closure acceptance over one session.
 #[derive(Debug, Clone, Default)]
 pub struct Session {
+    /// This session's number: its own earlier keyframes need `loop.confirmations`, another
+    /// session's `loop.foreign_confirmations`.
+    own: u32,
     /// Per earlier session: the latest accepted alignment.
     alignments: BTreeMap<u32, Alignment>,
     /// Per session without an alignment yet: closures waiting for confirmation.
@@ -58,6 +61,14 @@ pub struct Session {
 }
 
 impl Session {
+    /// The acceptance state of session `own`.
+    pub fn new(own: u32) -> Self {
+        Session {
+            own,
+            ..Session::default()
+        }
+    }
+
     /// The accepted alignments, by session.
     pub fn alignments(&self) -> &BTreeMap<u32, Alignment> {
         &self.alignments
@@ -105,11 +116,15 @@ impl Session {
             t: a,
             path: query.path,
         };
-        let publish = if (agrees && self.alignments.contains_key(&session)) || lc.confirmations <= 1
-        {
+        let needed = if session == self.own {
+            lc.confirmations
+        } else {
+            lc.foreign_confirmations
+        };
+        let publish = if (agrees && self.alignments.contains_key(&session)) || needed <= 1 {
             vec![c]
         } else {
-            match self.confirm(query, c, session, alignment, lc) {
+            match self.confirm(query, c, (session, needed), alignment, lc) {
                 Some(p) => p,
                 None => return Vec::new(),
             }
@@ -118,13 +133,13 @@ impl Session {
         publish
     }
 
-    /// Holds `c` or, when enough held closures agree with it, returns them with it (in query order,
-    /// `c` last) and queues the keyframes since for searching again.
+    /// Holds `c` or, when `needed` closures to `session` agree (held ones and `c`), returns them with
+    /// it (in query order, `c` last) and queues the keyframes since for searching again.
     fn confirm(
         &mut self,
         query: &QueryPlace,
         c: LoopClosure,
-        session: u32,
+        (session, needed): (u32, usize),
         alignment: Alignment,
         lc: &LoopConfig,
     ) -> Option<Vec<LoopClosure>> {
@@ -152,7 +167,7 @@ impl Session {
             || agree
                 .iter()
                 .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
-        if !(agree.len() + 1 >= lc.confirmations && span >= lc.confirmation_span && strong) {
+        if !(agree.len() + 1 >= needed && span >= lc.confirmation_span && strong) {
             log::debug!(
                 "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
                 c.query_id,
@@ -310,6 +325,33 @@ mod tests {
         // The keyframes before it that got nothing are queued, newest first.
         assert_eq!(s.next_backfill(), Some(19));
         assert_eq!(s.backfill_len(), 17, "all but 10, 14 and the one taken");
+    }
+
+    /// Another session's first closures (a loaded map, another robot) wait for
+    /// `loop.foreign_confirmations` agreeing query keyframes, the own session's for `confirmations`.
+    #[test]
+    fn another_session_needs_its_own_number_of_confirmations() {
+        let lc = LoopConfig::default();
+        assert_eq!((lc.confirmations, lc.foreign_confirmations), (2, 3));
+        let a = true_alignment();
+        let mut s = Session::new(1);
+        assert!(
+            s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc)
+                .is_empty()
+        );
+        assert!(
+            s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc)
+                .is_empty(),
+            "two agreeing closures do not confirm another session"
+        );
+        let published = s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, a, false, &lc);
+        let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
+        assert_eq!(ids, [10, 14, 18]);
+        // The own session (1) is confirmed by two.
+        let mut s = Session::new(1);
+        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 1, a, false, &lc);
+        let published = s.accept(&place(14, 140.0), closure(14, 4, 0.7), 1, a, false, &lc);
+        assert_eq!(published.len(), 2);
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod baselines;
 pub mod cli;
 pub mod cloud;
 pub mod eval;
+pub mod fleet;
 pub mod growing_index;
 pub mod input;
 pub mod io;

@@ -399,8 +399,12 @@ pub mod dc_loc {
         pub header: Header,
         /// Newer keyframe.
         pub query_id: u64,
-        /// Older, revisited keyframe.
+        /// Older, revisited keyframe (its id in `match_robot`'s map).
         pub match_id: u64,
+        /// `node.robot_id` of the node that published the closure.
+        pub query_robot: i32,
+        /// Robot of the match keyframe.
+        pub match_robot: i32,
         /// Query keyframe time.
         pub query_stamp: Time,
         /// Match keyframe time.
@@ -415,5 +419,30 @@ pub mod dc_loc {
         pub inliers: u32,
         /// Match quality (higher is better).
         pub score: f64,
+    }
+
+    /// dc_loc/msg/Keyframe (`msg/Keyframe.msg`): a keyframe as a robot's node shares it with the fleet.
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Keyframe {
+        /// stamp: keyframe time; frame_id: the robot's body frame.
+        pub header: Header,
+        /// `node.robot_id` of the robot that made it.
+        pub robot_id: i32,
+        /// That robot's session.
+        pub session: u32,
+        /// Its id in that robot's map.
+        pub id: u64,
+        /// Body pose at the stamp in that robot's odometry frame.
+        pub odom_pose: Pose,
+        /// Odometry path length of its session up to it, m.
+        pub path_distance: f64,
+        /// Robots of `heard_ids`.
+        pub heard_robots: Vec<i32>,
+        /// The newest keyframe id of each of `heard_robots` the node held when it made this one.
+        pub heard_ids: Vec<u64>,
+        /// Planar points, x0 y0 x1 y1 ..., cm.
+        pub points: Vec<i16>,
+        /// Three covariance codes per point.
+        pub covariances: Vec<u8>,
     }
 }

@@ -24,7 +24,9 @@ pub fn loop_closure_msg(c: &LoopClosure, frame_id: &str) -> msgs::dc_loc::LoopCl
             frame_id: frame_id.to_string(),
         },
         query_id: c.query_id,
-        match_id: c.match_id,
+        match_id: c.match_key().1,
+        query_robot: c.query_robot,
+        match_robot: c.match_key().0,
         query_stamp: c.query_stamp.into(),
         match_stamp: c.match_stamp.into(),
         query_odom_pose: Pose::from(&c.query_odom_pose),
@@ -104,8 +106,14 @@ pub struct ClosureRecord {
     pub frame_id: String,
     /// Newer keyframe.
     pub query_id: u64,
-    /// Older, revisited keyframe.
+    /// Older, revisited keyframe (its id in `match_robot`'s map).
     pub match_id: u64,
+    /// `node.robot_id` of the robot that found the closure (0 when not set).
+    #[serde(default)]
+    pub query_robot: i32,
+    /// Robot of the match keyframe.
+    #[serde(default)]
+    pub match_robot: i32,
     /// Query keyframe time, s.
     pub query_stamp: f64,
     /// Match keyframe time, s.
@@ -144,6 +152,8 @@ impl From<&msgs::dc_loc::LoopClosure> for ClosureRecord {
             frame_id: m.header.frame_id.clone(),
             query_id: m.query_id,
             match_id: m.match_id,
+            query_robot: m.query_robot,
+            match_robot: m.match_robot,
             query_stamp: secs(m.query_stamp),
             match_stamp: secs(m.match_stamp),
             query_odom_pose: pose(&m.query_odom_pose),
@@ -212,6 +222,8 @@ mod tests {
             inliers: 31,
             score: 0.625,
             match_session: 0,
+            query_robot: 0,
+            match_origin: None,
         }
     }
 

@@ -58,8 +58,9 @@ where
                     Input::Radar { .. } | Input::Scan(_) => report.radar_inputs += 1,
                     Input::Odometry { .. } => report.odometry_inputs += 1,
                     Input::GroundTruth { .. } => report.ground_truth_inputs += 1,
+                    Input::Keyframe(_) => {}
                 }
-                if !matches!(input, Input::GroundTruth { .. }) {
+                if !matches!(input, Input::GroundTruth { .. } | Input::Keyframe(_)) {
                     report.first_stamp.get_or_insert(input.stamp());
                 }
                 on_item(RunItem::Input(&input));

@@ -359,6 +359,8 @@ fn loop_closure(t: Stamp) -> LoopClosure {
         header: header(t, "base_link"),
         query_id: 42,
         match_id: 7,
+        query_robot: 1,
+        match_robot: 2,
         query_stamp: Time::from(t),
         match_stamp: Time::from(Stamp(t.0 - 60_000_000_000)),
         query_odom_pose: pose(100.0, 20.0, 0.5),

@@ -95,6 +95,7 @@ pub fn collect(
                     Input::GroundTruth { .. } => ground_truth += 1,
                     Input::Radar { .. } | Input::Scan(_) => radar += 1,
                     Input::Odometry { .. } => odometry += 1,
+                    Input::Keyframe(_) => {}
                 }
                 collector.push(&input);
             }

@@ -257,7 +257,7 @@ impl Collector {
                 t_map_body,
                 speed,
             } => self.push_ground_truth(*stamp, *t_map_body, *speed),
-            Input::Odometry { .. } => {}
+            Input::Odometry { .. } | Input::Keyframe(_) => {}
         }
         let events = self.pipeline.push(input);
         for e in &events {

@@ -453,7 +453,7 @@ fn opportunities(truth: &BTreeMap<u64, KfTruth>, reverse_radius: f64) -> BTreeMa
 }
 
 /// Judges each closure between known keyframes into the report's counts, errors and closure list;
-/// returns the query keyframes closed by a correct closure.
+/// returns the keyframes of the later pass closed by a correct closure.
 fn judge_closures(
     report: &mut RevisitReport,
     truth: &BTreeMap<u64, KfTruth>,
@@ -484,7 +484,14 @@ fn judge_closures(
             }
             report.max_error.0 = report.max_error.0.max(et);
             report.max_error.1 = report.max_error.1.max(er);
-            closed.insert(c.query_id, true);
+            // The keyframe of the later pass is the opportunity (in a fleet, the node that registered
+            // the pair may be the earlier robot's).
+            let later = if tq.pass >= tm.pass {
+                c.query_id
+            } else {
+                c.match_id
+            };
+            closed.insert(later, true);
         }
         report.closures.push(JudgedClosure {
             query_id: c.query_id,

@@ -246,6 +246,48 @@ impl Search<'_> {
     }
 }
 
+impl KeyframeDb {
+    /// The keyframes of session `session` that may revisit keyframe `index` (another robot's, just
+    /// added) and are this node's to register against it ([`KeyframeDb::registers_on_arrival`]): among the
+    /// `place_retrieve` nearest place descriptors, within `place_max_distance`, nearest first, at most
+    /// `max_candidates`.
+    pub fn revisits_of(&self, index: usize, session: u32, s: &SearchSettings) -> Vec<Candidate> {
+        let Some(arrived) = self.records.get(index) else {
+            return Vec::new();
+        };
+        let columns = arrived.place.columns();
+        let mut found: Vec<Candidate> = self
+            .place
+            .nearest(&arrived.place, s.place_retrieve)
+            .into_iter()
+            .filter_map(|(item, _)| {
+                let i = item as usize;
+                let r = self.records.get(i)?;
+                if r.session != session || !self.registers_on_arrival(r, index) {
+                    return None;
+                }
+                let d = if r.place.sectors == arrived.place.sectors {
+                    column_distance(&columns, &self.place_columns[i]).0
+                } else {
+                    1.0
+                };
+                (d <= s.place_max_distance).then_some(Candidate {
+                    index: i,
+                    source: CandidateSource::Place,
+                    place_distance: d,
+                })
+            })
+            .collect();
+        found.sort_by(|a, b| {
+            a.place_distance
+                .total_cmp(&b.place_distance)
+                .then(a.index.cmp(&b.index))
+        });
+        found.truncate(s.max_candidates);
+        found
+    }
+}
+
 /// The hits by keyframe, each once: from the odometry, from the place descriptor, or both.
 fn merge_sources(mut found: Vec<(usize, CandidateSource)>) -> Vec<(usize, CandidateSource)> {
     found.sort_by_key(|f| f.0);

@@ -1,5 +1,6 @@
-//! The map file: `DCLOCMAP` magic, a format version, a postcard payload ([`MapFile`]: the keyframes and
-//! the settings that shaped them, [`MapShape`]), and a CRC-32 of everything before it. It is written
+//! The map file: `DCLOCMAP` magic, a format version, a postcard payload ([`MapFile`]: the keyframes, the
+//! settings that shaped them, [`MapShape`], and which keyframes other robots made, [`Origin`]), and a
+//! CRC-32 of everything before it. It is written
 //! crash-safely ([`super::storage`]). A file that is truncated, damaged, of another version or not a
 //! map at all is refused with a message saying which; one that is intact but holds nonsense (a
 //! non-finite pose, a session number out of range, a descriptor of another shape) is refused by
@@ -11,13 +12,15 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 
 use super::KeyframeRecord;
+use super::foreign::Origin;
 use super::storage::{Disk, write_atomically};
 use crate::place::{PlaceConfig, RING_KEY_DIM};
 
 /// Map file magic.
 const MAGIC: &[u8; 8] = b"DCLOCMAP";
-/// Map file format version written (version 2, without [`MapShape`], is still read).
-pub const MAP_FORMAT_VERSION: u32 = 3;
+/// Map file format version written (versions 2, without [`MapShape`], and 3, without origins, are
+/// still read).
+pub const MAP_FORMAT_VERSION: u32 = 4;
 /// Highest session number a map may hold (a node start adds one).
 pub const MAX_SESSION: u32 = 1_000_000;
 
@@ -36,7 +39,7 @@ pub enum MapError {
     #[error("map file {0}: not a dc_loc keyframe map")]
     NotAMap(String),
     /// Written by another, incompatible format version.
-    #[error("map file {path}: format version {found}, this dc_loc reads versions 2 and {expected}")]
+    #[error("map file {path}: format version {found}, this dc_loc reads versions 2 to {expected}")]
     Version {
         /// The file.
         path: String,
@@ -129,6 +132,25 @@ pub struct MapFile {
     pub shape: MapShape,
     /// The keyframes, by id.
     pub keyframes: Vec<KeyframeRecord>,
+    /// The keyframes other robots made (by id), and where they came from.
+    pub origins: Vec<(u64, Origin)>,
+}
+
+/// What a map file holds, shared with the map for saving on another thread.
+#[derive(Debug, Clone, Default)]
+pub struct MapSnapshot {
+    /// The keyframes, by id.
+    pub records: Vec<Arc<KeyframeRecord>>,
+    /// The keyframes other robots made (by id), and where they came from.
+    pub origins: Vec<(u64, Origin)>,
+}
+
+/// The payload of format version 3.
+#[derive(Deserialize)]
+struct MapFileV3 {
+    written_by: String,
+    shape: MapShape,
+    keyframes: Vec<KeyframeRecord>,
 }
 
 /// The payload of format version 2.
@@ -160,7 +182,7 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
         )));
     }
     let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-    if version != MAP_FORMAT_VERSION && version != 2 {
+    if !(2..=MAP_FORMAT_VERSION).contains(&version) {
         return Err(MapError::Version {
             path: name,
             found: version,
@@ -186,6 +208,15 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
                 place: v2.place,
             },
             keyframes: v2.keyframes,
+            origins: Vec::new(),
+        }
+    } else if version == 3 {
+        let v3: MapFileV3 = postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?;
+        MapFile {
+            written_by: v3.written_by,
+            shape: v3.shape,
+            keyframes: v3.keyframes,
+            origins: Vec::new(),
         }
     } else {
         postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?
@@ -224,6 +255,9 @@ pub fn check_records(file: &MapFile) -> Result<(), String> {
         if r.points.len() != r.covs.len() {
             return bad("points and covariances differ in number");
         }
+        if r.session == 0 && file.origins.iter().any(|(i, _)| *i == r.id) {
+            return bad("another robot's keyframe in session 0, which is always this robot's");
+        }
         let d = &r.place;
         if usize::from(d.sectors) != place.sectors
             || d.grid.len() != RING_KEY_DIM * place.sectors
@@ -232,15 +266,20 @@ pub fn check_records(file: &MapFile) -> Result<(), String> {
             return bad("place descriptor of another shape than the map's settings");
         }
     }
+    let n = file.keyframes.len() as u64;
+    if let Some((i, _)) = file.origins.iter().find(|(i, _)| *i >= n) {
+        return Err(format!("origin of keyframe {i}, beyond the {n} keyframes"));
+    }
     Ok(())
 }
 
 /// The bytes of a map file.
-fn encode(records: &[Arc<KeyframeRecord>], shape: &MapShape) -> Result<Vec<u8>, String> {
+fn encode(map: &MapSnapshot, shape: &MapShape) -> Result<Vec<u8>, String> {
     let file = MapFileRef {
         written_by: concat!("dc_loc ", env!("CARGO_PKG_VERSION")),
         shape,
-        keyframes: records.iter().map(|r| r.as_ref()).collect(),
+        keyframes: map.records.iter().map(|r| r.as_ref()).collect(),
+        origins: &map.origins,
     };
     let payload = postcard::to_stdvec(&file).map_err(|e| e.to_string())?;
     let mut bytes = Vec::with_capacity(payload.len() + 16);
@@ -252,8 +291,12 @@ fn encode(records: &[Arc<KeyframeRecord>], shape: &MapShape) -> Result<Vec<u8>, 
     Ok(bytes)
 }
 
-/// Writes records as a map file crash-safely; usable from another thread with
-/// [`super::KeyframeDb::snapshot`].
+/// Writes a map crash-safely; usable from another thread with [`super::KeyframeDb::snapshot`].
+pub fn save_snapshot(map: &MapSnapshot, shape: &MapShape, path: &Path) -> Result<(), MapError> {
+    save_snapshot_with(&mut Disk, map, shape, path)
+}
+
+/// Writes this robot's records as a map file crash-safely.
 pub fn save_records(
     records: &[Arc<KeyframeRecord>],
     shape: &MapShape,
@@ -269,8 +312,22 @@ pub fn save_records_with(
     shape: &MapShape,
     path: &Path,
 ) -> Result<(), MapError> {
+    let map = MapSnapshot {
+        records: records.to_vec(),
+        origins: Vec::new(),
+    };
+    save_snapshot_with(storage, &map, shape, path)
+}
+
+/// [`save_snapshot`] through the file-system steps of `storage`.
+fn save_snapshot_with(
+    storage: &mut dyn super::storage::Storage,
+    map: &MapSnapshot,
+    shape: &MapShape,
+    path: &Path,
+) -> Result<(), MapError> {
     let name = path.display().to_string();
-    let bytes = encode(records, shape).map_err(|reason| MapError::Corrupt {
+    let bytes = encode(map, shape).map_err(|reason| MapError::Corrupt {
         path: name.clone(),
         reason,
     })?;
@@ -283,4 +340,5 @@ struct MapFileRef<'a> {
     written_by: &'a str,
     shape: &'a MapShape,
     keyframes: Vec<&'a KeyframeRecord>,
+    origins: &'a [(u64, Origin)],
 }

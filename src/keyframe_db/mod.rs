@@ -8,14 +8,17 @@
 
 mod candidates;
 pub mod file;
+pub mod foreign;
 pub mod lock;
 pub mod record;
 pub mod storage;
 
 pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings};
 pub use file::{
-    MAP_FORMAT_VERSION, MapError, MapFile, MapShape, RadarMount, save_records, save_records_with,
+    MAP_FORMAT_VERSION, MapError, MapFile, MapShape, MapSnapshot, RadarMount, save_records,
+    save_records_with, save_snapshot,
 };
+pub use foreign::{ForeignRefusal, Foreigners, Origin};
 pub use record::{
     KeyframeRecord, POINT_QUANTUM, dequantise_cov, dequantise_point, quantise_cov, quantise_point,
 };
@@ -51,6 +54,9 @@ pub struct MapConfig {
     /// it (counted as `map_full`): a robot that keeps driving known streets localises in the map it
     /// has, and its memory stays bounded.
     pub max_keyframes: usize,
+    /// Most keyframes of one other robot in the map (default 2000: about 30 MB as they arrive over
+    /// the wire); more from that robot are refused and counted as `over_budget` under its id.
+    pub max_keyframes_per_robot: usize,
 }
 
 impl Default for MapConfig {
@@ -62,6 +68,7 @@ impl Default for MapConfig {
             max_points_per_keyframe: 4000,
             prepared_cache: 64,
             max_keyframes: 10_000,
+            max_keyframes_per_robot: 2000,
         }
     }
 }
@@ -78,6 +85,12 @@ impl MapConfig {
         );
         v.count("prepared_cache", self.prepared_cache, 1, 100_000);
         v.count("max_keyframes", self.max_keyframes, 1, 10_000_000);
+        v.count(
+            "max_keyframes_per_robot",
+            self.max_keyframes_per_robot,
+            0,
+            10_000_000,
+        );
     }
 }
 
@@ -93,6 +106,10 @@ pub struct KeyframeDb {
     shape: MapShape,
     cache: VecDeque<(usize, Arc<PreparedSubmap>)>,
     cache_size: usize,
+    /// Other robots' keyframes: their origins and budgets.
+    foreign: Foreigners,
+    /// This robot's id and session (other robots' sessions get local numbers after it).
+    owner: (i32, u32),
 }
 
 impl KeyframeDb {
@@ -111,7 +128,75 @@ impl KeyframeDb {
             },
             cache: VecDeque::new(),
             cache_size: cache_size.max(1),
+            foreign: Foreigners::default(),
+            owner: (0, 0),
         }
+    }
+
+    /// Sets this robot's id and session: other robots' keyframes get sessions after it, and pairs with
+    /// them are told apart from this robot's ([`KeyframeDb::registers_on_arrival`]).
+    pub fn set_owner(&mut self, robot: i32, session: u32) {
+        self.owner = (robot, session);
+    }
+
+    /// Other robots' keyframes held here.
+    pub fn foreign(&self) -> &Foreigners {
+        &self.foreign
+    }
+
+    /// Whether this node registers its keyframe `own` against another robot's keyframe `index`, which
+    /// arrived after `own` was made: not when the other node held `own` when it made `index` (it
+    /// registered the pair then); else, neither node having had the other's keyframe, when `own` is
+    /// the newer of the two (by stamp, then robot id), so that exactly one of the two nodes does.
+    pub fn registers_on_arrival(&self, own: &KeyframeRecord, index: usize) -> bool {
+        let (Some(o), Some(r)) = (self.foreign.origin(index as u64), self.records.get(index))
+        else {
+            return false;
+        };
+        if self
+            .foreign
+            .heard(index as u64, self.owner.0)
+            .is_some_and(|h| h >= own.id)
+        {
+            return false;
+        }
+        (own.stamp, self.owner.0) > (r.stamp, o.robot)
+    }
+
+    /// Adds another robot's keyframe (`rec.id` and `rec.session` are overwritten with the next id and
+    /// the local session of its robot's session) within `max_per_robot` of that robot and
+    /// `max_keyframes` in all, with what its node had `heard` of the others' keyframes then; its local
+    /// id.
+    pub fn insert_foreign(
+        &mut self,
+        mut rec: KeyframeRecord,
+        origin: Origin,
+        heard: Vec<(i32, u64)>,
+        max_per_robot: usize,
+        max_keyframes: usize,
+    ) -> Result<u64, ForeignRefusal> {
+        if self.foreign.holds(&origin, rec.stamp) {
+            return Err(ForeignRefusal::Duplicate);
+        }
+        if self.foreign.count(origin.robot) >= max_per_robot {
+            return Err(ForeignRefusal::OverBudget);
+        }
+        if self.len() >= max_keyframes {
+            return Err(ForeignRefusal::MapFull);
+        }
+        let session = self.foreign.session(&origin).unwrap_or_else(|| {
+            let last = self.last_session().unwrap_or(0);
+            last.max(self.owner.1) + 1
+        });
+        rec.id = self.next_id();
+        rec.session = session;
+        let (id, stamp) = (rec.id, rec.stamp);
+        if !self.insert(rec) {
+            return Err(ForeignRefusal::Invalid);
+        }
+        self.foreign.record(id, session, stamp, origin);
+        self.foreign.set_heard(id, heard);
+        Ok(id)
     }
 
     /// Number of keyframes.
@@ -203,9 +288,12 @@ impl KeyframeDb {
         }
     }
 
-    /// A snapshot of the records for saving elsewhere (cheap: shared pointers).
-    pub fn snapshot(&self) -> Vec<Arc<KeyframeRecord>> {
-        self.records.clone()
+    /// A snapshot of the map for saving elsewhere (cheap: shared pointers).
+    pub fn snapshot(&self) -> MapSnapshot {
+        MapSnapshot {
+            records: self.records.clone(),
+            origins: self.foreign.origins().map(|(k, o)| (k, *o)).collect(),
+        }
     }
 
     /// The settings that shaped the keyframes: as loaded from a map file, or as set.
@@ -220,13 +308,14 @@ impl KeyframeDb {
 
     /// Writes the map file crash-safely (temporary file, sync, rename, directory sync).
     pub fn save(&self, path: &Path) -> Result<(), MapError> {
-        save_records(&self.snapshot(), &self.shape, path)
+        save_snapshot(&self.snapshot(), &self.shape, path)
     }
 
     /// Reads and checks a map file. Place descriptors made with other settings than `place_cfg` are
     /// recomputed; [`KeyframeDb::shape`] is the file's.
     pub fn load(path: &Path, place_cfg: PlaceConfig, cache_size: usize) -> Result<Self, MapError> {
         let file = file::read_map(path)?;
+        let origins: std::collections::BTreeMap<u64, Origin> = file.origins.into_iter().collect();
         let mut db = KeyframeDb::new(place_cfg.clone(), cache_size);
         let recompute = file.shape.place != place_cfg;
         if recompute {
@@ -243,11 +332,15 @@ impl KeyframeDb {
             if recompute {
                 rec.place = PlaceDescriptor::from_points(&rec.planar_points(), &place_cfg);
             }
+            let (session, stamp) = (rec.session, rec.stamp);
             if !db.insert(rec) {
                 return Err(MapError::Corrupt {
                     path: path.display().to_string(),
                     reason: format!("keyframe {k} could not be indexed"),
                 });
+            }
+            if let Some(o) = origins.get(&(k as u64)) {
+                db.foreign.record(k as u64, session, stamp, *o);
             }
         }
         Ok(db)
@@ -363,6 +456,60 @@ mod tests {
         let b = db.prepared(1, &other).expect("prepared anew");
         assert!(!Arc::ptr_eq(&a, &b));
         assert!(b.fits(&other) && !b.fits(&cfg));
+    }
+
+    /// Another robot's keyframes: each taken once, within its budget, in a session of its own after
+    /// this robot's, kept with their origin by a save and a load; a pair is registered on arrival
+    /// only by the node whose keyframe is newer and when the other node did not hold it.
+    #[test]
+    fn other_robots_keyframes_are_kept_once_within_budget() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        db.set_owner(1, 0);
+        let mut own = record(0, 0, 0.0, &mut rng);
+        own.stamp = Stamp::from_secs_f64(100.0);
+        assert!(db.insert(own.clone()));
+        let origin = |id| Origin {
+            robot: 7,
+            session: 4,
+            id,
+        };
+        let theirs = |id: u64, t: f64, rng: &mut StdRng| {
+            let mut r = record(0, 0, 3.0, rng);
+            r.stamp = Stamp::from_secs_f64(t);
+            (r, origin(id))
+        };
+        let (r, o) = theirs(30, 90.0, &mut rng);
+        assert_eq!(db.insert_foreign(r.clone(), o, vec![], 2, 100), Ok(1));
+        assert_eq!(
+            db.get(1).unwrap().session,
+            1,
+            "a session after this robot's"
+        );
+        assert_eq!(
+            db.insert_foreign(r, o, vec![], 2, 100),
+            Err(ForeignRefusal::Duplicate)
+        );
+        assert!(db.registers_on_arrival(&own, 1), "own keyframe is newer");
+        let (r, o) = theirs(31, 110.0, &mut rng);
+        assert_eq!(db.insert_foreign(r, o, vec![], 2, 100), Ok(2));
+        assert!(!db.registers_on_arrival(&own, 2), "theirs is newer");
+        let (r, o) = theirs(32, 95.0, &mut rng);
+        assert_eq!(
+            db.insert_foreign(r.clone(), o, vec![(1, 0)], 2, 100),
+            Err(ForeignRefusal::OverBudget)
+        );
+        assert_eq!(db.insert_foreign(r, o, vec![(1, 0)], 3, 100), Ok(3));
+        assert!(!db.registers_on_arrival(&own, 3), "their node held ours");
+        assert_eq!(db.foreign().newest(), vec![(7, 32)]);
+        let path = scratch("foreign");
+        db.save(&path).unwrap();
+        let back = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap();
+        assert_eq!(back.len(), 4);
+        assert_eq!(back.foreign().origin(2), Some(&origin(31)));
+        assert_eq!(back.foreign().origin(0), None);
+        assert_eq!(back.foreign().count(7), 3);
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]

@@ -169,6 +169,8 @@ fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure
         inliers: r.inliers as u32,
         score: r.overlap,
         match_session: p.cand.session,
+        query_robot: 0,
+        match_origin: None,
     }
 }
 

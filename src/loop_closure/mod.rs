@@ -22,7 +22,7 @@ pub use session::{Alignment, QueryPlace, Session};
 
 use rayon::prelude::*;
 
-use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord};
+use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
 use crate::math::{Iso2, Iso3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
 use gates::{Gated, Gates, Pair, gate, prediction_test, slide_test};
@@ -52,6 +52,18 @@ pub struct LoopClosure {
     pub score: f64,
     /// Session of the match keyframe (an earlier drive when it came from a loaded map).
     pub match_session: u32,
+    /// `node.robot_id` of this robot, whose keyframe the query is.
+    pub query_robot: i32,
+    /// Where the match keyframe came from when another robot made it (`None`: this robot's own).
+    pub match_origin: Option<Origin>,
+}
+
+impl LoopClosure {
+    /// The match keyframe as the fleet names it: its robot and its id in that robot's map.
+    pub fn match_key(&self) -> (i32, u64) {
+        self.match_origin
+            .map_or((self.query_robot, self.match_id), |o| (o.robot, o.id))
+    }
 }
 
 /// Why a candidate revisit was not published.
@@ -186,6 +198,65 @@ impl LoopCloser {
             };
             let publish = self.state.accept(&place, c, session, a, agrees, &self.lc);
             self.publish(publish, out);
+        }
+    }
+
+    /// Another robot's keyframe `index`, just added to `db`: this session's keyframes that may revisit
+    /// it and are this node's to register ([`KeyframeDb::revisits_of`]) are registered against it and
+    /// gated; as in [`LoopCloser::backfill`], a closure is published only when it agrees with a fresh
+    /// alignment to that robot's session.
+    pub fn search_arrival(&mut self, db: &mut KeyframeDb, index: u64, out: &mut Decisions) {
+        let Some(arrived) = db.get(index).cloned() else {
+            return;
+        };
+        let target = match db.prepared(index as usize, &self.rc) {
+            Ok(t) => t,
+            Err(e) => {
+                log::debug!("keyframe {index} of another robot not searched: {e}");
+                return;
+            }
+        };
+        let mut pairs = Vec::new();
+        for cand in db.revisits_of(index as usize, self.session, &self.lc.search()) {
+            let Some(query) = db.get(cand.index as u64).cloned() else {
+                continue;
+            };
+            match db.prepared(cand.index, &self.rc) {
+                Ok(source) => pairs.push((query, source)),
+                Err(e) => out.reject(query.id, index, (RejectReason::Registration, e.to_string())),
+            }
+        }
+        out.registrations += pairs.len() as u64;
+        let mut cfg = self.rc.clone();
+        cfg.correlative.enabled &= self.lc.correlative_search;
+        let results: Vec<_> = pairs
+            .par_iter()
+            .map(|(_, source)| register_prepared(source, &target, &cfg))
+            .collect();
+        for ((query, source), res) in pairs.into_iter().zip(results) {
+            let pair = Pair {
+                query: &query,
+                cand: &arrived,
+                source: &source,
+                target: &target,
+            };
+            let passed = match gate(&self.gates(), &pair, res) {
+                Ok(gated) => vec![(gated, target.clone())],
+                Err(refusal) => {
+                    out.reject(query.id, index, refusal);
+                    continue;
+                }
+            };
+            // Only what agrees with a fresh alignment to the robot's session is published from here:
+            // the first closures to a session come from new keyframes, whose candidates compete.
+            match self.first_that_passes(passed, &source, out) {
+                Some((c, true)) => self.publish(vec![c], out),
+                Some((c, false)) => log::debug!(
+                    "revisit {} -> {index} of another robot passed the gates, but no fresh alignment to its session vouches for it",
+                    c.query_id
+                ),
+                None => {}
+            }
         }
     }
 

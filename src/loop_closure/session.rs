@@ -273,6 +273,8 @@ mod tests {
             inliers: 50,
             score,
             match_session: 0,
+            query_robot: 0,
+            match_origin: None,
         }
     }
 

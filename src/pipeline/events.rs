@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::{LoopClosure, RejectReason};
 use crate::math::{Iso3, Stamp};
 use crate::submap::Submap;
@@ -31,6 +32,14 @@ pub enum DropReason {
     StampAhead,
     /// A second scan of one radar with the same stamp (a re-sent or bogus message).
     DuplicateStamp,
+    /// Another robot's keyframe beyond `map.max_keyframes_per_robot` of that robot.
+    KeyframeOverBudget,
+    /// Another robot's keyframe while the map holds `map.max_keyframes`.
+    KeyframeMapFull,
+    /// Another robot's keyframe that cannot be indexed.
+    KeyframeInvalid,
+    /// A keyframe of another node with this node's `node.robot_id` (two robots configured alike).
+    KeyframeSameRobotId,
 }
 
 impl DropReason {
@@ -46,6 +55,10 @@ impl DropReason {
             DropReason::StampBackwards => "stamp_backwards",
             DropReason::StampAhead => "stamp_ahead",
             DropReason::DuplicateStamp => "duplicate_stamp",
+            DropReason::KeyframeOverBudget => "keyframe_over_budget",
+            DropReason::KeyframeMapFull => "keyframe_map_full",
+            DropReason::KeyframeInvalid => "keyframe_invalid",
+            DropReason::KeyframeSameRobotId => "keyframe_same_robot_id",
         }
     }
 }
@@ -65,6 +78,10 @@ pub enum Event {
         points: usize,
         /// The submap itself (shared; the database keeps a compact copy).
         submap: Arc<Submap>,
+        /// The compact copy, as the map keeps it and the fleet receives it.
+        record: Arc<KeyframeRecord>,
+        /// The newest keyframe id of each other robot held when it was made.
+        heard: Vec<(i32, u64)>,
     },
     /// A loop closure passed every gate.
     Closure(Box<LoopClosure>),
@@ -149,6 +166,21 @@ pub struct PipelineStats {
     /// Keyframes whose Doppler and odometry distances disagreed beyond `submap.speed_scale_bound`
     /// (placed with the odometry as it is).
     pub speed_scale_refused: u64,
+    /// Per other robot (`node.robot_id`): its keyframes received and what became of them.
+    pub robots: BTreeMap<i32, RobotCounts>,
+}
+
+/// Another robot's keyframes received, and what became of them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RobotCounts {
+    /// Received.
+    pub received: u64,
+    /// Added to the map.
+    pub added: u64,
+    /// Already in the map (a transient-local history delivered again).
+    pub duplicates: u64,
+    /// Refused (over budget, map full, invalid, this robot's id): counted as dropped inputs too.
+    pub refused: u64,
 }
 
 /// Counts a dropped input and reports it.

@@ -18,12 +18,13 @@ mod events;
 pub mod ingest;
 
 pub use config::{Config, KeyframeConfig};
-pub use events::{DropReason, Event, PipelineStats};
+pub use events::{DropReason, Event, PipelineStats, RobotCounts};
 
 use std::sync::Arc;
 
+use crate::fleet::SharedKeyframe;
 use crate::input::{Input, InputLimits};
-use crate::keyframe_db::{KeyframeDb, KeyframeRecord};
+use crate::keyframe_db::{ForeignRefusal, KeyframeDb, KeyframeRecord};
 use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
 use crate::radar::RadarScan;
@@ -40,6 +41,8 @@ pub struct Pipeline {
     db: KeyframeDb,
     loops: LoopCloser,
     session: u32,
+    /// This robot's `node.robot_id` (0 unless set).
+    robot: i32,
     /// The next keyframe's id (positions in the map while it is not full).
     next_id: u64,
     /// Odometry pose of the last keyframe.
@@ -65,15 +68,17 @@ impl Pipeline {
     /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
     /// are revisit candidates, found by place descriptor (their odometry frame is another session's), and
     /// new keyframes get the next ids and a new session.
-    pub fn with_map(cfg: Config, db: KeyframeDb) -> Result<Self, ConfigError> {
+    pub fn with_map(cfg: Config, mut db: KeyframeDb) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let session = db.last_session().map_or(0, |s| s + 1);
+        db.set_owner(0, session);
         Ok(Pipeline {
             ingest: Ingest::new(&cfg),
             loops: LoopCloser::new(cfg.r#loop.clone(), cfg.registration.clone(), session),
             next_id: db.next_id(),
             db,
             session,
+            robot: 0,
             last_keyframe: None,
             stats: PipelineStats::default(),
             cfg,
@@ -103,6 +108,18 @@ impl Pipeline {
     /// This session's number.
     pub fn session(&self) -> u32 {
         self.session
+    }
+
+    /// Sets this robot's `node.robot_id`: its closures carry it, and other robots' keyframes are told
+    /// from its own by it.
+    pub fn set_robot(&mut self, robot: i32) {
+        self.robot = robot;
+        self.db.set_owner(robot, self.session);
+    }
+
+    /// This robot's id.
+    pub fn robot(&self) -> i32 {
+        self.robot
     }
 
     /// The current rolling submap (compensated, in the body frame at its newest scan).
@@ -152,6 +169,7 @@ impl Pipeline {
                 }
             }
             Input::Odometry { stamp, t_odom_body } => self.odometry(*stamp, *t_odom_body, &mut out),
+            Input::Keyframe(k) => self.foreign(k, &mut out),
             Input::GroundTruth { .. } => {}
         }
         out
@@ -268,6 +286,8 @@ impl Pipeline {
             t_odom_body: submap.t_odom_anchor,
             points: submap.len(),
             submap: Arc::new(submap),
+            record: Arc::new(rec.clone()),
+            heard: self.db.foreign().newest(),
         });
         let mut decisions = Decisions::default();
         if self.cfg.r#loop.enabled {
@@ -278,6 +298,69 @@ impl Pipeline {
         let n = self.cfg.r#loop.backfill_per_keyframe;
         self.loops.backfill(&mut self.db, n, &mut decisions);
         self.report(decisions, out);
+    }
+
+    /// Another robot's keyframe: into the map as a session of that robot's (within
+    /// `map.max_keyframes_per_robot` and `map.max_keyframes`), then this session's keyframes that may
+    /// revisit it and are newer are registered against it. This node's own keyframes, echoed by the
+    /// fleet topic, are ignored.
+    fn foreign(&mut self, k: &SharedKeyframe, out: &mut Vec<Event>) {
+        let counts = self.stats.robots.entry(k.robot).or_default();
+        counts.received += 1;
+        if k.robot == self.robot {
+            if k.record.session != self.session {
+                counts.refused += 1;
+                let detail = format!(
+                    "keyframe {} of session {} carries this node's robot id {}: give every robot its own node.robot_id",
+                    k.record.id, k.record.session, k.robot
+                );
+                dropped(
+                    &mut self.stats,
+                    out,
+                    DropReason::KeyframeSameRobotId,
+                    detail,
+                );
+            }
+            return;
+        }
+        let (max_robot, max_all) = (
+            self.cfg.map.max_keyframes_per_robot,
+            self.cfg.map.max_keyframes,
+        );
+        match self.db.insert_foreign(
+            k.record.clone(),
+            k.origin(),
+            k.heard.clone(),
+            max_robot,
+            max_all,
+        ) {
+            Ok(id) => {
+                counts.added += 1;
+                self.next_id = self.next_id.max(self.db.next_id());
+                if self.cfg.r#loop.enabled {
+                    let mut decisions = Decisions::default();
+                    self.loops.search_arrival(&mut self.db, id, &mut decisions);
+                    self.report(decisions, out);
+                }
+            }
+            Err(ForeignRefusal::Duplicate) => counts.duplicates += 1,
+            Err(why) => {
+                counts.refused += 1;
+                let reason = match why {
+                    ForeignRefusal::OverBudget => DropReason::KeyframeOverBudget,
+                    ForeignRefusal::MapFull => DropReason::KeyframeMapFull,
+                    _ => DropReason::KeyframeInvalid,
+                };
+                let detail = format!(
+                    "keyframe {} of robot {} not added ({} of its keyframes held, map.max_keyframes_per_robot {max_robot}; {} in the map, map.max_keyframes {max_all})",
+                    k.record.id,
+                    k.robot,
+                    self.db.foreign().count(k.robot),
+                    self.db.len()
+                );
+                dropped(&mut self.stats, out, reason, detail);
+            }
+        }
     }
 
     /// Adds a keyframe to the map, unless the map is full (`map.max_keyframes`).
@@ -328,8 +411,10 @@ impl Pipeline {
         self.stats.registrations += decisions.registrations;
         for d in decisions.decisions {
             match d {
-                Decision::Published(c) => {
+                Decision::Published(mut c) => {
                     self.stats.closures += 1;
+                    c.query_robot = self.robot;
+                    c.match_origin = self.db.foreign().origin(c.match_id).copied();
                     out.push(Event::Closure(c));
                 }
                 Decision::Rejected {

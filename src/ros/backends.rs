@@ -129,11 +129,12 @@ pub struct GraphFrames<'a> {
     pub session: u32,
 }
 
-/// A closure as a `pose_graph_tools_msgs/PoseGraph`: one `LOOPCLOSE` edge from the match keyframe to the
-/// query keyframe, both of robot `robot_id`, with the closure's relative pose (`T_match_query`) and
-/// covariance unchanged, and the two keyframes as nodes with their odometry poses (the match keyframe's in
-/// `frames.map` when it belongs to an earlier session).
-pub fn pose_graph(c: &LoopClosure, robot_id: i32, frames: &GraphFrames<'_>) -> PoseGraph {
+/// A closure as a `pose_graph_tools_msgs/PoseGraph`: one `LOOPCLOSE` edge from the match keyframe (of
+/// robot `robot_from`, keyed by its id in that robot's map) to the query keyframe (of this robot,
+/// `robot_to`), with the closure's relative pose (`T_match_query`) and covariance unchanged, and the
+/// two keyframes as nodes with their odometry poses (the match keyframe's in `frames.map` when it
+/// belongs to an earlier session, and in its own robot's odometry frame when another robot made it).
+pub fn pose_graph(c: &LoopClosure, frames: &GraphFrames<'_>) -> PoseGraph {
     let mut covariance = [0.0; 36];
     for (i, v) in covariance.iter_mut().enumerate() {
         *v = c.covariance[(i / 6, i % 6)];
@@ -142,12 +143,13 @@ pub fn pose_graph(c: &LoopClosure, robot_id: i32, frames: &GraphFrames<'_>) -> P
         stamp,
         frame_id: frame.to_string(),
     };
-    let node = |key: u64, stamp: Time, frame: &str, pose: &Iso3| PoseGraphNode {
+    let node = |robot_id: i32, key: u64, stamp: Time, frame: &str, pose: &Iso3| PoseGraphNode {
         header: header(stamp, frame),
         robot_id,
         key,
         pose: Pose::from(pose),
     };
+    let (match_robot, match_key) = c.match_key();
     let match_frame = if c.match_session == frames.session {
         frames.odom
     } else {
@@ -157,12 +159,14 @@ pub fn pose_graph(c: &LoopClosure, robot_id: i32, frames: &GraphFrames<'_>) -> P
         header: header(c.query_stamp.into(), frames.odom),
         nodes: vec![
             node(
-                c.match_id,
+                match_robot,
+                match_key,
                 c.match_stamp.into(),
                 match_frame,
                 &c.match_odom_pose,
             ),
             node(
+                c.query_robot,
                 c.query_id,
                 c.query_stamp.into(),
                 frames.odom,
@@ -171,10 +175,10 @@ pub fn pose_graph(c: &LoopClosure, robot_id: i32, frames: &GraphFrames<'_>) -> P
         ],
         edges: vec![PoseGraphEdge {
             header: header(c.query_stamp.into(), frames.body),
-            key_from: c.match_id,
+            key_from: match_key,
             key_to: c.query_id,
-            robot_from: robot_id,
-            robot_to: robot_id,
+            robot_from: match_robot,
+            robot_to: c.query_robot,
             edge_type: PoseGraphEdge::LOOPCLOSE,
             pose: Pose::from(&c.t_match_query),
             covariance,
@@ -202,6 +206,7 @@ pub fn lio_sam_pair(c: &LoopClosure) -> Float64MultiArray {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::keyframe_db::Origin;
     use crate::math::{Mat6, Stamp, Vec3};
     use crate::output::loop_closure_msg;
     use byteorder::LittleEndian;
@@ -225,6 +230,8 @@ mod tests {
             inliers: 80,
             score: 0.7,
             match_session,
+            query_robot: 4,
+            match_origin: None,
         }
     }
 
@@ -238,7 +245,7 @@ mod tests {
     #[test]
     fn one_loop_edge_from_the_match_to_the_query_with_the_closure_unchanged() {
         let c = closure(1);
-        let g = pose_graph(&c, 4, &FRAMES);
+        let g = pose_graph(&c, &FRAMES);
         let lc = loop_closure_msg(&c, "base_link");
         assert_eq!(g.edges.len(), 1);
         let e = &g.edges[0];
@@ -270,9 +277,23 @@ mod tests {
         assert_eq!(g.nodes[0].pose, lc.match_odom_pose);
         assert_eq!(g.nodes[1].pose, lc.query_odom_pose);
         // A match in a loaded map: its node is in the map frame.
-        let g = pose_graph(&closure(0), 4, &FRAMES);
+        let g = pose_graph(&closure(0), &FRAMES);
         assert_eq!(g.nodes[0].header.frame_id, "map");
         assert_eq!(g.nodes[1].header.frame_id, "odom");
+        // A match another robot made: its robot and its id there.
+        let mut c = closure(2);
+        c.match_origin = Some(Origin {
+            robot: 9,
+            session: 0,
+            id: 5,
+        });
+        let e = &pose_graph(&c, &FRAMES).edges[0];
+        assert_eq!(
+            (e.robot_from, e.key_from, e.robot_to, e.key_to),
+            (9, 5, 4, 90)
+        );
+        let lc = loop_closure_msg(&c, "base_link");
+        assert_eq!((lc.match_robot, lc.match_id, lc.query_robot), (9, 5, 4));
     }
 
     #[test]
@@ -284,7 +305,7 @@ mod tests {
 
     #[test]
     fn cdr_round_trip_and_layout() {
-        let g = pose_graph(&closure(1), 7, &FRAMES);
+        let g = pose_graph(&closure(1), &FRAMES);
         let bytes = cdr_encoding::to_vec::<_, LittleEndian>(&g).unwrap();
         let (back, _) = cdr_encoding::from_bytes::<PoseGraph, LittleEndian>(&bytes).unwrap();
         assert_eq!(back, g);

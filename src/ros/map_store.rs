@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use crate::keyframe_db::lock::MapLock;
 use crate::keyframe_db::storage::clean_temp_files;
-use crate::keyframe_db::{KeyframeDb, KeyframeRecord, MapShape, save_records};
+use crate::keyframe_db::{KeyframeDb, MapShape, MapSnapshot, save_snapshot};
 use crate::pipeline::Config;
 
 /// The map a node starts with, and where it goes.
@@ -131,7 +131,7 @@ pub struct MapSaver {
     interval: f64,
     last_save: Instant,
     saved_keyframes: usize,
-    tx: SyncSender<Vec<Arc<KeyframeRecord>>>,
+    tx: SyncSender<MapSnapshot>,
     thread: JoinHandle<()>,
     status: Arc<Mutex<SaveStatus>>,
 }
@@ -140,12 +140,12 @@ impl MapSaver {
     /// A saver of the map to `path`, every `interval` seconds while keyframes are added; `db` is the
     /// map as loaded.
     pub fn new(path: PathBuf, shape: MapShape, interval: f64, db: &KeyframeDb) -> Self {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Arc<KeyframeRecord>>>(1);
+        let (tx, rx) = std::sync::mpsc::sync_channel::<MapSnapshot>(1);
         let status = Arc::new(Mutex::new(SaveStatus::default()));
         let (p, sh, st) = (path.clone(), shape.clone(), status.clone());
         let thread = std::thread::spawn(move || {
-            for records in rx {
-                save_map(&records, &sh, &p, &st);
+            for map in rx {
+                save_map(&map, &sh, &p, &st);
             }
         });
         MapSaver {
@@ -198,17 +198,17 @@ impl MapSaver {
 
 /// Saves `records`, records the result in `status`, and returns the error if it failed.
 fn save_map(
-    records: &[Arc<KeyframeRecord>],
+    map: &MapSnapshot,
     shape: &MapShape,
     path: &Path,
     status: &Mutex<SaveStatus>,
 ) -> Option<String> {
     let t0 = Instant::now();
-    let error = match save_records(records, shape, path) {
+    let error = match save_snapshot(map, shape, path) {
         Ok(()) => {
             log::info!(
                 "map saved: {} keyframes to {} in {:.0} ms",
-                records.len(),
+                map.records.len(),
                 path.display(),
                 t0.elapsed().as_secs_f64() * 1e3
             );

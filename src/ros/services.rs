@@ -147,6 +147,8 @@ mod tests {
             inliers: 50,
             score: 0.8,
             match_session: 0,
+            query_robot: 0,
+            match_origin: None,
         };
         assert!(relocalized(&c, 0, Time::default(), "map").is_none());
         let p = relocalized(&c, 1, Time::default(), "map").unwrap();

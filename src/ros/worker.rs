@@ -118,6 +118,8 @@ impl Worker {
                 markers.keyframe(r.id, &r.odom_pose_iso3());
             }
         }
+        // The range check of `node.robot_id` keeps it within i32.
+        pipeline.set_robot(i32::try_from(settings.backends.robot_id).unwrap_or(i32::MAX));
         pipeline.set_restart_after(settings.restart_after);
         pipeline.set_input_limits(settings.limits);
         Worker {
@@ -394,9 +396,7 @@ impl Worker {
                 map: &self.settings.map_frame,
                 session,
             };
-            // The range check of `node.robot_id` keeps it within i32.
-            let robot = i32::try_from(self.settings.backends.robot_id).unwrap_or(i32::MAX);
-            if let Err(e) = p.publish(pose_graph(c, robot, &frames)) {
+            if let Err(e) = p.publish(pose_graph(c, &frames)) {
                 log::warn!(
                     "pose graph {} -> {}: publish failed: {e:?}",
                     c.match_id,

@@ -209,6 +209,11 @@ impl LoopCloser {
         let Some(arrived) = db.get(index).cloned() else {
             return;
         };
+        // Only keyframes an accepted alignment to the robot's session vouches for (`trusted_prior_std`)
+        // could publish what is found here: the others are not registered.
+        let Some(alignment) = self.state.alignments().get(&arrived.session).copied() else {
+            return;
+        };
         let target = match db.prepared(index as usize, &self.rc) {
             Ok(t) => t,
             Err(e) => {
@@ -221,6 +226,9 @@ impl LoopCloser {
             let Some(query) = db.get(cand.index as u64).cloned() else {
                 continue;
             };
+            if !drift::vouches(query.path_distance - alignment.path, &self.lc) {
+                continue;
+            }
             match db.prepared(cand.index, &self.rc) {
                 Ok(source) => pairs.push((query, source)),
                 Err(e) => out.reject(query.id, index, (RejectReason::Registration, e.to_string())),

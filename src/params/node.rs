@@ -42,6 +42,88 @@ pub struct NodeSettings {
     /// The optional outputs for pose-graph back ends (`node.robot_id`, `node.pose_graph_*`,
     /// `node.lio_sam_*`).
     pub backends: BackendSettings,
+    /// Keyframes shared with other robots' nodes (`node.fleet*`).
+    pub fleet: FleetSettings,
+}
+
+/// Keyframes shared with the other robots' nodes of a fleet (README_NODE.md, Fleets).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FleetSettings {
+    /// `node.fleet`: publish this robot's keyframes and take the other robots'.
+    pub enabled: bool,
+    /// `node.fleet_topic`: the topic they share.
+    pub topic: String,
+    /// `node.fleet_history`: keyframes the topic keeps for a robot that joins late.
+    pub history: usize,
+    /// `node.fleet_points`: most points sent per keyframe.
+    pub points: usize,
+    /// `node.fleet_rate`: keyframes per second taken from one robot beyond a burst of
+    /// `node.fleet_history`.
+    pub rate: f64,
+}
+
+impl Default for FleetSettings {
+    fn default() -> Self {
+        FleetSettings {
+            enabled: false,
+            topic: "/dc_loc/keyframes".into(),
+            history: 1000,
+            points: crate::fleet::wire::DEFAULT_WIRE_POINTS,
+            rate: 10.0,
+        }
+    }
+}
+
+impl FleetSettings {
+    /// Declares each setting's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.require("node.fleet_topic", topic_name_ok(&self.topic), || {
+            format!("`{}` is not a topic name", self.topic)
+        });
+        v.count("node.fleet_history", self.history, 1, 100_000);
+        v.count("node.fleet_points", self.points, 10, 100_000);
+        v.range("node.fleet_rate", self.rate, Range::POSITIVE.up_to(1000.0));
+    }
+
+    /// The settings as `(name, value)` parameters.
+    fn as_params(&self) -> Vec<(String, Value)> {
+        vec![
+            ("node.fleet".into(), Value::Bool(self.enabled)),
+            ("node.fleet_topic".into(), Value::from(self.topic.clone())),
+            ("node.fleet_history".into(), Value::from(self.history)),
+            ("node.fleet_points".into(), Value::from(self.points)),
+            ("node.fleet_rate".into(), Value::from(self.rate)),
+        ]
+    }
+
+    /// Takes `name` when it is one of these settings (`Ok(false)` when it is not).
+    fn take(&mut self, name: &str, v: &Value) -> Result<bool, ParamError> {
+        let count = || {
+            v.as_u64()
+                .map(|n| usize::try_from(n).unwrap_or(usize::MAX))
+                .ok_or_else(|| type_error(name, "a non-negative integer", v))
+        };
+        match name {
+            "node.fleet" => {
+                self.enabled = v
+                    .as_bool()
+                    .ok_or_else(|| type_error(name, "a boolean", v))?
+            }
+            "node.fleet_topic" => {
+                self.topic = v
+                    .as_str()
+                    .ok_or_else(|| type_error(name, "a string", v))?
+                    .to_string()
+            }
+            "node.fleet_history" => self.history = count()?,
+            "node.fleet_points" => self.points = count()?,
+            "node.fleet_rate" => {
+                self.rate = v.as_f64().ok_or_else(|| type_error(name, "a number", v))?
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
 }
 
 /// The optional outputs for pose-graph back ends that read other message types than
@@ -94,6 +176,7 @@ impl Default for NodeSettings {
             extrinsics_from_tf: false,
             tf_timeout: 10.0,
             backends: BackendSettings::default(),
+            fleet: FleetSettings::default(),
         }
     }
 }
@@ -187,6 +270,33 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         doc: "Robot id written into the `pose_graph_tools_msgs` nodes and edges (`robot_id`, \
               `robot_from`, `robot_to`): the robot's index in a multi-robot back end such as \
               Kimera-Multi, which maps it to its key prefix.",
+    },
+    NodeParam {
+        name: "node.fleet",
+        doc: "Share keyframes with the other robots' nodes of a fleet: publish each keyframe as \
+              `dc_loc/msg/Keyframe` on `node.fleet_topic`, take the other robots' (told apart by \
+              `node.robot_id`) into the map and close loops between robots (README_NODE.md, Fleets).",
+    },
+    NodeParam {
+        name: "node.fleet_topic",
+        doc: "Topic the fleet's keyframes share (reliable, transient local, keep last \
+              `node.fleet_history`); absolute, so that nodes in different namespaces meet.",
+    },
+    NodeParam {
+        name: "node.fleet_history",
+        doc: "Keyframes the fleet topic keeps per node for a robot's node that starts late (and the \
+              burst taken from one robot before `node.fleet_rate` applies).",
+    },
+    NodeParam {
+        name: "node.fleet_points",
+        doc: "Most points sent per keyframe (an even subsample; 7 bytes a point): 2000 keep a \
+              keyframe under 16 KB on the wire.",
+    },
+    NodeParam {
+        name: "node.fleet_rate",
+        doc: "Keyframes per second taken from one robot beyond a burst of `node.fleet_history`; more \
+              are dropped and counted under that robot (`/diagnostics`, `fleet`): a robot that floods \
+              the topic cannot starve the node.",
     },
     NodeParam {
         name: "node.pose_graph_output",
@@ -283,6 +393,9 @@ impl NodeSettings {
                 Value::from(self.backends.lio_sam_topic.clone()),
             ),
         ]
+        .into_iter()
+        .chain(self.fleet.as_params())
+        .collect()
     }
 
     /// Declares each setting's range (see [`Validator`]).
@@ -345,6 +458,7 @@ impl NodeSettings {
             },
         );
         self.backends.check(v);
+        self.fleet.check(v);
     }
 
     /// Splits the node's own parameters off `params` and checks their ranges; the rest go to
@@ -387,7 +501,7 @@ impl NodeSettings {
                         .to_string()
                 }
                 n if n.starts_with("node.") => {
-                    if !s.backends.take(name, v)? {
+                    if !s.backends.take(name, v)? && !s.fleet.take(name, v)? {
                         return Err(ParamError::Unknown(name.clone()));
                     }
                 }

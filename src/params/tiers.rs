@@ -126,8 +126,9 @@ pub const TUNING: &[(&str, &str)] = &[
         "On to hand LIO-SAM the stamp pairs of the revisits.",
     ),
     (
-        "node.log_level",
-        "`debug` explains every rejected candidate; change it live with `ros2 param set`.",
+        "node.fleet",
+        "On in each robot of a fleet (each with its own `node.robot_id`): the nodes share keyframes on \
+         `node.fleet_topic` and close loops between robots.",
     ),
 ];
 

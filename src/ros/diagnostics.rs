@@ -239,6 +239,22 @@ fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
     for (reason, n) in &stats.rejected {
         proc.push(kv(&format!("rejected.{}", reason.name()), n.to_string()));
     }
+    // Other robots' keyframes (`node.fleet`), per robot: received, added, already held, refused, and
+    // dropped at reception beyond `node.fleet_rate`.
+    let flood = lock(&shared.fleet_flood).clone();
+    let robots: std::collections::BTreeSet<i32> =
+        stats.robots.keys().chain(flood.keys()).copied().collect();
+    for robot in robots {
+        let c = stats.robots.get(&robot).copied().unwrap_or_default();
+        let f = flood.get(&robot).copied().unwrap_or(0);
+        proc.push(kv(
+            &format!("fleet.robot_{robot}"),
+            format!(
+                "received {}, added {}, duplicates {}, refused {}, over rate {f}",
+                c.received, c.added, c.duplicates, c.refused
+            ),
+        ));
+    }
     // The radars' Doppler against the odometry: scans that disagreed, and the likely cause once a
     // radar disagrees persistently.
     for (i, name) in r.radar_names.iter().enumerate() {

@@ -21,12 +21,12 @@ use super::services::{
     self, PoseWithCovarianceStamped, SaveRequest, TriggerRequest, TriggerResponse,
 };
 use crate::input::InputLimits;
-use crate::msgs::dc_loc::LoopClosure as LoopClosureMsg;
+use crate::msgs::dc_loc::{Keyframe as KeyframeMsg, LoopClosure as LoopClosureMsg};
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::tf2_msgs::TFMessage;
-use crate::params::node::{BackendSettings, NodeSettings};
+use crate::params::node::{FleetSettings, NodeSettings};
 use crate::pipeline::Config;
 use crate::radar::RadarMessage;
 
@@ -46,6 +46,8 @@ pub struct Outputs {
     pub pose_graph: Option<Publisher<PoseGraph>>,
     /// `node.lio_sam_topic`, when `node.lio_sam_output` is on.
     pub lio_sam: Option<Publisher<Float64MultiArray>>,
+    /// `node.fleet_topic`, when `node.fleet` is on.
+    pub keyframes: Option<Publisher<KeyframeMsg>>,
 }
 
 /// The node's input subscriptions.
@@ -58,16 +60,20 @@ pub struct Subscriptions {
     save_map: Server<TriggerRequest, TriggerResponse>,
     /// `~/markers` and `~/submap`, resolved: their readers are counted.
     map_views: [String; 2],
+    /// `node.fleet_topic`, when `node.fleet` is on: the other robots' keyframes.
+    keyframes: Option<(String, Subscription<KeyframeMsg>, FleetSettings)>,
 }
 
 impl Subscriptions {
-    /// Subscribes the radars (one subscription per topic), the odometry and, with sim time, `/clock`.
+    /// Subscribes the radars (one subscription per topic), the odometry, with sim time `/clock`, and
+    /// with `node.fleet` the fleet's keyframes.
     pub fn new(
         node: &mut Node,
         ros_args: &RosArgs,
         cfg: &Config,
-        use_sim_time: bool,
+        settings: &NodeSettings,
     ) -> Result<Self, NodeError> {
+        let use_sim_time = settings.use_sim_time;
         // The radars sharing a topic share its message type (the configuration's check).
         let mut by_topic: std::collections::BTreeMap<String, (RadarMessage, TopicRadars)> =
             Default::default();
@@ -117,10 +123,30 @@ impl Subscriptions {
                 reliable(10, Durability::Volatile),
             )
             .map_err(dds("~/save_map service"))?;
+        let keyframes = if settings.fleet.enabled {
+            let fleet = &settings.fleet;
+            let topic = ros_args.resolve_topic(&fleet.topic);
+            let qos = reliable(fleet.history, Durability::TransientLocal);
+            let t = node
+                .create_topic(
+                    &topic_name(&topic)?,
+                    MessageTypeName::new("dc_loc", "Keyframe"),
+                    &qos,
+                )
+                .map_err(dds("fleet topic"))?;
+            let sub = node
+                .create_subscription(&t, Some(qos))
+                .map_err(dds("fleet subscription"))?;
+            log::info!("other robots' keyframes on {topic}");
+            Some((topic, sub, fleet.clone()))
+        } else {
+            None
+        };
         Ok(Subscriptions {
             radars,
             odometry: (odom_topic, odometry),
             clock,
+            keyframes,
             save_map,
             map_views: [
                 ros_args.resolve_topic("~/markers"),
@@ -131,9 +157,11 @@ impl Subscriptions {
 
     /// Runs every reception task until `stop` completes; `Some(cause)` when the node cannot go on (a
     /// task or the worker ended first).
+    #[allow(clippy::too_many_arguments)]
     pub async fn receive(
         &self,
         node: &Node,
+        place: crate::place::PlaceConfig,
         r: Reception,
         limits: InputLimits,
         mut stop: tokio::sync::mpsc::Receiver<()>,
@@ -163,6 +191,13 @@ impl Subscriptions {
         })));
         if let Some(sub) = &self.clock {
             tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
+        }
+        if let Some((topic, sub, fleet)) = &self.keyframes {
+            let shared = r.shared.clone();
+            let mut gate = inputs::FleetGate::new(fleet);
+            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |k| {
+                inputs::keyframe_input(topic, &place, &mut gate, &shared, k)
+            })));
         }
         let counts = inputs::publisher_counts(
             node,
@@ -256,18 +291,22 @@ pub fn tf_static(
 /// on; see [`outputs_with`].
 pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
     let (settings, _) = NodeSettings::take_from(&ros_args.param_set()?)?;
-    outputs_with(node, ros_args, &settings.backends)
+    outputs_with(node, ros_args, &settings)
 }
 
 /// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
 /// gets the history), `~/markers`, `~/submap`, `/diagnostics`, `~/relocalized`, and the back-end
-/// outputs `backends` turns on: the `pose_graph_tools_msgs/PoseGraph` topic (QoS of
-/// `~/loop_closures`) and the LIO-SAM topic (reliable, volatile: LIO-SAM takes its pairs as they come).
+/// outputs `settings` turns on: the `pose_graph_tools_msgs/PoseGraph` topic (QoS of
+/// `~/loop_closures`), the LIO-SAM topic (reliable, volatile: LIO-SAM takes its pairs as they come) and
+/// the fleet's keyframes (reliable, transient local, keep last `node.fleet_history`: a robot that
+/// starts late gets the recent ones).
 pub fn outputs_with(
     node: &mut Node,
     ros_args: &RosArgs,
-    backends: &BackendSettings,
+    settings: &NodeSettings,
 ) -> Result<Outputs, NodeError> {
+    let backends = &settings.backends;
+    let fleet = &settings.fleet;
     Ok(Outputs {
         closures: publisher(
             node,
@@ -311,6 +350,17 @@ pub fn outputs_with(
                 &backends.pose_graph_topic,
                 ("pose_graph_tools_msgs", "PoseGraph"),
                 reliable(100, Durability::TransientLocal),
+            )?)
+        } else {
+            None
+        },
+        keyframes: if fleet.enabled {
+            Some(publisher(
+                node,
+                ros_args,
+                &fleet.topic,
+                ("dc_loc", "Keyframe"),
+                reliable(fleet.history, Durability::TransientLocal),
             )?)
         } else {
             None

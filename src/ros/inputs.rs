@@ -3,6 +3,7 @@
 //! worker through the bounded queue ([`take`]); reception never waits for registration. Each message
 //! that is not used is counted by reason.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -12,13 +13,17 @@ use ros2_client::{Node, Subscription};
 use serde::de::DeserializeOwned;
 
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
+use crate::fleet::wire;
 use crate::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
 use crate::math::Stamp;
+use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::radar_msgs::RadarScan;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
+use crate::params::node::FleetSettings;
+use crate::place::PlaceConfig;
 
 /// A message whose zero `header.stamp` the receive time replaces (drivers that leave it unset), as
 /// `dc_loc run` takes a bag's log time.
@@ -162,6 +167,73 @@ pub fn radar_scan(
     }
     let input = radar_scan_input(radar, scan.header.stamp.into(), &scan);
     Ok((input, None))
+}
+
+impl Stamped for KeyframeMsg {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// At most `node.fleet_rate` keyframes a second from each robot beyond a burst of
+/// `node.fleet_history` (a token bucket per robot).
+pub struct FleetGate {
+    rate: f64,
+    burst: f64,
+    buckets: BTreeMap<i32, (f64, Instant)>,
+}
+
+impl FleetGate {
+    /// A gate for `settings`.
+    pub fn new(settings: &FleetSettings) -> Self {
+        FleetGate {
+            rate: settings.rate,
+            burst: settings.history as f64,
+            buckets: BTreeMap::new(),
+        }
+    }
+
+    /// Whether a keyframe of `robot` arriving `now` may pass.
+    pub fn pass(&mut self, robot: i32, now: Instant) -> bool {
+        let (tokens, last) = self.buckets.entry(robot).or_insert((self.burst, now));
+        let refill = now.saturating_duration_since(*last).as_secs_f64() * self.rate;
+        *tokens = (*tokens + refill).min(self.burst);
+        *last = now;
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// Another robot's keyframe as the input: decoded with this node's place settings; refused when
+/// malformed (`bad_keyframe`) or beyond `node.fleet_rate` for its robot (`keyframe_over_rate`,
+/// counted under the robot).
+pub fn keyframe_input(
+    topic: &str,
+    place: &PlaceConfig,
+    gate: &mut FleetGate,
+    shared: &Shared,
+    msg: KeyframeMsg,
+) -> Result<(Input, Option<String>), Refusal> {
+    shared.count_received("keyframes");
+    if !gate.pass(msg.robot_id, Instant::now()) {
+        *lock(&shared.fleet_flood).entry(msg.robot_id).or_default() += 1;
+        let detail = format!(
+            "{topic}: robot {} sends more keyframes than node.fleet_rate allows",
+            msg.robot_id
+        );
+        return Err(("keyframe_over_rate", detail));
+    }
+    match wire::decode(&msg, place) {
+        Ok(k) => Ok((Input::Keyframe(Box::new(k)), None)),
+        Err(e) => Err((
+            "bad_keyframe",
+            format!("{topic}: keyframe of robot {}: {e}", msg.robot_id),
+        )),
+    }
 }
 
 /// An odometry message as the input, refused when its pose is not finite.

@@ -154,7 +154,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         Some(m) => m,
         None => load_map(&cfg).map_err(NodeError::Map)?,
     };
-    let subs = Subscriptions::new(&mut node, ros_args, &cfg, settings.use_sim_time)?;
+    let subs = Subscriptions::new(&mut node, ros_args, &cfg, &settings)?;
     let outputs = outputs(&mut node, ros_args)?;
 
     let shared = Arc::new(Shared::new(Duration::from_secs_f64(settings.warn_interval)));
@@ -185,8 +185,16 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         inbox: inbox.clone(),
         use_sim_time: settings.use_sim_time,
     };
-    let ended =
-        runtime.block_on(subs.receive(&node, reception, settings.limits, stop, done_rx, save_tx));
+    let place = cfg.place.clone();
+    let ended = runtime.block_on(subs.receive(
+        &node,
+        place,
+        reception,
+        settings.limits,
+        stop,
+        done_rx,
+        save_tx,
+    ));
     log::info!("shutting down: saving the map, then processing the queued messages");
     shared.stopping.store(true, Ordering::SeqCst);
     inbox.stop();

@@ -33,6 +33,8 @@ pub struct Shared {
     /// them (rustdds keeps up to 8192 unread samples of a writer without readers, and ros2-client
     /// cannot set the ResourceLimits that would bound them).
     pub map_view_readers: [AtomicUsize; 2],
+    /// Other robots' keyframes dropped at reception beyond `node.fleet_rate`, by robot.
+    pub fleet_flood: Mutex<BTreeMap<i32, u64>>,
     /// Rate limiting of warnings: reason -> (last warning, suppressed since).
     warned: Mutex<BTreeMap<String, (Instant, u64)>>,
     /// `node.warn_interval`, ns.

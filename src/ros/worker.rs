@@ -17,7 +17,9 @@ use super::map_store::MapSaver;
 use super::merge::StampMerger;
 use super::services::{SaveRequest, TriggerResponse, relocalized};
 use super::shared::{Shared, Work, receive_time};
+use crate::fleet::wire;
 use crate::input::Input;
+use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::LoopClosure;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::builtin_interfaces::Time;
@@ -186,8 +188,14 @@ impl Worker {
                     if matches!(w, Work::Stop) {
                         break;
                     }
-                    let (stream, stamp) = stream_of(&w, n_radars);
-                    merger.push(stream, stamp, Instant::now(), w);
+                    // Other robots' keyframes keep no time order with this robot's inputs.
+                    if matches!(&w, Work::Input { input, .. } if matches!(input.as_ref(), Input::Keyframe(_)))
+                    {
+                        self.handle(w);
+                    } else {
+                        let (stream, stamp) = stream_of(&w, n_radars);
+                        merger.push(stream, stamp, Instant::now(), w);
+                    }
                 }
                 Err(RecvTimeoutError::Timeout) => {}
             }
@@ -343,9 +351,14 @@ impl Worker {
         for e in events {
             match e {
                 Event::Keyframe {
-                    id, t_odom_body, ..
+                    id,
+                    t_odom_body,
+                    record,
+                    heard,
+                    ..
                 } => {
                     self.markers.keyframe(id, &t_odom_body);
+                    self.share_keyframe(&record, &heard);
                     changed = true;
                 }
                 Event::Closure(c) => {
@@ -425,6 +438,17 @@ impl Worker {
             c.inliers,
             c.score
         );
+    }
+
+    /// A new keyframe to the fleet (`node.fleet`).
+    fn share_keyframe(&self, record: &KeyframeRecord, heard: &[(i32, u64)]) {
+        let Some(p) = &self.out.keyframes else { return };
+        let robot = self.pipeline.robot();
+        let points = self.settings.fleet.points;
+        let msg = wire::encode(robot, record, heard, points, &self.body_frame);
+        if let Err(e) = p.publish(msg) {
+            log::warn!("keyframe {}: publish to the fleet failed: {e:?}", record.id);
+        }
     }
 
     /// Subscriptions discovered on `~/markers` (0) or `~/submap` (1).

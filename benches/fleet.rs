@@ -34,13 +34,16 @@ fn summary(name: &str, mut ms: Vec<f64>) {
     );
 }
 
+/// A keyframe a robot made, and what its node had heard of the others' then.
+type Made = (KeyframeRecord, Vec<(i32, u64)>);
+
 /// Drives `drive` through a pipeline of robot `robot` that first receives the keyframes `history`;
 /// its keyframes and the time of each input that made one, ms.
 fn drive(
     robot: i32,
     cfg: &dc_loc::sim::SimConfig,
     history: &[Keyframe],
-) -> (Pipeline, Vec<(KeyframeRecord, Vec<(i32, u64)>)>, Vec<f64>) {
+) -> (Pipeline, Vec<Made>, Vec<f64>) {
     let d = simulate(cfg).expect("simulates");
     let mut p = Pipeline::new(d.to_config()).expect("config");
     p.set_robot(robot);

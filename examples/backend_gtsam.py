@@ -28,8 +28,19 @@ The ROS node re-optimises after every ``--every`` closures, publishes the optimi
 ``--out`` (CSV: key, stamp, x, y, yaw) and ``--tum`` (TUM: stamp x y z qx qy qz qw). One session only: a
 closure onto a loaded map's keyframe carries that keyframe's pose in the earlier session's odometry frame.
 
+Several robots (``--fleet``; dc_loc nodes with ``node.fleet:=true``, whose closures name the match
+keyframe's robot in ``match_robot`` and carry its pose in that robot's odometry frame): keys per
+(robot, keyframe id), ``gtsam.Symbol`` with the letter ``ROBOT_LETTERS[robot]``; one odometry chain per
+robot (each robot's path lengths from its own odometry: ``--robot-odom ROBOT=TOPIC``); the first robot
+(``--anchor``, default the lowest robot id) anchored by a prior at its odometry pose; every other robot
+initialised from its first closure onto a robot already placed (robots never linked to the anchor's are
+left out until they are). ``--closures`` may then be given once per node. Optimised poses are in the anchor
+robot's odometry frame; ``~/optimized_path`` carries every robot's keyframes, ``--out`` adds a ``robot``
+column (robot, key, stamp, x, y, yaw).
+
 For scripts and tests: ``Closure`` (``from_msg``, ``from_record`` for ``dc_loc run --out`` JSON lines),
-``PathLength`` (odometry path by stamp), ``build_graph``, ``optimise``, ``odometry_poses``.
+``PathLength`` (odometry path by stamp), ``build_graph``, ``optimise``, ``odometry_poses``; for a fleet
+``fleet_key``, ``build_fleet_graph``, ``optimise_fleet``.
 ``--rotate-covariance DEG`` turns each closure's x-y covariance by DEG degrees before use: a deliberately
 wrong frame, to see what a covariance in the wrong frame does to the result.
 """
@@ -80,6 +91,8 @@ class Closure:
     match_odom: gtsam.Pose2
     relative: gtsam.Pose2
     covariance: np.ndarray
+    query_robot: int = 0
+    match_robot: int = 0
 
     @staticmethod
     def from_msg(m) -> "Closure":
@@ -94,7 +107,8 @@ class Closure:
 
         return Closure(m.query_id, m.match_id, secs(m.query_stamp), secs(m.match_stamp),
                        pose2(m.query_odom_pose), pose2(m.match_odom_pose), pose2(m.relative_pose.pose),
-                       np.array(m.relative_pose.covariance, dtype=float).reshape(6, 6))
+                       np.array(m.relative_pose.covariance, dtype=float).reshape(6, 6),
+                       getattr(m, "query_robot", 0), getattr(m, "match_robot", 0))
 
     @staticmethod
     def from_record(r: dict) -> "Closure":
@@ -105,7 +119,8 @@ class Closure:
 
         return Closure(r["query_id"], r["match_id"], r["query_stamp"], r["match_stamp"],
                        pose2(r["query_odom_pose"]), pose2(r["match_odom_pose"]), pose2(r["relative_pose"]),
-                       np.array(r["covariance"], dtype=float).reshape(6, 6))
+                       np.array(r["covariance"], dtype=float).reshape(6, 6),
+                       r.get("query_robot", 0), r.get("match_robot", 0))
 
 
 class PathLength:
@@ -216,17 +231,128 @@ def optimise(closures: list[Closure], path: PathLength | None = None, noise: Odo
     return rows
 
 
+# ---- several robots ---------------------------------------------------------------------------------------
+
+# Key letter of each robot id (gtsam.Symbol: a character and a 56-bit index).
+ROBOT_LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
+
+
+def fleet_key(robot: int, keyframe_id: int) -> int:
+    """The key of keyframe ``keyframe_id`` of robot ``robot``: ``Symbol(ROBOT_LETTERS[robot], id)``."""
+    if not 0 <= robot < len(ROBOT_LETTERS):
+        raise ValueError(f"robot id {robot} outside 0..{len(ROBOT_LETTERS) - 1}")
+    return gtsam.symbol(ROBOT_LETTERS[robot], keyframe_id)
+
+
+def fleet_odometry_poses(closures: list[Closure]) -> dict[tuple[int, int], tuple[float, gtsam.Pose2]]:
+    """Every keyframe the closures name: (robot, id) -> (stamp, pose in that robot's odometry frame)."""
+    kfs: dict[tuple[int, int], tuple[float, gtsam.Pose2]] = {}
+    for c in closures:
+        kfs[(c.match_robot, c.match_id)] = (c.match_stamp, c.match_odom)
+        kfs[(c.query_robot, c.query_id)] = (c.query_stamp, c.query_odom)
+    return kfs
+
+
+def place_robots(closures: list[Closure], anchor: int) -> dict[int, gtsam.Pose2]:
+    """Each robot's odometry frame in the anchor robot's, from its first closure (by query stamp) onto a
+    robot already placed; robots not linked to the anchor are missing."""
+    frames = {anchor: gtsam.Pose2()}
+    ordered = sorted(closures, key=lambda c: (c.query_stamp, c.match_stamp))
+    changed = True
+    while changed:
+        changed = False
+        for c in ordered:
+            q, m = c.query_robot, c.match_robot
+            if q == m or (q in frames) == (m in frames):
+                continue
+            if m in frames:  # T_w_oq = T_w_om * match_odom * relative * query_odom^-1
+                frames[q] = frames[m].compose(c.match_odom).compose(c.relative).compose(c.query_odom.inverse())
+            else:  # T_w_om = T_w_oq * query_odom * relative^-1 * match_odom^-1
+                frames[m] = (frames[q].compose(c.query_odom).compose(c.relative.inverse())
+                             .compose(c.match_odom.inverse()))
+            changed = True
+    return frames
+
+
+def build_fleet_graph(closures: list[Closure], paths: dict[int, PathLength] | None = None,
+                      noise: OdometryNoise | None = None, anchor: int | None = None,
+                      rotate_covariance_deg: float = 0.0):
+    """The fleet's factor graph and initial values (module documentation); the last closure of a pair
+    counts. Returns (graph, initial, keyframes) with keyframes (robot, id) -> (stamp, odometry pose) of the
+    placed robots only."""
+    noise = noise or OdometryNoise()
+    paths = paths or {}
+    unique = {(c.query_robot, c.query_id, c.match_robot, c.match_id): c for c in closures}
+    all_kfs = fleet_odometry_poses(list(unique.values()))
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    if not all_kfs:
+        return graph, initial, {}
+    if anchor is None:
+        anchor = min(r for r, _ in all_kfs)
+    frames = place_robots(list(unique.values()), anchor)
+    kfs = {k: v for k, v in all_kfs.items() if k[0] in frames}
+    for robot in sorted(frames):
+        order = sorted((k for k in kfs if k[0] == robot), key=lambda k: (kfs[k][0], k[1]))
+        for k in order:
+            initial.insert(fleet_key(*k), frames[robot].compose(kfs[k][1]))
+        if robot == anchor and order:
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+            graph.add(gtsam.PriorFactorPose2(fleet_key(*order[0]), kfs[order[0]][1], prior))
+        path = paths.get(robot)
+        for a, b in zip(order, order[1:]):
+            (ta, pa), (tb, pb) = kfs[a], kfs[b]
+            d = None
+            if path is not None:
+                sa, sb = path.at(ta), path.at(tb)
+                d = sb - sa if sa is not None and sb is not None else None
+            if d is None:
+                d = math.hypot(pb.x() - pa.x(), pb.y() - pa.y())
+            graph.add(gtsam.BetweenFactorPose2(fleet_key(*a), fleet_key(*b), pa.between(pb), noise.model(d)))
+    for c in unique.values():
+        if c.query_robot not in frames or c.match_robot not in frames:
+            continue
+        cov = planar_covariance(c.covariance, rotate_covariance_deg)
+        graph.add(gtsam.BetweenFactorPose2(fleet_key(c.match_robot, c.match_id),
+                                           fleet_key(c.query_robot, c.query_id), c.relative,
+                                           gtsam.noiseModel.Gaussian.Covariance(cov)))
+    return graph, initial, kfs
+
+
+def optimise_fleet(closures: list[Closure], paths: dict[int, PathLength] | None = None,
+                   noise: OdometryNoise | None = None, anchor: int | None = None,
+                   rotate_covariance_deg: float = 0.0) -> list[tuple[int, int, float, float, float, float]]:
+    """The optimised keyframe poses of the placed robots in the anchor's odometry frame, by robot, oldest
+    first: (robot, id, stamp, x, y, yaw)."""
+    graph, initial, kfs = build_fleet_graph(closures, paths, noise, anchor, rotate_covariance_deg)
+    if initial.size() == 0:
+        return []
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(100)
+    params.setRelativeErrorTol(1e-10)
+    params.setAbsoluteErrorTol(1e-12)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+    rows = []
+    for k in sorted(kfs, key=lambda k: (k[0], kfs[k][0], k[1])):
+        p = result.atPose2(fleet_key(*k))
+        rows.append((k[0], k[1], kfs[k][0], p.x(), p.y(), p.theta()))
+    return rows
+
+
 def write_csv(path: Path, rows) -> None:
+    """Rows (key, stamp, x, y, yaw), or a fleet's (robot, key, stamp, x, y, yaw)."""
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["key", "stamp", "x", "y", "yaw"])
-        for k, t, x, y, yaw in rows:
-            w.writerow([k, repr(t), repr(x), repr(y), repr(yaw)])
+        fleet = bool(rows) and len(rows[0]) == 6
+        w.writerow((["robot"] if fleet else []) + ["key", "stamp", "x", "y", "yaw"])
+        for row in rows:
+            *ids, t, x, y, yaw = row
+            w.writerow([*ids, repr(t), repr(x), repr(y), repr(yaw)])
 
 
 def write_tum(path: Path, rows) -> None:
     with open(path, "w") as f:
-        for _, t, x, y, yaw in rows:
+        for *_, t, x, y, yaw in rows:
             f.write(f"{t:.9f} {x!r} {y!r} 0.0 0.0 0.0 {math.sin(yaw / 2)!r} {math.cos(yaw / 2)!r}\n")
 
 
@@ -234,8 +360,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--odom", default="/odom", help="nav_msgs/Odometry topic (default /odom)")
-    ap.add_argument("--closures", default="/dc_loc/loop_closures",
-                    help="dc_loc/msg/LoopClosure topic (default /dc_loc/loop_closures)")
+    ap.add_argument("--closures", action="append",
+                    help="dc_loc/msg/LoopClosure topic (default /dc_loc/loop_closures); with --fleet, "
+                         "repeat it for each node")
+    ap.add_argument("--fleet", action="store_true",
+                    help="several robots: keys per (robot, keyframe id), one odometry chain per robot")
+    ap.add_argument("--robot-odom", action="append", default=[], metavar="ROBOT=TOPIC",
+                    help="with --fleet: robot ROBOT's nav_msgs/Odometry topic (path lengths), repeatable")
+    ap.add_argument("--anchor", type=int, help="with --fleet: the robot anchored (default the lowest id)")
     ap.add_argument("--out", type=Path, help="CSV written at exit: key, stamp, x, y, yaw")
     ap.add_argument("--tum", type=Path, help="TUM trajectory written at exit")
     ap.add_argument("--every", type=int, default=1, help="re-optimise after this many closures (default 1)")
@@ -248,7 +380,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--rotate-covariance", type=float, default=0.0, metavar="DEG",
                     help="turn each closure's x-y covariance by DEG degrees (a deliberately wrong frame)")
     ap.add_argument("--node-name", default="dc_loc_backend_gtsam")
-    return ap.parse_args(argv)
+    a = ap.parse_args(argv)
+    a.closures = a.closures or ["/dc_loc/loop_closures"]
+    if len(a.closures) > 1 and not a.fleet:
+        ap.error("several --closures topics need --fleet")
+    if (a.robot_odom or a.anchor is not None) and not a.fleet:
+        ap.error("--robot-odom and --anchor need --fleet")
+    try:
+        a.robot_odom = {int(r): t for r, t in (x.split("=", 1) for x in a.robot_odom)}
+    except ValueError:
+        ap.error("--robot-odom takes ROBOT=TOPIC")
+    return a
 
 
 class BackendNode:
@@ -262,6 +404,7 @@ class BackendNode:
 
         self.node, self.a = node, a
         self.path = PathLength()
+        self.paths = {robot: PathLength() for robot in a.robot_odom}
         self.closures: list[Closure] = []
         self.rows: list = []
         self.odom_frame = "odom"
@@ -272,8 +415,14 @@ class BackendNode:
                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
         odom_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                               reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-        node.create_subscription(Odometry, a.odom, self.on_odometry, odom_qos)
-        node.create_subscription(LoopClosure, a.closures, self.on_closure, closures_qos)
+        if a.fleet:
+            for robot, topic in a.robot_odom.items():
+                node.create_subscription(Odometry, topic, lambda m, r=robot: self.on_robot_odometry(r, m),
+                                         odom_qos)
+        else:
+            node.create_subscription(Odometry, a.odom, self.on_odometry, odom_qos)
+        for topic in a.closures:
+            node.create_subscription(LoopClosure, topic, self.on_closure, closures_qos)
         self.path_pub = node.create_publisher(PathMsg, "~/optimized_path", 1)
 
     def on_odometry(self, m) -> None:
@@ -281,13 +430,22 @@ class BackendNode:
         p = m.pose.pose.position
         self.path.add(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, p.x, p.y)
 
+    def on_robot_odometry(self, robot: int, m) -> None:
+        p = m.pose.pose.position
+        self.paths[robot].add(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, p.x, p.y)
+
+    def optimise(self) -> list:
+        if self.a.fleet:
+            return optimise_fleet(self.closures, self.paths, self.noise, self.a.anchor, self.a.rotate_covariance)
+        return optimise(self.closures, self.path, self.noise, self.a.rotate_covariance)
+
     def on_closure(self, m) -> None:
         self.closures.append(Closure.from_msg(m))
         if len(self.closures) % max(1, self.a.every) == 0:
             self.update()
 
     def update(self) -> None:
-        self.rows = optimise(self.closures, self.path, self.noise, self.a.rotate_covariance)
+        self.rows = self.optimise()
         self.publish()
         self.node.get_logger().info(f"optimised {len(self.rows)} keyframes, {len(self.closures)} closures")
 
@@ -297,7 +455,7 @@ class BackendNode:
 
         msg = PathMsg()
         msg.header.frame_id = self.odom_frame
-        for _, t, x, y, yaw in self.rows:
+        for *_, t, x, y, yaw in self.rows:
             ps = PoseStamped()
             ps.header.frame_id = self.odom_frame
             ps.header.stamp.sec = int(math.floor(t))
@@ -311,13 +469,14 @@ class BackendNode:
 
     def finish(self) -> None:
         """The final optimisation, written to --out and --tum."""
-        self.rows = optimise(self.closures, self.path, self.noise, self.a.rotate_covariance)
+        self.rows = self.optimise()
         if self.a.out:
             write_csv(self.a.out, self.rows)
         if self.a.tum:
             write_tum(self.a.tum, self.rows)
+        odometry = sum(len(p.stamps) for p in self.paths.values()) if self.a.fleet else len(self.path.stamps)
         print(f"backend_gtsam: {len(self.rows)} keyframes, {len(self.closures)} closures, "
-              f"{len(self.path.stamps)} odometry messages", flush=True)
+              f"{odometry} odometry messages", flush=True)
 
 
 def main(argv=None) -> int:

@@ -273,7 +273,7 @@ builtin_interfaces/Time clock
     },
     MsgFile {
         name: "dc_loc/msg/LoopClosure",
-        type_hash: "RIHS01_a68920ba6b6cab5f024fc684f0275b266711fb5c28e553efbdead30eddaab7f8",
+        type_hash: "RIHS01_31a7a72571844f2ce6355761c7f4cb198643ffc5b41e54dddd83cd807d4a4e0e",
         text: include_str!("../../msg/LoopClosure.msg"),
     },
 ];

@@ -491,6 +491,8 @@ class LoopClosure(IdlStruct, typename="dc_loc::msg::dds_::LoopClosure_"):
     header: Header = dataclasses.field(default_factory=Header)
     query_id: uint64 = 0
     match_id: uint64 = 0
+    query_robot: int32 = 0
+    match_robot: int32 = 0
     query_stamp: Time = dataclasses.field(default_factory=Time)
     match_stamp: Time = dataclasses.field(default_factory=Time)
     query_odom_pose: Pose = dataclasses.field(default_factory=Pose)

@@ -152,6 +152,8 @@ CASES = [
         'header': header(1700000100, 250000000, 'base_link'),
         'query_id': 1234,
         'match_id': 2**40 + 7,
+        'query_robot': 2,
+        'match_robot': -7,
         'query_stamp': time(1700000100, 250000000),
         'match_stamp': time(1699999000, 750000000),
         'query_odom_pose': pose(100.5, 20.25, 0.0, 0.0, 0.0, 0.5, 0.5),

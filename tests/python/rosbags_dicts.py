@@ -21,7 +21,9 @@ LOOP_CLOSURE_TYPE = 'dc_loc/msg/LoopClosure'
 LOOP_CLOSURE_MSG = """\
 std_msgs/Header header                 # stamp: query keyframe time; frame_id: body frame
 uint64 query_id                        # newer keyframe
-uint64 match_id                        # older, revisited keyframe
+uint64 match_id                        # older, revisited keyframe (its id in match_robot's map)
+int32 query_robot                      # node.robot_id of the node that published the closure
+int32 match_robot                      # robot of the match keyframe (query_robot unless another robot's)
 builtin_interfaces/Time query_stamp
 builtin_interfaces/Time match_stamp
 geometry_msgs/Pose query_odom_pose     # odometry poses of the two keyframes

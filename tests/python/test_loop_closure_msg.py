@@ -49,6 +49,8 @@ def expected_message(i: int) -> dict:
                    "frame_id": f"base_link_{i}_ß"},
         "query_id": 2**64 - 1 - i,
         "match_id": 2**40 + 17 * i,
+        "query_robot": -(2**31) + i,
+        "match_robot": 2**31 - 1 - 3 * i,
         "query_stamp": {"sec": -(i + 1), "nanosec": 999_999_999 - i},
         "match_stamp": {"sec": 2**31 - 1 - i, "nanosec": i},
         "query_odom_pose": pose(10.0),

@@ -60,6 +60,7 @@ def record(msg) -> dict:
     return {
         "stamp": s(p["header"]["stamp"]), "frame_id": p["header"]["frame_id"],
         "query_id": p["query_id"], "match_id": p["match_id"],
+        "query_robot": p["query_robot"], "match_robot": p["match_robot"],
         "query_stamp": s(p["query_stamp"]), "match_stamp": s(p["match_stamp"]),
         "query_odom_pose": pose(p["query_odom_pose"]), "match_odom_pose": pose(p["match_odom_pose"]),
         "relative_pose": pose(p["relative_pose"]["pose"]),

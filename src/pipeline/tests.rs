@@ -71,3 +71,52 @@ fn a_second_scan_with_the_same_stamp_is_dropped_and_empty_scans_are_counted() {
     assert!(!dropped(&p.push(&scan(5.1)), DropReason::DuplicateStamp));
     assert_eq!(p.stats().dropped[&DropReason::DuplicateStamp], 1);
 }
+
+/// Another robot's keyframe: added once, refused beyond its robot's budget and when it carries this
+/// robot's id from another session, each counted under the robot; this robot's own echo is ignored.
+#[test]
+fn other_robots_keyframes_are_counted_by_robot() {
+    let mut cfg = Config::default();
+    cfg.map.max_keyframes_per_robot = 2;
+    let mut p = Pipeline::new(cfg).expect("config");
+    p.set_robot(1);
+    let place = p.config().place.clone();
+    let keyframe = |robot: i32, session: u32, id: u64| {
+        let pts: Vec<crate::math::Vec2> = (0..50)
+            .map(|i| crate::math::Vec2::new(5.0 + i as f64, (i % 7) as f64))
+            .collect();
+        let record = KeyframeRecord {
+            id,
+            session,
+            stamp: Stamp::from_secs_f64(10.0 + id as f64),
+            t_odom_body: crate::math::Iso2::identity(),
+            odom_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            path_distance: id as f64,
+            points: pts
+                .iter()
+                .filter_map(|&q| crate::keyframe_db::quantise_point(q))
+                .collect(),
+            covs: vec![[40, 40, 0]; 50],
+            place: crate::place::PlaceDescriptor::from_points(&pts, &place),
+        };
+        Input::Keyframe(Box::new(SharedKeyframe {
+            robot,
+            record,
+            heard: Vec::new(),
+        }))
+    };
+    for id in 0..3 {
+        p.push(&keyframe(5, 0, id));
+    }
+    p.push(&keyframe(5, 0, 1));
+    assert!(p.push(&keyframe(1, 0, 0)).is_empty(), "own echo");
+    assert!(dropped(
+        &p.push(&keyframe(1, 9, 0)),
+        DropReason::KeyframeSameRobotId
+    ));
+    let c = p.stats().robots[&5];
+    assert_eq!((c.received, c.added, c.duplicates, c.refused), (4, 2, 1, 1));
+    assert_eq!(p.stats().dropped[&DropReason::KeyframeOverBudget], 1);
+    assert_eq!(p.db().len(), 2);
+    assert_eq!(p.stats().robots[&1].refused, 1);
+}

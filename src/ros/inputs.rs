@@ -290,3 +290,27 @@ pub async fn publisher_counts(
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A robot gets a burst of `node.fleet_history` keyframes, then `node.fleet_rate` a second; another
+    /// robot's allowance is its own.
+    #[test]
+    fn a_flooding_robot_is_held_to_its_rate() {
+        let settings = FleetSettings {
+            history: 50,
+            rate: 10.0,
+            ..FleetSettings::default()
+        };
+        let mut gate = FleetGate::new(&settings);
+        let t0 = Instant::now();
+        let passed = (0..1000).filter(|_| gate.pass(7, t0)).count();
+        assert_eq!(passed, 50, "the burst");
+        let later = t0 + Duration::from_secs(2);
+        let passed = (0..1000).filter(|_| gate.pass(7, later)).count();
+        assert_eq!(passed, 20, "two seconds at 10 a second");
+        assert!(gate.pass(8, later), "another robot has its own allowance");
+    }
+}

@@ -25,6 +25,15 @@
 //! (RMS) of the ground truth and at most half the error of the starting values (each robot's odometry
 //! placed by its first closure onto a placed robot).
 //!
+//! A flood, in the first test (nodes started with `-p node.fleet_history:=200 -p node.fleet_rate:=5`):
+//! a quarter into the concurrent replay, an rclpy publisher on `/dc_loc/keyframes` poses as robot 99 and
+//! sends a handful of malformed keyframes, then as fast as it can 700 well-formed ones (20 random points
+//! each). Each running node must count the malformed ones as `bad_keyframe`, add at most
+//! `fleet_history + fleet_rate * t + 2` of robot 99's keyframes (t: seconds from the flood's first keyframe
+//! until its counts were seen complete or steady), count the rest as over rate (`fleet.robot_99` and
+//! `keyframe_over_rate`), and publish no closure onto robot 99; the late joiner (started after the flood's
+//! publisher is gone) hears nothing of robot 99; everything above holds for the real robots.
+//!
 //! DDS stays on loopback in a domain id of the script's own. Replayed at `DCLOC_REPLAY_RATE` (default 5)
 //! times real time: about 45 s per test on two cores, one test at a time.
 
@@ -42,6 +51,13 @@ use dc_loc::math::{Iso2, Stamp, wrap_angle};
 use dc_loc::sim::{SimConfig, SimSetup};
 
 const ROBOTS: u32 = 3;
+
+/// The flood's fake robot, and the nodes' `node.fleet_history` and `node.fleet_rate` in that run (each
+/// real robot makes about 110 keyframes: well within the history, so the late joiner still gets them all
+/// and the rate never bites a real robot).
+const FLOOD_ROBOT: i64 = 99;
+const FLOOD_HISTORY: u64 = 200;
+const FLOOD_RATE: f64 = 5.0;
 
 fn sim_yaml() -> String {
     format!("{SHORT_DRIVE}radar_preset: nuscenes\n")
@@ -131,11 +147,12 @@ fn serial() -> MutexGuard<'static, ()> {
     LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Robots 0 and 1 drive at the same time, robot 2 joins once they have finished.
+/// Robots 0 and 1 drive at the same time, robot 2 joins once they have finished; while 0 and 1 drive, a
+/// fake robot floods the fleet topic (module documentation).
 #[test]
 fn three_nodes_share_keyframes_and_close_loops_between_robots() {
     let _serial = serial();
-    check_fleet_run("late_2", "0,1", "2");
+    check_fleet_run("late_2", "0,1", "2", true);
 }
 
 /// Robots 0 and 2 drive the same way round at the same time, so each pair of their keyframes is
@@ -144,24 +161,36 @@ fn three_nodes_share_keyframes_and_close_loops_between_robots() {
 #[test]
 fn robots_driving_the_same_way_at_once_register_each_pair_once() {
     let _serial = serial();
-    check_fleet_run("late_1", "0,2", "1");
+    check_fleet_run("late_1", "0,2", "1", false);
 }
 
-/// Runs test_fleet_nodes.py with the robots of `concurrent` at once and then those of `late`, and checks
-/// what it reports (module documentation).
-fn check_fleet_run(name: &str, concurrent: &str, late: &str) {
+/// Runs test_fleet_nodes.py with the robots of `concurrent` at once and then those of `late` (with
+/// `flood`, robot 99's flood during the concurrent replay), and checks what it reports (module
+/// documentation).
+fn check_fleet_run(name: &str, concurrent: &str, late: &str, flood: bool) {
     let f = fleet();
     let (fleet_dir, setups) = (&f.dir, &f.setups);
     let root = common::scratch("fleet_nodes", name);
     let result_path = root.join("result.json");
-    let output = venv::python_script("test_fleet_nodes.py")
+    let started = std::time::Instant::now();
+    let mut script = venv::python_script("test_fleet_nodes.py");
+    script
         .args(["--node", env!("CARGO_BIN_EXE_dc_loc")])
         .args(["--fleet", fleet_dir.to_str().unwrap()])
         .args(["--out", result_path.to_str().unwrap()])
         .args(["--rate", &replay_rate()])
-        .args(["--concurrent", concurrent, "--late", late, "--backend"])
-        .output()
-        .expect("cannot start the venv's python");
+        .args(["--concurrent", concurrent, "--late", late, "--backend"]);
+    if flood {
+        script
+            .args(["--fleet-history", &FLOOD_HISTORY.to_string()])
+            .args(["--fleet-rate", &FLOOD_RATE.to_string()])
+            .args(["--flood", &FLOOD_ROBOT.to_string()]);
+    }
+    let output = script.output().expect("cannot start the venv's python");
+    println!(
+        "{name}: test_fleet_nodes.py took {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
     let stdout = text(&output.stdout);
     let stderr = text(&output.stderr);
     print!("{stdout}");
@@ -185,6 +214,9 @@ fn check_fleet_run(name: &str, concurrent: &str, late: &str) {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&result_path).unwrap()).unwrap();
     let s = &v["summary"];
+    if flood {
+        check_flood(s, concurrent, late);
+    }
 
     // Every node ended cleanly on its signal.
     for k in 0..ROBOTS {
@@ -354,5 +386,101 @@ fn check_fleet_run(name: &str, concurrent: &str, late: &str) {
     assert!(
         ate < 2.0 && ate < 0.5 * ate_initial,
         "fleet ATE after one rigid alignment {ate:.2} m, of the odometry placed by the first closures {ate_initial:.2} m: {b}"
+    );
+}
+
+/// The flood of robot 99 (module documentation): bounded at each node that got it, the excess counted
+/// as over rate, the malformed keyframes as `bad_keyframe`, no closure onto it, nothing of it at the late
+/// joiner, the real robots untouched by the gate.
+fn check_flood(s: &serde_json::Value, concurrent: &str, late: &str) {
+    let f = &s["flood"];
+    assert_eq!(f["robot"].as_i64(), Some(FLOOD_ROBOT), "{f}");
+    let sent = f["sent"].as_u64().unwrap();
+    let malformed = f["malformed"].as_u64().unwrap();
+    assert_eq!(sent, FLOOD_HISTORY + 500);
+    assert!(malformed >= 3, "{f}");
+    assert_eq!(f["note"].as_str(), Some(""), "{f}");
+    // The real robots stay within the history (the late joiner takes them all) and the burst.
+    for k in 0..ROBOTS {
+        let n = s["keyframes"][k.to_string()].as_u64().unwrap();
+        assert!(
+            n <= FLOOD_HISTORY,
+            "robot {k} makes {n} keyframes, more than node.fleet_history {FLOOD_HISTORY}"
+        );
+    }
+    let flooded: Vec<&str> = concurrent.split(',').collect();
+    for k in &flooded {
+        let n = &f["nodes"][*k];
+        let get = |key: &str| {
+            n[key]
+                .as_u64()
+                .unwrap_or_else(|| panic!("robot {k}: no {key}: {n}"))
+        };
+        let (received, added, over_rate) = (get("received"), get("added"), get("over_rate"));
+        let elapsed = n["elapsed_s"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("robot {k}'s node: the flood's counts never steadied: {n}"));
+        let bound = FLOOD_HISTORY as f64 + FLOOD_RATE * elapsed + 2.0;
+        println!(
+            "flood at robot {k}'s node: added {added} of {sent} (bound {bound:.1} after {elapsed:.2} s), over rate {over_rate}, bad_keyframe {}, all delivered {}",
+            get("bad_keyframe"),
+            n["all_delivered"]
+        );
+        // Bounded: the burst plus the rate over the time the flood took.
+        assert!(
+            added as f64 <= bound,
+            "robot {k}'s node added {added} of robot {FLOOD_ROBOT}'s keyframes in {elapsed:.2} s: {n}"
+        );
+        // ... and the burst is honoured (the malformed ones took their tokens too).
+        assert!(
+            added + malformed >= FLOOD_HISTORY,
+            "robot {k}'s node added only {added} of the flood: {n}"
+        );
+        // Nothing more of it arrived after it was counted.
+        assert_eq!(n["added_then"].as_u64(), Some(added), "{n}");
+        assert_eq!(n["over_rate_then"].as_u64(), Some(over_rate), "{n}");
+        // The excess is counted as over rate, at the robot and among the dropped messages (only robot 99's).
+        assert!(
+            over_rate > 0,
+            "robot {k}'s node: no keyframe over rate: {n}"
+        );
+        assert_eq!(get("keyframe_over_rate"), over_rate, "{n}");
+        // The malformed ones are bad keyframes, each once.
+        assert_eq!(get("bad_keyframe"), malformed, "{n}");
+        // The well-formed ones it took were added (no duplicates, within the budget).
+        assert_eq!((get("duplicates"), get("refused")), (0, 0), "{n}");
+        assert_eq!(received, added, "{n}");
+        // No more counted than sent.
+        assert!(
+            received + over_rate <= sent,
+            "robot {k}'s node counts more than was sent: {n}"
+        );
+        // The real robots' keyframes are never over rate.
+        let counts = &s["fleet_counts"][*k];
+        for j in 0..ROBOTS {
+            let c = &counts[j.to_string()];
+            if !c.is_null() {
+                assert_eq!(
+                    c["over_rate"].as_f64(),
+                    Some(0.0),
+                    "robot {k}'s node: robot {j} over rate: {counts}"
+                );
+            }
+        }
+    }
+    // The late joiner started after the flood's publisher was gone: nothing of robot 99 there.
+    for k in late.split(',') {
+        let counts = &s["fleet_counts"][k];
+        assert!(
+            counts[FLOOD_ROBOT.to_string()].is_null(),
+            "robot {k}'s node (late) has robot {FLOOD_ROBOT}'s keyframes: {counts}"
+        );
+    }
+    // A closure onto the flood's random points would be false.
+    assert_eq!(
+        f["closures"].as_array().map(Vec::len),
+        Some(0),
+        "closures naming robot {FLOOD_ROBOT}: {}",
+        f["closures"]
     );
 }

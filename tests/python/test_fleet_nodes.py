@@ -2,14 +2,16 @@
 with the venv's interpreter:
 
     test_fleet_nodes.py --node BIN --fleet DIR --out RESULT.json [--rate R]
-                        [--concurrent 0,1] [--late 2] [--backend] [-- EXTRA NODE ARGS...]
+                        [--concurrent 0,1] [--late 2] [--backend]
+                        [--fleet-history H --fleet-rate F] [--flood ROBOT] [-- EXTRA NODE ARGS...]
 
 DIR is what ``dc_loc sim --fleet N`` writes: ``DIR/robot_<k>/`` holds robot k's bag and ``dc_loc.yaml``.
 
 1. Reserves a ROS domain id of its own; everything stays on loopback (dcloc_testlib).
 2. Starts one node per robot of ``--concurrent``: ``BIN --ros-args --params-file robot_<k>.yaml
    -r __ns:=/robot_<k> -p node.robot_id:=k -p node.fleet:=true -r <input>:=/robot_<k><input> ...`` (every
-   radar and odometry topic of the bag remapped into the robot's namespace), then EXTRA NODE ARGS.
+   radar and odometry topic of the bag remapped into the robot's namespace), ``--fleet-history H``:
+   ``-p node.fleet_history:=H``, ``--fleet-rate F``: ``-p node.fleet_rate:=F``, then EXTRA NODE ARGS.
    ``robot_<k>.yaml`` (beside RESULT.json) is ``DIR/robot_<k>/dc_loc.yaml`` with its ``dc_loc:`` section
    renamed ``/robot_<k>/dc_loc:``: as in ROS 2, a bare ``dc_loc:`` means ``/dc_loc``, not a namespaced node.
 3. rclpy (one participant): publishers of each robot's inputs (reliable, volatile, depth 1000), a
@@ -22,6 +24,18 @@ DIR is what ``dc_loc sim --fleet N`` writes: ``DIR/robot_<k>/`` holds robot k's 
    diagnostics messages of every node.
    Each node's diagnostics must also count every keyframe the other running robots published as
    received (``fleet.robot_<j>: "received N, added N, ..."``).
+   ``--flood ROBOT``: meanwhile, a quarter into that replay, an rclpy publisher on ``/dc_loc/keyframes``
+   (``dc_loc/msg/Keyframe``, reliable, transient local, depth 1000) floods the running nodes as a fake robot
+   of id ROBOT: first a handful of malformed keyframes (``FLOOD_MALFORMED``: covariances not 3 a point, a
+   quaternion of zeros, ...), and once every running node counts them as ``bad_keyframe``, as fast as it
+   can H + 500 well-formed ones (H ``--fleet-history``, default the node's 1000; 20 random points each,
+   ids and stamps increasing, stamps an hour after the last robot's start, a finite pose). Then it waits
+   until each node's ``fleet.robot_<ROBOT>`` counts every flood message (received + over rate + bad) or
+   stop changing over two diagnostics messages, and notes the time since the first well-formed one was
+   sent (``summary.flood``: per node the counts, the dropped counters, those seconds). The publisher is
+   destroyed once the robots of ``--concurrent`` settled, before the late joiners start. The flood's
+   keyframes are kept out of ``keyframes``, and closures naming its robot out of ``closures`` (they are
+   ``flood_closures``, not judged).
 5. The late joiner (``--late``): only now its node starts; it has to take the earlier robots' keyframes from
    the transient-local history of ``/dc_loc/keyframes``: once its diagnostics count them all received, its
    bag is replayed, and step 4's wait again.
@@ -73,6 +87,7 @@ node's id, and the late joiner's closures onto the earlier robots.
 import argparse
 import json
 import math
+import random
 import re
 import signal
 import sys
@@ -90,6 +105,13 @@ FALSE_CLOSURE_THRESHOLD = 2.0  # m, src/eval/revisits.rs
 SAME_RADIUS = 5.0  # m, src/eval/revisits.rs
 SAME_DIRECTION = 0.5 * math.pi  # headings closer than this are the same direction (is_reverse)
 STAMP_TOLERANCE = 1e-6  # s, a Keyframe's stamp against a closure's
+FLOOD_EXTRA = 500  # well-formed flood keyframes beyond node.fleet_history
+FLOOD_POINTS = 20  # points of a flood keyframe
+FLOOD_START = 0.25  # of the concurrent replay's duration
+NODE_FLEET_HISTORY, NODE_FLEET_RATE = 1000, 10.0  # the node's defaults
+# The malformed keyframes of a flood: what src/fleet/wire.rs decode refuses (bad_keyframe).
+FLOOD_MALFORMED = ("covariances 2 a point", "quaternion of zeros", "odd point coordinates", "NaN position",
+                   "heard robots without ids", "negative path length")
 
 
 def secs(t) -> float:
@@ -318,6 +340,169 @@ def rigid_ate(est, gt) -> tuple[float, list]:
 # ---- the run ---------------------------------------------------------------------------------------------
 
 
+def replay_ticking(rs, pubs, messages, rate: float, tick) -> float:
+    """test_backend_replay.replay, calling ``tick()`` after each message and while waiting."""
+    start = time.monotonic()
+    for t, topic, _, raw in messages:
+        due = start + (t - messages[0][0]) * 1e-9 / rate
+        while (left := due - time.monotonic()) > 0:
+            rs.executor.spin_once(timeout_sec=min(left, 0.01))
+            tick()
+        pubs[topic].publish(raw)
+        tick()
+    return time.monotonic() - start
+
+
+class Flood:
+    """A fake robot flooding ``/dc_loc/keyframes`` (module documentation, step 4), driven by ``tick``."""
+
+    def __init__(self, fleet, robot: int, history: int, base_stamp: float) -> None:
+        self.fleet, self.robot, self.history = fleet, robot, history
+        self.n = history + FLOOD_EXTRA
+        self.base_stamp = base_stamp
+        self.state = "idle"
+        self.targets: list[int] = []
+        self.start_at = 0.0
+        self.times: dict[str, float] = {}
+        self.observed: dict[int, dict] = {}
+        self.snap: dict[int, tuple] = {}
+        self.snap_diag: dict[int, int] = {}
+        self.wait_note = ""
+        self.seen: tuple = ()
+
+    def setup(self, rs) -> None:
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        from dc_loc.msg import Keyframe
+
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1000, self.n + len(FLOOD_MALFORMED)),
+                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub = rs.node.create_publisher(Keyframe, FLEET_TOPIC, qos)
+        self.rs = rs
+        rng = random.Random(self.robot)
+
+        def keyframe(i: int):
+            m = Keyframe()
+            stamp = self.base_stamp + 0.1 * i
+            m.header.stamp.sec = int(stamp)
+            m.header.stamp.nanosec = int(round((stamp - int(stamp)) * 1e9)) % 1_000_000_000
+            m.header.frame_id = f"robot_{self.robot}/base_link"
+            m.robot_id, m.session, m.id = self.robot, 0, i
+            yaw = 0.01 * i
+            m.odom_pose.position.x, m.odom_pose.position.y = 0.5 * i, 0.0
+            m.odom_pose.orientation.z, m.odom_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+            m.path_distance = 0.5 * i
+            m.points = [rng.randint(-4000, 4000) for _ in range(2 * FLOOD_POINTS)]
+            m.covariances = [rng.choice((100, 120, 140)) if j % 3 < 2 else rng.randrange(256)
+                             for j in range(3 * FLOOD_POINTS)]
+            return m
+
+        self.good = [keyframe(i) for i in range(self.n)]
+        bad = []
+        for j, what in enumerate(FLOOD_MALFORMED):
+            m = keyframe(self.n + j)
+            if what == "covariances 2 a point":
+                m.covariances = list(m.covariances)[:2 * FLOOD_POINTS]
+            elif what == "quaternion of zeros":
+                m.odom_pose.orientation.z = m.odom_pose.orientation.w = 0.0
+            elif what == "odd point coordinates":
+                m.points = list(m.points) + [1]
+            elif what == "NaN position":
+                m.odom_pose.position.x = float("nan")
+            elif what == "heard robots without ids":
+                m.heard_robots = [0]
+            elif what == "negative path length":
+                m.path_distance = -1.0
+            bad.append(m)
+        self.bad = bad
+
+    def start(self, targets: list[int], after: float) -> None:
+        self.targets = list(targets)
+        self.start_at = time.monotonic() + after
+        self.state = "waiting"
+
+    def counts(self, k: int) -> tuple:
+        """Robot k's node: the flood's (received, added, duplicates, refused, over rate) and its dropped
+        ``bad_keyframe``, ``keyframe_over_rate``."""
+        d = dict(self.fleet.d(k))
+        c = self.fleet.fleet_counts(k, d).get(self.robot, {})
+        return (tuple(int(c.get(n, 0)) for n in ("received", "added", "duplicates", "refused", "over_rate"))
+                + (int(d.get("dc_loc: dropped/bad_keyframe", 0)), int(d.get("dc_loc: dropped/keyframe_over_rate", 0))))
+
+    def delivered(self, k: int) -> bool:
+        c = self.counts(k)
+        return c[0] + c[4] + c[5] >= self.n + len(self.bad)
+
+    def tick(self) -> bool:
+        """Advances the flood; True once done (or never started)."""
+        now = time.monotonic()
+        if self.state in ("idle", "done"):
+            return True
+        if self.state in ("waiting", "bad", "settling") and now - self.start_at > 120.0:
+            raise TimeoutError(f"the flood did not finish (state {self.state})")
+        # The counts change only with a diagnostics message: look again only then.
+        seen = tuple(self.fleet.diag_count.get(self.fleet.fqn(k), 0) for k in self.targets)
+        if self.state != "waiting" and seen == self.seen:
+            return False
+        self.seen = seen
+        if self.state == "waiting" and now >= self.start_at:
+            self.times["malformed"] = now
+            self.times["subscriptions"] = self.pub.get_subscription_count()
+            for m in self.bad:
+                self.pub.publish(m)
+            self.state = "bad"
+        elif self.state == "bad":
+            counted = all(self.counts(k)[5] >= len(self.bad) for k in self.targets)
+            if counted or now - self.times["malformed"] > 30.0:
+                if not counted:
+                    self.wait_note = "the malformed keyframes were not all counted within 30 s"
+                self.times["bad_counted"] = now
+                self.times["flood"] = time.monotonic()
+                for m in self.good:
+                    self.pub.publish(m)
+                self.times["flood_sent"] = time.monotonic()
+                self.state = "settling"
+        elif self.state == "settling":
+            for k in self.targets:
+                if k in self.observed:
+                    continue
+                c = self.counts(k)
+                n = self.fleet.diag_count.get(self.fleet.fqn(k), 0)
+                if self.delivered(k):
+                    self.observed[k] = {"elapsed_s": now - self.times["flood"], "all_delivered": True,
+                                        "added_then": c[1], "over_rate_then": c[4]}
+                elif self.snap.get(k) != c:
+                    self.snap[k], self.snap_diag[k] = c, n
+                elif n >= self.snap_diag[k] + 2:
+                    self.observed[k] = {"elapsed_s": now - self.times["flood"], "all_delivered": False,
+                                        "added_then": c[1], "over_rate_then": c[4]}
+            if all(k in self.observed for k in self.targets):
+                self.state = "done"
+                return True
+        return False
+
+    def stop(self) -> None:
+        """Destroys the flood's publisher (its transient-local history with it)."""
+        if getattr(self, "pub", None) is not None:
+            self.rs.node.destroy_publisher(self.pub)
+            self.pub = None
+
+    def summary(self, closures: list[dict]) -> dict:
+        nodes = {}
+        for k in self.targets:
+            r, a, dup, ref, f, bad, over = self.counts(k)
+            nodes[str(k)] = {"received": r, "added": a, "duplicates": dup, "refused": ref, "over_rate": f,
+                             "bad_keyframe": bad, "keyframe_over_rate": over,
+                             **self.observed.get(k, {"elapsed_s": None, "all_delivered": False,
+                                                     "added_then": None, "over_rate_then": None})}
+        return {"robot": self.robot, "sent": self.n, "malformed": len(self.bad),
+                "malformed_kinds": list(FLOOD_MALFORMED), "nodes": nodes,
+                "send_seconds": self.times.get("flood_sent", 0.0) - self.times.get("flood", 0.0),
+                "bad_wait_seconds": self.times.get("bad_counted", 0.0) - self.times.get("malformed", 0.0),
+                "subscriptions": self.times.get("subscriptions"), "note": self.wait_note,
+                "closures": closures}
+
+
 class Fleet:
     """The nodes, the rclpy side and what it received."""
 
@@ -339,13 +524,20 @@ class Fleet:
         self.diag_count: dict[str, int] = {}
         self.sent: dict[int, dict] = {}
         self.replay_seconds: dict[int, float] = {}
+        self.robots = set(a.concurrent + a.late)
+        self.foreign_keyframes: dict[int, int] = {}  # Keyframe messages of robots not in the fleet (a flood)
 
     def start_node(self, k: int) -> None:
         remaps = []
         for topic in sorted({m[1] for m in self.messages[k]}):
             remaps += ["-r", f"{topic}:={robot_ns(k)}{topic}"]
         argv = [self.a.node, "--ros-args", "--params-file", str(self.params[k]), "-r", f"__ns:={robot_ns(k)}",
-                "-p", f"node.robot_id:={k}", "-p", "node.fleet:=true", *remaps, *self.a.node_args]
+                "-p", f"node.robot_id:={k}", "-p", "node.fleet:=true", *remaps]
+        if self.a.fleet_history is not None:
+            argv += ["-p", f"node.fleet_history:={self.a.fleet_history}"]
+        if self.a.fleet_rate is not None:
+            argv += ["-p", f"node.fleet_rate:={self.a.fleet_rate}"]
+        argv += self.a.node_args
         node = tl.ManagedProcess(argv, self.env, name=f"dc_loc robot {k}")
         self.nodes[k] = node
         node.wait_for_line(lambda l: "running" in l, 30.0, f"robot {k}'s node running line")
@@ -386,6 +578,9 @@ class Fleet:
                 LoopClosure, f"{self.fqn(k)}/loop_closures", on_closure, tl.rclpy_qos_loop_closure(1000))
 
         def on_keyframe(m):
+            if m.robot_id not in self.robots:
+                self.foreign_keyframes[m.robot_id] = self.foreign_keyframes.get(m.robot_id, 0) + 1
+                return
             p, q = m.odom_pose.position, m.odom_pose.orientation
             self.keyframes.append({"robot": m.robot_id, "session": m.session, "id": m.id,
                                    "stamp": secs(m.header.stamp), "x": p.x, "y": p.y,
@@ -424,8 +619,9 @@ class Fleet:
         rs.spin_until(lambda: self.keyframe_sub.get_publisher_count() >= len(self.nodes), 30.0,
                       f"{len(self.nodes)} publishers on {FLEET_TOPIC}")
 
-    def replay(self, robots: list[int]) -> None:
-        """Replays ``robots``' bags together, each from its own start, at ``--rate``."""
+    def replay(self, robots: list[int], tick=None) -> None:
+        """Replays ``robots``' bags together, each from its own start, at ``--rate`` (calling ``tick()``
+        meanwhile when given)."""
         merged = []
         for k in robots:
             msgs = self.messages[k]
@@ -435,7 +631,10 @@ class Fleet:
                             "odometry": sum(1 for m in msgs if m[2] == "nav_msgs/msg/Odometry")}
         merged.sort(key=lambda m: m[0])
         pubs = {t: p for k in robots for t, p in self.pubs[k].items()}
-        seconds = replay(self.rs, pubs, merged, self.a.rate)
+        if tick is None:
+            seconds = replay(self.rs, pubs, merged, self.a.rate)
+        else:
+            seconds = replay_ticking(self.rs, pubs, merged, self.a.rate, tick)
         for k in robots:
             self.replay_seconds[k] = seconds
 
@@ -480,11 +679,16 @@ class Fleet:
             if snapshot() == before and all(self.processed(k) for k in robots):
                 return
 
-    def fleet_counts(self, k: int) -> dict[int, dict[str, float]]:
-        """Robot k's diagnostics of the other robots' keyframes: robot -> received, added, duplicates,
-        refused, over rate (``fleet.robot_<j>: "received N, added N, duplicates N, refused N, over rate N"``)."""
+    def replay_duration(self, robots: list[int]) -> float:
+        """Wall seconds the replay of ``robots`` takes at ``--rate``."""
+        return max((self.messages[k][-1][0] - self.messages[k][0][0]) * 1e-9 for k in robots) / self.a.rate
+
+    def fleet_counts(self, k: int, d: dict | None = None) -> dict[int, dict[str, float]]:
+        """Robot k's diagnostics (or ``d``) of the other robots' keyframes: robot -> received, added,
+        duplicates, refused, over rate (``fleet.robot_<j>: "received N, added N, duplicates N, refused N,
+        over rate N"``)."""
         out = {}
-        for key, v in self.d(k).items():
+        for key, v in (self.d(k) if d is None else d).items():
             m = re.search(r"fleet\.robot_(\d+)$", key)
             if m:
                 out[int(m.group(1))] = {name.strip().replace(" ", "_"): float(n)
@@ -545,6 +749,10 @@ def main() -> int:
     ap.add_argument("--concurrent", default="0,1", help="robots replayed together first (default 0,1)")
     ap.add_argument("--late", default="2", help="robots whose nodes start after those finished (default 2)")
     ap.add_argument("--backend", action="store_true", help="optimise the fleet with examples/backend_gtsam.py")
+    ap.add_argument("--fleet-history", type=int, help="-p node.fleet_history:=H on every node")
+    ap.add_argument("--fleet-rate", type=float, help="-p node.fleet_rate:=F on every node")
+    ap.add_argument("--flood", type=int, metavar="ROBOT",
+                    help="flood /dc_loc/keyframes as fake robot ROBOT during the concurrent replay")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
     a.concurrent = [int(k) for k in a.concurrent.split(",") if k]
@@ -557,16 +765,33 @@ def main() -> int:
     tl.apply_loopback_env(domain)
     env = tl.loopback_env(domain)
     fleet = Fleet(a, env)
-    result = {"domain_id": domain, "rate": a.rate, "concurrent": a.concurrent, "late": a.late}
+    flood = None
+    if a.flood is not None:
+        if a.flood in robots:
+            raise SystemExit(f"--flood {a.flood}: a robot of the fleet")
+        base = max(fleet.messages[k][0][0] for k in robots) * 1e-9 + 3600.0
+        flood = Flood(fleet, a.flood, a.fleet_history or NODE_FLEET_HISTORY, base)
+    result = {"domain_id": domain, "rate": a.rate, "concurrent": a.concurrent, "late": a.late,
+              "fleet_history": a.fleet_history or NODE_FLEET_HISTORY, "fleet_rate": a.fleet_rate or NODE_FLEET_RATE}
     started = time.monotonic()
     try:
         for k in a.concurrent:
             fleet.start_node(k)
         with tl.RclpySession("dc_loc_fleet_replay") as rs:
             fleet.setup(rs)
+            if flood:
+                flood.setup(rs)
             fleet.wait_matched(a.concurrent)
-            fleet.replay(a.concurrent)
+            if flood:
+                flood.start(a.concurrent, FLOOD_START * fleet.replay_duration(a.concurrent))
+                fleet.replay(a.concurrent, flood.tick)
+                rs.spin_until(flood.tick, 120.0, f"the flood of robot {a.flood} to be counted")
+            else:
+                fleet.replay(a.concurrent)
             fleet.settle(a.concurrent, 120.0)
+            if flood:
+                # Before the late joiners start: they get no flood from the topic's history.
+                flood.stop()
             before_late = {k: len([kf for kf in fleet.keyframes if kf["robot"] == k]) for k in a.concurrent}
             result["phases"] = {"concurrent_done_s": time.monotonic() - started}
             for k in a.late:
@@ -592,17 +817,28 @@ def main() -> int:
             node.stop()
         reservation.release()
 
-    summary = judge(fleet.closures, fleet.keyframes, truth, a.late)
+    # Closures naming a robot outside the fleet (the flood's) are not judged: they are reported apart.
+    def in_fleet(c: dict) -> bool:
+        return c["query_robot"] in truth and c["match_robot"] in truth
+
+    flood_closures = [c for c in fleet.closures if not in_fleet(c)]
+    closures = [c for c in fleet.closures if in_fleet(c)]
+    summary = judge(closures, fleet.keyframes, truth, a.late)
     summary["exits"] = {str(k): result["robots"][str(k)]["exit"] for k in robots}
     summary["signals"] = {str(k): result["robots"][str(k)]["signal"] for k in robots}
     summary["diag_keyframes"] = {str(k): int(fleet.d(k).get("dc_loc: processing/keyframes", -1)) for k in robots}
     summary["queue_full"] = {str(k): sum(int(v) for key, v in fleet.d(k).items()
                                          if key.endswith("queue_full") and v.lstrip("-").isdigit())
                              for k in robots}
+    summary["foreign_keyframes"] = {str(r): n for r, n in sorted(fleet.foreign_keyframes.items())}
+    summary["fleet_counts"] = {str(k): {str(j): c for j, c in sorted(fleet.fleet_counts(k).items())} for k in robots}
+    if flood:
+        summary["flood"] = flood.summary(flood_closures)
     if a.backend:
-        summary["backend"] = backend_check(fleet.closures, truth, a.fleet, a.concurrent[0])
+        summary["backend"] = backend_check(closures, truth, a.fleet, a.concurrent[0])
     result["summary"] = summary
-    result["closures"] = fleet.closures
+    result["closures"] = closures
+    result["flood_closures"] = flood_closures
     result["keyframes"] = [[k["robot"], k["session"], k["id"], k["stamp"], k["x"], k["y"], k["yaw"]]
                            for k in fleet.keyframes]
     result["wall_seconds"] = time.monotonic() - started
@@ -624,6 +860,18 @@ def print_summary(s: dict, result: dict) -> None:
           f"unknown keyframes {len(s['unknown_keyframes'])}, wrong query_robot {len(s['wrong_query_robot'])}")
     print(f"fleet: exits {s['exits']} ({s['signals']}), queue_full {s['queue_full']}, "
           f"wall {result['wall_seconds']:.1f} s")
+    if "flood" in s:
+        f = s["flood"]
+        print(f"fleet: flood of robot {f['robot']}: {f['sent']} keyframes sent in {f['send_seconds']:.2f} s after "
+              f"{f['malformed']} malformed ones (counted in {f['bad_wait_seconds']:.2f} s), "
+              f"node.fleet_history {result['fleet_history']}, node.fleet_rate {result['fleet_rate']}; "
+              f"closures naming it {len(f['closures'])}; the flood's keyframes seen on the topic "
+              f"{s['foreign_keyframes']}")
+        for k, n in f["nodes"].items():
+            print(f"fleet: flood at robot {k}'s node: received {n['received']}, added {n['added']}, duplicates "
+                  f"{n['duplicates']}, refused {n['refused']}, over rate {n['over_rate']}; dropped bad_keyframe "
+                  f"{n['bad_keyframe']}, keyframe_over_rate {n['keyframe_over_rate']}; counted "
+                  f"{n['elapsed_s']:.2f} s after the flood began (all delivered: {n['all_delivered']})")
     if "backend" in s:
         print(f"fleet: back end {s['backend']}")
 

@@ -77,9 +77,10 @@ pub struct LoopConfig {
     /// alignment, the candidate search also looks around the position the newest held closure
     /// predicts, so that the closures that would confirm it are registered.
     pub confirmations: usize,
-    /// The same for the first closures to another session, a loaded map or another robot (default 3):
-    /// no odometry links the two sessions, and two streets far apart in a grid of look-alike blocks
-    /// can alias consistently from two keyframes (docs/experiments.md, "Fleets").
+    /// The same for the first closures to another session, a loaded map or another robot (default 4):
+    /// no odometry links the two sessions; two streets far apart in a grid of look-alike blocks can
+    /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
+    /// two robots driving it towards each other (docs/experiments.md, "Fleets").
     pub foreign_confirmations: usize,
     /// The confirming closures' query keyframes must lie at least this many metres of path apart
     /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two
@@ -140,7 +141,7 @@ impl Default for LoopConfig {
             minimum_common_view: 0.25,
             consistency_chi2: 16.27,
             confirmations: 2,
-            foreign_confirmations: 3,
+            foreign_confirmations: 4,
             confirmation_span: 30.0,
             confirmation_overlap: 0.6,
             confirmation_horizon: 150.0,

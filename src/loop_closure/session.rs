@@ -334,7 +334,7 @@ mod tests {
     #[test]
     fn another_session_needs_its_own_number_of_confirmations() {
         let lc = LoopConfig::default();
-        assert_eq!((lc.confirmations, lc.foreign_confirmations), (2, 3));
+        assert_eq!((lc.confirmations, lc.foreign_confirmations), (2, 4));
         let a = true_alignment();
         let mut s = Session::new(1);
         assert!(
@@ -346,9 +346,14 @@ mod tests {
                 .is_empty(),
             "two agreeing closures do not confirm another session"
         );
-        let published = s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, a, false, &lc);
+        assert!(
+            s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, a, false, &lc)
+                .is_empty(),
+            "nor do three"
+        );
+        let published = s.accept(&place(22, 220.0), closure(22, 12, 0.7), 0, a, false, &lc);
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
-        assert_eq!(ids, [10, 14, 18]);
+        assert_eq!(ids, [10, 14, 18, 22]);
         // The own session (1) is confirmed by two.
         let mut s = Session::new(1);
         s.accept(&place(10, 100.0), closure(10, 0, 0.7), 1, a, false, &lc);

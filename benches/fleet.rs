@@ -47,11 +47,8 @@ fn drive(
     let d = simulate(cfg).expect("simulates");
     let mut p = Pipeline::new(d.to_config()).expect("config");
     p.set_robot(robot);
-    let place = p.config().place.clone();
     for m in history {
-        p.push(&Input::Keyframe(Box::new(
-            wire::decode(m, &place).expect("decodes"),
-        )));
+        p.push(&Input::Keyframe(Box::new(m.clone())));
     }
     let (mut kfs, mut ms) = (Vec::new(), Vec::new());
     for input in SimInputs::new(&d, ScanEncoding::Detections).flatten() {
@@ -90,7 +87,6 @@ fn main() {
         .collect();
     let (history, msgs) = all.split_at(all.len() / 2);
     let (mut p, _, own_ms) = drive(1, &robots[1], history);
-    let place = p.config().place.clone();
     let bytes: Vec<f64> = all.iter().map(|m| wire::wire_bytes(m) as f64).collect();
     let stored: Vec<f64> = theirs.iter().map(|(r, _)| r.heap_bytes() as f64).collect();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -107,8 +103,7 @@ fn main() {
     let closures = p.stats().closures;
     for m in msgs {
         let t0 = Instant::now();
-        let k = wire::decode(m, &place).expect("decodes");
-        p.push(&Input::Keyframe(Box::new(k)));
+        p.push(&Input::Keyframe(Box::new(m.clone())));
         received.push(t0.elapsed().as_secs_f64() * 1e3);
     }
     let arrival_registrations = p.stats().registrations - registrations;
@@ -116,8 +111,7 @@ fn main() {
     let mut duplicates = Vec::new();
     for m in &all {
         let t0 = Instant::now();
-        let k = wire::decode(m, &place).expect("decodes");
-        p.push(&Input::Keyframe(Box::new(k)));
+        p.push(&Input::Keyframe(Box::new(m.clone())));
         duplicates.push(t0.elapsed().as_secs_f64() * 1e3);
     }
     summary("own keyframe (the input that made it)", own_ms.clone());

@@ -36,8 +36,8 @@ pub enum Input {
         /// Body pose in the odometry frame.
         t_odom_body: Iso3,
     },
-    /// Another robot's keyframe, as its node shared it (`node.fleet`).
-    Keyframe(Box<crate::fleet::SharedKeyframe>),
+    /// Another robot's keyframe, the message as its node shared it (`node.fleet`).
+    Keyframe(Box<crate::msgs::dc_loc::Keyframe>),
     /// A ground-truth sample (not used by the pipeline; for evaluation).
     GroundTruth {
         /// Its stamp.
@@ -55,7 +55,7 @@ impl Input {
         match self {
             Input::Radar { cloud, .. } => cloud.header.stamp.into(),
             Input::Scan(scan) => scan.stamp,
-            Input::Keyframe(k) => k.record.stamp,
+            Input::Keyframe(k) => k.header.stamp.into(),
             Input::Odometry { stamp, .. } | Input::GroundTruth { stamp, .. } => *stamp,
         }
     }

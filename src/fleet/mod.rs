@@ -1,8 +1,8 @@
 //! Fleets: keyframes shared between robots' nodes so that each finds revisits of the others' streets.
 //!
 //! A node publishes each keyframe it makes ([`wire::encode`], `dc_loc/msg/Keyframe`) and takes the
-//! other robots' into its own map ([`wire::decode`], then [`crate::pipeline::Pipeline::push`] with
-//! [`crate::input::Input::Keyframe`]) as sessions of their own, searched by place descriptor alone: the
+//! other robots' into its own map ([`crate::pipeline::Pipeline::push`] with
+//! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own, searched by place descriptor alone: the
 //! robots share no odometry frame. A pair of keyframes of two robots is registered by one node only:
 //! the one that held the other's keyframe when it made its own (the new keyframe's search), or, when
 //! both made theirs before receiving the other's, the one whose keyframe is the newer, when the other's

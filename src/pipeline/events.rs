@@ -32,6 +32,8 @@ pub enum DropReason {
     StampAhead,
     /// A second scan of one radar with the same stamp (a re-sent or bogus message).
     DuplicateStamp,
+    /// Another robot's keyframe that is malformed (see [`crate::fleet::wire::decode`]).
+    BadKeyframe,
     /// Another robot's keyframe beyond `map.max_keyframes_per_robot` of that robot.
     KeyframeOverBudget,
     /// Another robot's keyframe while the map holds `map.max_keyframes`.
@@ -55,6 +57,7 @@ impl DropReason {
             DropReason::StampBackwards => "stamp_backwards",
             DropReason::StampAhead => "stamp_ahead",
             DropReason::DuplicateStamp => "duplicate_stamp",
+            DropReason::BadKeyframe => "bad_keyframe",
             DropReason::KeyframeOverBudget => "keyframe_over_budget",
             DropReason::KeyframeMapFull => "keyframe_map_full",
             DropReason::KeyframeInvalid => "keyframe_invalid",

@@ -22,11 +22,12 @@ pub use events::{DropReason, Event, PipelineStats, RobotCounts};
 
 use std::sync::Arc;
 
-use crate::fleet::SharedKeyframe;
+use crate::fleet::wire;
 use crate::input::{Input, InputLimits};
 use crate::keyframe_db::{ForeignRefusal, KeyframeDb, KeyframeRecord};
 use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
+use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
 use crate::radar::RadarScan;
 use crate::registration::PreparedSubmap;
 use crate::submap::{SpeedScale, Submap};
@@ -300,11 +301,20 @@ impl Pipeline {
         self.report(decisions, out);
     }
 
-    /// Another robot's keyframe: into the map as a session of that robot's (within
+    /// Another robot's keyframe: decoded (its place descriptor made with `place.*`; a malformed one
+    /// dropped as [`DropReason::BadKeyframe`]), into the map as a session of that robot's (within
     /// `map.max_keyframes_per_robot` and `map.max_keyframes`), then this session's keyframes that may
     /// revisit it and are newer are registered against it. This node's own keyframes, echoed by the
     /// fleet topic, are ignored.
-    fn foreign(&mut self, k: &SharedKeyframe, out: &mut Vec<Event>) {
+    fn foreign(&mut self, msg: &KeyframeMsg, out: &mut Vec<Event>) {
+        let k = match wire::decode(msg, &self.cfg.place) {
+            Ok(k) => k,
+            Err(e) => {
+                let detail = format!("keyframe {} of robot {}: {e}", msg.id, msg.robot_id);
+                dropped(&mut self.stats, out, DropReason::BadKeyframe, detail);
+                return;
+            }
+        };
         let counts = self.stats.robots.entry(k.robot).or_default();
         counts.received += 1;
         if k.robot == self.robot {

@@ -99,11 +99,7 @@ fn other_robots_keyframes_are_counted_by_robot() {
             covs: vec![[40, 40, 0]; 50],
             place: crate::place::PlaceDescriptor::from_points(&pts, &place),
         };
-        Input::Keyframe(Box::new(SharedKeyframe {
-            robot,
-            record,
-            heard: Vec::new(),
-        }))
+        Input::Keyframe(Box::new(wire::encode(robot, &record, &[], 0, "base_link")))
     };
     for id in 0..3 {
         p.push(&keyframe(5, 0, id));
@@ -119,4 +115,15 @@ fn other_robots_keyframes_are_counted_by_robot() {
     assert_eq!(p.stats().dropped[&DropReason::KeyframeOverBudget], 1);
     assert_eq!(p.db().len(), 2);
     assert_eq!(p.stats().robots[&1].refused, 1);
+    let mut bad = wire::encode(5, &p.db().get(0).unwrap().clone(), &[], 0, "base_link");
+    bad.covariances.pop();
+    assert!(dropped(
+        &p.push(&Input::Keyframe(Box::new(bad))),
+        DropReason::BadKeyframe
+    ));
+    assert_eq!(
+        p.stats().robots[&5].received,
+        4,
+        "a malformed keyframe names no robot reliably"
+    );
 }

@@ -157,11 +157,9 @@ impl Subscriptions {
 
     /// Runs every reception task until `stop` completes; `Some(cause)` when the node cannot go on (a
     /// task or the worker ended first).
-    #[allow(clippy::too_many_arguments)]
     pub async fn receive(
         &self,
         node: &Node,
-        place: crate::place::PlaceConfig,
         r: Reception,
         limits: InputLimits,
         mut stop: tokio::sync::mpsc::Receiver<()>,
@@ -196,7 +194,7 @@ impl Subscriptions {
             let shared = r.shared.clone();
             let mut gate = inputs::FleetGate::new(fleet);
             tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |k| {
-                inputs::keyframe_input(topic, &place, &mut gate, &shared, k)
+                inputs::keyframe_input(topic, &mut gate, &shared, k)
             })));
         }
         let counts = inputs::publisher_counts(

@@ -13,7 +13,6 @@ use ros2_client::{Node, Subscription};
 use serde::de::DeserializeOwned;
 
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
-use crate::fleet::wire;
 use crate::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
 use crate::math::Stamp;
 use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
@@ -23,7 +22,6 @@ use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
 use crate::params::node::FleetSettings;
-use crate::place::PlaceConfig;
 
 /// A message whose zero `header.stamp` the receive time replaces (drivers that leave it unset), as
 /// `dc_loc run` takes a bag's log time.
@@ -208,12 +206,10 @@ impl FleetGate {
     }
 }
 
-/// Another robot's keyframe as the input: decoded with this node's place settings; refused when
-/// malformed (`bad_keyframe`) or beyond `node.fleet_rate` for its robot (`keyframe_over_rate`,
-/// counted under the robot).
+/// Another robot's keyframe as the input (the pipeline decodes and checks it), refused beyond
+/// `node.fleet_rate` for its robot (`keyframe_over_rate`, counted under the robot).
 pub fn keyframe_input(
     topic: &str,
-    place: &PlaceConfig,
     gate: &mut FleetGate,
     shared: &Shared,
     msg: KeyframeMsg,
@@ -227,13 +223,7 @@ pub fn keyframe_input(
         );
         return Err(("keyframe_over_rate", detail));
     }
-    match wire::decode(&msg, place) {
-        Ok(k) => Ok((Input::Keyframe(Box::new(k)), None)),
-        Err(e) => Err((
-            "bad_keyframe",
-            format!("{topic}: keyframe of robot {}: {e}", msg.robot_id),
-        )),
-    }
+    Ok((Input::Keyframe(Box::new(msg)), None))
 }
 
 /// An odometry message as the input, refused when its pose is not finite.

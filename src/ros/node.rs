@@ -185,16 +185,8 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         inbox: inbox.clone(),
         use_sim_time: settings.use_sim_time,
     };
-    let place = cfg.place.clone();
-    let ended = runtime.block_on(subs.receive(
-        &node,
-        place,
-        reception,
-        settings.limits,
-        stop,
-        done_rx,
-        save_tx,
-    ));
+    let ended =
+        runtime.block_on(subs.receive(&node, reception, settings.limits, stop, done_rx, save_tx));
     log::info!("shutting down: saving the map, then processing the queued messages");
     shared.stopping.store(true, Ordering::SeqCst);
     inbox.stop();

@@ -181,6 +181,21 @@ def odometry_poses(closures: list[Closure]) -> dict[int, tuple[float, gtsam.Pose
     return kfs
 
 
+def add_odometry_chain(graph, order, kfs, path, noise, key) -> None:
+    """A ``BetweenFactorPose2`` between consecutive keyframes of ``order`` (keys ``key(k)``), measuring
+    their relative odometry pose, with the noise of the path the odometry drove between them (the
+    straight distance when ``path`` does not cover them)."""
+    for a, b in zip(order, order[1:]):
+        (ta, pa), (tb, pb) = kfs[a], kfs[b]
+        d = None
+        if path is not None:
+            sa, sb = path.at(ta), path.at(tb)
+            d = sb - sa if sa is not None and sb is not None else None
+        if d is None:
+            d = math.hypot(pb.x() - pa.x(), pb.y() - pa.y())
+        graph.add(gtsam.BetweenFactorPose2(key(a), key(b), pa.between(pb), noise.model(d)))
+
+
 def build_graph(closures: list[Closure], path: PathLength | None = None,
                 noise: OdometryNoise | None = None, rotate_covariance_deg: float = 0.0):
     """The factor graph and its initial values (the odometry poses) from ``closures``; the last closure of a
@@ -197,15 +212,7 @@ def build_graph(closures: list[Closure], path: PathLength | None = None,
         return graph, initial, kfs
     anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
     graph.add(gtsam.PriorFactorPose2(key(order[0]), kfs[order[0]][1], anchor))
-    for a, b in zip(order, order[1:]):
-        (ta, pa), (tb, pb) = kfs[a], kfs[b]
-        d = None
-        if path is not None:
-            sa, sb = path.at(ta), path.at(tb)
-            d = sb - sa if sa is not None and sb is not None else None
-        if d is None:
-            d = math.hypot(pb.x() - pa.x(), pb.y() - pa.y())
-        graph.add(gtsam.BetweenFactorPose2(key(a), key(b), pa.between(pb), noise.model(d)))
+    add_odometry_chain(graph, order, kfs, path, noise, key)
     for c in unique.values():
         cov = planar_covariance(c.covariance, rotate_covariance_deg)
         graph.add(gtsam.BetweenFactorPose2(key(c.match_id), key(c.query_id), c.relative,
@@ -300,15 +307,7 @@ def build_fleet_graph(closures: list[Closure], paths: dict[int, PathLength] | No
             prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
             graph.add(gtsam.PriorFactorPose2(fleet_key(*order[0]), kfs[order[0]][1], prior))
         path = paths.get(robot)
-        for a, b in zip(order, order[1:]):
-            (ta, pa), (tb, pb) = kfs[a], kfs[b]
-            d = None
-            if path is not None:
-                sa, sb = path.at(ta), path.at(tb)
-                d = sb - sa if sa is not None and sb is not None else None
-            if d is None:
-                d = math.hypot(pb.x() - pa.x(), pb.y() - pa.y())
-            graph.add(gtsam.BetweenFactorPose2(fleet_key(*a), fleet_key(*b), pa.between(pb), noise.model(d)))
+        add_odometry_chain(graph, order, kfs, path, noise, lambda k: fleet_key(*k))
     for c in unique.values():
         if c.query_robot not in frames or c.match_robot not in frames:
             continue

@@ -235,8 +235,7 @@ impl LoopCloser {
             }
         }
         out.registrations += pairs.len() as u64;
-        let mut cfg = self.rc.clone();
-        cfg.correlative.enabled &= self.lc.correlative_search;
+        let cfg = self.search_registration();
         let results: Vec<_> = pairs
             .par_iter()
             .map(|(_, source)| register_prepared(source, &target, &cfg))
@@ -341,8 +340,7 @@ impl LoopCloser {
         // The registrations are independent: they run in parallel and are gated in candidate order,
         // so the outcome is the same as one after another, sooner.
         out.registrations += targets.len() as u64;
-        let mut cfg = self.rc.clone();
-        cfg.correlative.enabled &= self.lc.correlative_search;
+        let cfg = self.search_registration();
         let results: Vec<_> = targets
             .par_iter()
             .map(|(_, target)| register_prepared(prepared, target, &cfg))
@@ -398,6 +396,14 @@ impl LoopCloser {
             }
         }
         None
+    }
+
+    /// The registration settings of a revisit search (`loop.correlative_search` may turn the
+    /// correlative search off).
+    fn search_registration(&self) -> RegistrationConfig {
+        let mut cfg = self.rc.clone();
+        cfg.correlative.enabled &= self.lc.correlative_search;
+        cfg
     }
 
     fn gates(&self) -> Gates<'_> {

@@ -736,6 +736,8 @@ fn eval_on_the_short_drive_puts_dcloc_ahead_of_icp() {
         params.to_str().unwrap(),
         "--out-dir",
         out_dir.to_str().unwrap(),
+        "--export-pairs",
+        out_dir.join("export").to_str().unwrap(),
     ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
@@ -778,6 +780,69 @@ fn eval_on_the_short_drive_puts_dcloc_ahead_of_icp() {
         mean("ICP")
     );
     assert_eq!(errors.len(), dc_loc::eval::Method::all().len());
+    exported_pairs_align_under_their_truth(&out_dir.join("export"), *pairs);
+}
+
+/// The exported pairs (`--export-pairs`): every pair's query points, moved by its true
+/// `T_target_query`, land on its target points (median nearest-neighbour distance well under the
+/// identity's); DC-Loc's exported estimate is as far from the truth as its exported error says.
+fn exported_pairs_align_under_their_truth(dir: &std::path::Path, pairs: usize) {
+    let bytes = std::fs::read(dir.join("points.f32")).unwrap();
+    let floats: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    let points = |span: &serde_json::Value| -> Vec<[f64; 2]> {
+        let (o, n) = (
+            span["offset"].as_u64().unwrap(),
+            span["count"].as_u64().unwrap(),
+        );
+        (o..o + n)
+            .map(|i| {
+                [
+                    floats[2 * i as usize] as f64,
+                    floats[2 * i as usize + 1] as f64,
+                ]
+            })
+            .collect()
+    };
+    let median_nn = |q: &[[f64; 2]], t: &[[f64; 2]], x: [f64; 3]| {
+        let (s, c) = x[2].sin_cos();
+        let mut d: Vec<f64> = q
+            .iter()
+            .map(|p| {
+                let m = [c * p[0] - s * p[1] + x[0], s * p[0] + c * p[1] + x[1]];
+                t.iter()
+                    .map(|u| (u[0] - m[0]).hypot(u[1] - m[1]))
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        d.sort_by(f64::total_cmp);
+        d[d.len() / 2]
+    };
+    let lines = std::fs::read_to_string(dir.join("pairs.jsonl")).unwrap();
+    let (mut closer, mut n) = (0, 0);
+    for line in lines.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        let truth: [f64; 3] = serde_json::from_value(v["truth"].clone()).unwrap();
+        let (q, t) = (points(&v["query"]), points(&v["target"]));
+        if truth[0].hypot(truth[1]) > 2.0 {
+            n += 1;
+            let (aligned, identity) = (median_nn(&q, &t, truth), median_nn(&q, &t, [0.0; 3]));
+            closer += usize::from(aligned < 0.5 * identity);
+        }
+        if let Some(est) = v["dcloc"]["estimate"].as_array() {
+            let e: Vec<f64> = est.iter().map(|x| x.as_f64().unwrap()).collect();
+            let err = v["dcloc"]["translation_error"].as_f64().unwrap();
+            assert!(((e[0] - truth[0]).hypot(e[1] - truth[1]) - err).abs() < 1e-9);
+            assert!(v["dcloc"]["seconds"].as_f64().unwrap() > 0.0);
+        }
+    }
+    assert_eq!(lines.lines().count(), pairs);
+    assert!(
+        n >= 5 && closer * 10 >= n * 9,
+        "{closer} of {n} pairs align under their truth"
+    );
 }
 
 /// `dc_loc eval` without ground truth in the bag says so and exits 2.

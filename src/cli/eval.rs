@@ -14,6 +14,7 @@ use super::params::load_params;
 use super::source::{SourceArgs, bag_inputs};
 use super::{CliError, progress};
 use crate::bag::BagReader;
+use crate::eval::export::export_pairs;
 use crate::eval::report::{self, MethodSummary};
 use crate::eval::{Collector, EvalConfig, EvalKeyframe, Method, PairResult, evaluate, make_pairs};
 use crate::input::Input;
@@ -54,6 +55,32 @@ pub struct EvalArgs {
     /// Only DC-Loc (skip the baselines and the ablation).
     #[arg(long)]
     pub dcloc_only: bool,
+    /// A protocol set of simulated worlds instead of a bag: `dev` (the worlds tuning may look at) or
+    /// `test` (held out). Each world is driven twice (72 then 40 km/h, 1 % odometry drift) with each
+    /// `--radars` set and `--noise` model, and evaluated as a bag is.
+    #[arg(long, value_name = "dev|test", conflicts_with_all = ["bag", "nuscenes", "vod"])]
+    pub set: Option<String>,
+    /// With `--set`: radar sets, `carla` (one forward radar), `nuscenes` (five ARS408), `ti`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "carla,nuscenes",
+        requires = "set"
+    )]
+    pub radars: Vec<String>,
+    /// With `--set`: noise models, `gaussian`, `gamma`, `student-t`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "gaussian",
+        requires = "set"
+    )]
+    pub noise: Vec<String>,
+    /// Writes the pairs, their submaps and DC-Loc's single-threaded result on each into this directory
+    /// (one subdirectory a world with `--set`), for registering them with other tools
+    /// (`examples/peers.py`). Not with `--nuscenes` or `--vod`.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["nuscenes", "vod"])]
+    pub export_pairs: Option<PathBuf>,
 }
 
 /// What an evaluation produced.
@@ -255,7 +282,12 @@ pub fn methods(args: &EvalArgs) -> Vec<Method> {
 
 /// Runs `dc_loc eval --bag`.
 pub fn main(args: &EvalArgs) -> Result<(), CliError> {
-    let (Some(bag), Some(params)) = (&args.source.bag, &args.source.params) else {
+    let Some(bag) = &args.source.bag else {
+        return Err(CliError::Usage(
+            "--bag, --nuscenes, --vod or --set is required".into(),
+        ));
+    };
+    let Some(params) = &args.source.params else {
         return Err(CliError::Usage(
             "--bag needs --params (the params file of the bag's radars and topics)".into(),
         ));
@@ -267,5 +299,27 @@ pub fn main(args: &EvalArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::Usage(e.to_string()))?;
     let kfs = collect(bag, &cfg, &args.ground_truth_topic, &eval)?;
     evaluate_and_report(&kfs, &cfg, &eval, &methods(args), &args.out_dir)?;
+    if let Some(dir) = &args.export_pairs {
+        export(dir, &kfs, &cfg, &eval, &bag.display().to_string())?;
+    }
+    Ok(())
+}
+
+/// Writes the pairs of `kfs` for other tools into `dir` ([`crate::eval::export`]).
+pub fn export(
+    dir: &Path,
+    kfs: &[EvalKeyframe],
+    cfg: &Config,
+    eval: &EvalConfig,
+    source: &str,
+) -> Result<(), CliError> {
+    let pairs = make_pairs(kfs, eval);
+    export_pairs(dir, kfs, &pairs, &cfg.registration, eval, source)
+        .map_err(|e| CliError::Runtime(format!("{}: {e}", dir.display())))?;
+    println!(
+        "pairs for other tools: {} ({} pairs)",
+        dir.display(),
+        pairs.len()
+    );
     Ok(())
 }

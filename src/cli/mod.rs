@@ -12,6 +12,7 @@
 pub mod demo;
 pub mod eval;
 pub mod eval_datasets;
+pub mod eval_set;
 pub mod params;
 pub mod progress;
 pub mod reference;
@@ -92,6 +93,7 @@ pub fn main(args: &[String]) -> i32 {
             ("eval", eval_datasets::eval_nuscenes(&a))
         }
         Command::Eval(a) if a.source.vod.is_some() => ("eval", eval_datasets::eval_vod(&a)),
+        Command::Eval(a) if a.set.is_some() => ("eval", eval_set::main(&a)),
         Command::Eval(a) => ("eval", eval::main(&a)),
         Command::Demo(a) => ("demo", demo::main(&a)),
         Command::Revisits(a) => ("revisits", revisits::main(&a)),

@@ -70,7 +70,7 @@ pub struct RevisitArgs {
     pub closures_out: Option<PathBuf>,
 }
 
-fn parse_preset(s: &str) -> Result<RadarPreset, CliError> {
+pub(super) fn parse_preset(s: &str) -> Result<RadarPreset, CliError> {
     match s {
         "carla" => Ok(RadarPreset::Carla),
         "nuscenes" => Ok(RadarPreset::Nuscenes),
@@ -81,7 +81,7 @@ fn parse_preset(s: &str) -> Result<RadarPreset, CliError> {
     }
 }
 
-fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
+pub(super) fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
     match s {
         "gaussian" => Ok(NoiseModel::Gaussian),
         "gamma" => Ok(NoiseModel::Gamma),
@@ -92,17 +92,17 @@ fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
     }
 }
 
+/// The worlds of the protocol set `name`.
+pub(super) fn protocol_set(name: &str) -> Result<Vec<ProtocolWorld>, CliError> {
+    families::protocol_set(name)
+        .map(<[ProtocolWorld]>::to_vec)
+        .ok_or_else(|| CliError::Usage(format!("--set: `{name}` is not `dev` or `test`")))
+}
+
 /// The worlds of `args`: the protocol set, or each `--world` family with `--seed`.
 fn worlds(args: &RevisitArgs) -> Result<Vec<ProtocolWorld>, CliError> {
-    match args.set.as_deref() {
-        Some("dev") => return Ok(families::DEV.to_vec()),
-        Some("test") => return Ok(families::TEST.to_vec()),
-        Some(other) => {
-            return Err(CliError::Usage(format!(
-                "--set: `{other}` is not `dev` or `test`"
-            )));
-        }
-        None => {}
+    if let Some(name) = &args.set {
+        return protocol_set(name);
     }
     args.world
         .iter()
@@ -203,7 +203,7 @@ fn scenarios_in(
 }
 
 /// Applies `-p` overrides to a scenario's own configuration.
-fn with_overrides(cfg: &Config, overrides: &[String]) -> Result<Config, String> {
+pub(super) fn with_overrides(cfg: &Config, overrides: &[String]) -> Result<Config, String> {
     let mut set = ParamSet::default();
     for (n, v) in flatten_config(cfg) {
         set.set(n, v);

@@ -33,7 +33,6 @@ pub struct SourceArgs {
     #[arg(
         long,
         value_name = "BAG",
-        required_unless_present_any = ["vod", "nuscenes"],
         conflicts_with_all = ["vod", "nuscenes"]
     )]
     pub bag: Option<PathBuf>,

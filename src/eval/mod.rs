@@ -16,6 +16,7 @@
 //! (learned) is not reproduced.
 
 pub mod drives;
+pub mod export;
 pub mod fleet;
 pub mod report;
 pub mod revisits;
@@ -398,6 +399,8 @@ pub struct PairResult {
     pub method: Method,
     /// |speed_query - speed_target| from ground truth, m/s.
     pub velocity_difference: f64,
+    /// The method's `T_target_query`, when it gave one.
+    pub estimate: Option<Iso2>,
     /// Translation error, m (infinite when the method gave no result).
     pub translation_error: f64,
     /// Rotation error, rad (infinite when the method gave no result).
@@ -472,6 +475,7 @@ fn score(
                 pair: *pair,
                 method,
                 velocity_difference,
+                estimate: Some(est),
                 translation_error: (truth.translation.vector - est.translation.vector).norm(),
                 rotation_error: wrap_angle(truth.rotation.angle() - est.rotation.angle()).abs(),
                 nees,
@@ -485,6 +489,7 @@ fn score(
             pair: *pair,
             method,
             velocity_difference,
+            estimate: None,
             translation_error: f64::INFINITY,
             rotation_error: f64::INFINITY,
             nees: None,

@@ -42,7 +42,8 @@ impl MethodSummary {
     }
 }
 
-fn stats(mut v: Vec<f64>) -> [f64; 3] {
+/// Mean, max and median of `v` (NaN when empty).
+pub fn stats(mut v: Vec<f64>) -> [f64; 3] {
     if v.is_empty() {
         return [f64::NAN; 3];
     }
@@ -389,6 +390,7 @@ mod tests {
             },
             method: DC_LOC,
             velocity_difference: dv,
+            estimate: None,
             translation_error: error,
             rotation_error: 0.001,
             nees: Some(nees),

@@ -162,6 +162,15 @@ pub const TEST: [ProtocolWorld; 4] = [
     },
 ];
 
+/// The worlds of a protocol set by its command-line name (`dev` or `test`).
+pub fn protocol_set(name: &str) -> Option<&'static [ProtocolWorld]> {
+    match name {
+        "dev" => Some(&DEV),
+        "test" => Some(&TEST),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

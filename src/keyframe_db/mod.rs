@@ -94,6 +94,12 @@ impl MapConfig {
     }
 }
 
+/// Records [`KeyframeDb::speed_at`] looks back over for the keyframe before (other robots' keyframes
+/// interleave with a session's).
+pub const SPEED_LOOKBACK: usize = 64;
+/// Longest time between two keyframes over which [`KeyframeDb::speed_at`] gives their mean speed, s.
+pub const SPEED_MAX_GAP: f64 = 10.0;
+
 /// The keyframe database.
 pub struct KeyframeDb {
     records: Vec<Arc<KeyframeRecord>>,
@@ -214,6 +220,20 @@ impl KeyframeDb {
         self.records
             .get(usize::try_from(id).ok()?)
             .map(|r| r.as_ref())
+    }
+
+    /// The odometry's mean speed on the way to `rec` from the keyframe of its session before it, m/s:
+    /// path over time, looking back at most [`SPEED_LOOKBACK`] records; `None` for a session's first
+    /// keyframe or after a gap of more than [`SPEED_MAX_GAP`] seconds.
+    pub fn speed_at(&self, rec: &KeyframeRecord) -> Option<f64> {
+        let end = usize::try_from(rec.id).map_or(self.records.len(), |i| i.min(self.records.len()));
+        let before = self.records[..end]
+            .iter()
+            .rev()
+            .take(SPEED_LOOKBACK)
+            .find(|r| r.session == rec.session)?;
+        let dt = rec.stamp.secs_since(before.stamp);
+        (dt > 0.0 && dt <= SPEED_MAX_GAP).then(|| (rec.path_distance - before.path_distance) / dt)
     }
 
     /// All records, by id.

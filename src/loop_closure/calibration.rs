@@ -1,4 +1,5 @@
-//! What an extrinsic calibration error does to a closure (`loop.extrinsic_std`).
+//! What a calibration error does to a closure: the radars' extrinsics (`loop.extrinsic_std`) and
+//! their clocks (`loop.clock_std`).
 //!
 //! Both submaps of a closure are built through the same extrinsics. When those are off by a small
 //! body-frame motion `D = Exp(xi)`, every point of both submaps is moved by `D`, and the registration
@@ -18,6 +19,22 @@ pub fn calibration_covariance(t_match_query: &Iso2, extrinsic_std: [f64; 2]) -> 
     let j = Mat3::identity() - se2_adjoint(&t_match_query.inverse());
     let sigma = Mat3::from_diagonal(&Vec3::new(st * st, st * st, sr * sr));
     j * sigma * j.transpose()
+}
+
+/// Covariance over `(x, y, yaw)` that radar clocks off the odometry's by `clock_std` seconds add to
+/// the closure `t_match_query` between keyframes driven at `speeds` = `[query, match]` m/s.
+///
+/// A scan stamped `dt` late is placed where the body was `dt` later, so a submap is expressed in its
+/// body frame `speed dt` behind the keyframe's: the query submap in `F_q Exp(-dt v_q e_x)`, the match
+/// submap in `F_m Exp(-dt v_m e_x)`. The registration then finds `T' = Exp(dt v_m e_x) T Exp(-dt v_q
+/// e_x)`, and `Exp(delta) = T'^-1 T` gives, to first order, `delta = dt (v_q e_x - v_m Ad_{T^-1}
+/// e_x)`: nothing between keyframes at one pose and one speed, the speed difference along the
+/// heading, the speed sum for a closure driven the other way.
+pub fn clock_covariance(t_match_query: &Iso2, speeds: [f64; 2], clock_std: f64) -> Mat3 {
+    let [vq, vm] = speeds;
+    let e_x = Vec3::x();
+    let j = e_x * vq - se2_adjoint(&t_match_query.inverse()) * e_x * vm;
+    j * j.transpose() * (clock_std * clock_std)
 }
 
 /// `cov6` (ROS order) with the planar covariance `c` over `(x, y, yaw)` added to its x, y and yaw rows
@@ -63,6 +80,33 @@ mod tests {
                 "{exact} vs {first}"
             );
         }
+    }
+
+    /// The first-order clock error against the exact one: submaps in frames moved back by `dt` times
+    /// their speeds, the registration's answer between those frames.
+    #[test]
+    fn clock_error_matches_the_moved_frames() {
+        let (dt, vq, vm) = (0.03, 20.0, 11.0);
+        for t in [
+            Iso2::new(Vec2::new(2.0, -0.5), 0.05),
+            Iso2::new(Vec2::new(1.0, 9.0), std::f64::consts::PI - 0.05),
+        ] {
+            let back = |v: f64| se2_exp(&Vec3::new(-dt * v, 0.0, 0.0));
+            let seen = back(vm).inverse() * t * back(vq);
+            let exact = se2_log(&(seen.inverse() * t));
+            let c = clock_covariance(&t, [vq, vm], dt);
+            // The covariance of a known offset `dt` is the outer product of the error it makes.
+            assert!(
+                (c - exact * exact.transpose()).norm() < 0.05 * exact.norm_squared(),
+                "{c} vs {exact}"
+            );
+        }
+        let same = clock_covariance(&Iso2::identity(), [15.0, 15.0], 0.03);
+        assert!(same.norm() < 1e-15);
+        // Driven the other way: the speeds add along the heading.
+        let other_way = Iso2::new(Vec2::new(0.0, 0.0), std::f64::consts::PI);
+        let c = clock_covariance(&other_way, [10.0, 8.0], 0.01);
+        assert!((c[(0, 0)] - (18.0f64 * 0.01).powi(2)).abs() < 1e-12, "{c}");
     }
 
     #[test]

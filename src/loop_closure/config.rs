@@ -47,6 +47,13 @@ pub struct LoopConfig {
     /// other direction (docs/algorithm.md, "The covariance reported"). The gates judge the registration
     /// without it.
     pub extrinsic_std: [f64; 2],
+    /// Standard deviation of a radar clock's offset from the odometry's, s (default 0.0:
+    /// synchronised). A scan stamped off by `dt` is placed where the body was at the stamped time, so
+    /// a submap lies `speed x dt` along the heading from where its keyframe says; the published
+    /// covariance then adds what that does to a closure, which grows with the two keyframes' speed
+    /// difference (docs/algorithm.md, "The covariance reported"). The gates judge the registration
+    /// without it.
+    pub clock_std: f64,
     /// Largest ratio of the best *other* alignment's overlap to the result's (`runner_up_overlap /
     /// overlap`, 0..1; default 0.8; 1 disables): a street whose facades still fit when slid along
     /// itself gives two alignments of nearly equal support, and picking one of them is a guess. A
@@ -136,6 +143,7 @@ impl Default for LoopConfig {
             maximum_translation_std: 0.5,
             maximum_rotation_std: 0.02,
             extrinsic_std: [0.0, 0.0],
+            clock_std: 0.0,
             maximum_ambiguity: 0.8,
             maximum_slide_ratio: 0.7,
             minimum_common_view: 0.25,
@@ -172,6 +180,7 @@ impl LoopConfig {
                 self.extrinsic_std
             )
         });
+        v.range("clock_std", self.clock_std, Range::closed(0.0, 1.0));
         v.non_negative("drift_rate", self.drift_rate);
         v.non_negative("drift_yaw_rate", self.drift_yaw_rate);
         v.non_negative("minimum_path_gap", self.minimum_path_gap);

@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 
-use super::calibration::{add_planar, calibration_covariance};
+use super::calibration::{add_planar, calibration_covariance, clock_covariance};
 use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason};
 use crate::keyframe_db::KeyframeRecord;
@@ -46,6 +46,8 @@ pub struct Pair<'a> {
     pub source: &'a PreparedSubmap,
     /// The candidate's prepared submap (the registration's target).
     pub target: &'a PreparedSubmap,
+    /// The odometry's speeds at the query and the candidate, m/s (0 where unknown).
+    pub speeds: [f64; 2],
 }
 
 /// A closure that passed the gates before the prediction and slide tests.
@@ -154,9 +156,11 @@ pub fn gate(
     })
 }
 
-/// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`).
+/// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`,
+/// `loop.clock_std`).
 fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure {
-    let calibration = calibration_covariance(&r.t_target_source, lc.extrinsic_std);
+    let calibration = calibration_covariance(&r.t_target_source, lc.extrinsic_std)
+        + clock_covariance(&r.t_target_source, p.speeds, lc.clock_std);
     LoopClosure {
         query_id: p.query.id,
         match_id: p.cand.id,
@@ -478,6 +482,7 @@ mod tests {
                 cand: &self.cand,
                 source: &self.map,
                 target: &self.map,
+                speeds: [0.0, 0.0],
             }
         }
         fn gate(&self, r: RegistrationResult) -> Result<Gated, Refusal> {

@@ -246,6 +246,7 @@ impl LoopCloser {
                 cand: &arrived,
                 source: &source,
                 target: &target,
+                speeds: speeds(db, &query, &arrived),
             };
             let passed = match gate(&self.gates(), &pair, res) {
                 Ok(gated) => vec![(gated, target.clone())],
@@ -354,6 +355,7 @@ impl LoopCloser {
                 cand,
                 source: prepared,
                 target: &target,
+                speeds: speeds(db, query, cand),
             };
             match gate(&g, &pair, res) {
                 Ok(gated) => passed.push((gated, target)),
@@ -433,6 +435,11 @@ impl LoopCloser {
 
 /// The session a closure goes to and the alignment of this session's odometry frame into that
 /// session's frame it implies.
+/// The odometry's speeds at a pair's keyframes, 0 where the map cannot tell.
+fn speeds(db: &KeyframeDb, query: &KeyframeRecord, cand: &KeyframeRecord) -> [f64; 2] {
+    [query, cand].map(|r| db.speed_at(r).unwrap_or(0.0))
+}
+
 fn closure_alignment(
     db: &KeyframeDb,
     query: &KeyframeRecord,

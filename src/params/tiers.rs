@@ -36,6 +36,7 @@ pub const SETUP: &[&str] = &[
     "radars.<name>.fields.rcs",
     "node.extrinsics_from_tf",
     "loop.extrinsic_std",
+    "loop.clock_std",
     "map.file",
 ];
 
@@ -102,11 +103,6 @@ pub const TUNING: &[(&str, &str)] = &[
         "loop.confirmations",
         "1 publishes the first closure onto the robot's own trail at once (at the risk of one aliased \
          match); 3 for worlds that repeat.",
-    ),
-    (
-        "registration.dense.bias_probe",
-        "Off saves about 13 % of the node's CPU, but the covariance then misses the association bias and \
-         is over-confident on worlds unlike the ones tested.",
     ),
     (
         "map.max_keyframes",

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Makes <repo>/.venv ready for the ROS 2 tests, idempotently:
-#   1. system tools: cmake and a C/C++ compiler (apt-get installs the missing ones when run as root),
-#      Python's venv module;
+#   1. system tools: cmake and a C/C++ compiler, libusb-1.0 for open3d (apt-get installs the missing ones
+#      when run as root), Python's venv module;
 #   2. the venv with the pinned wheels of tests/python/requirements.txt (real ROS 2 Jazzy rclpy on Fast DDS,
 #      message packages, cyclonedds-python, rosbags, and the build tools for step 3);
 #   3. the wheels' exported CMake paths fixed (they name the wheel build machine's Python and numpy headers);
@@ -53,6 +53,8 @@ system_deps() {
     command -v cc >/dev/null 2>&1 || missing+=(gcc)
     command -v c++ >/dev/null 2>&1 || missing+=(g++)
     command -v make >/dev/null 2>&1 || missing+=(make)
+    # open3d-cpu (examples/peers.py) links the system's libusb-1.0 when it imports.
+    PATH=$PATH:/sbin:/usr/sbin ldconfig -p 2>/dev/null | grep -q 'libusb-1\.0\.so\.0' || missing+=(libusb-1.0-0)
     command -v "$python" >/dev/null 2>&1 || die "no '$python' on PATH (set DCLOC_PYTHON to a CPython 3.11)"
     # Debian's own python3 has venv/ensurepip only with python3-venv (pyenv builds always have them).
     if ! "$python" -c 'import venv, ensurepip' >/dev/null 2>&1; then

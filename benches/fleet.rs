@@ -76,6 +76,8 @@ fn main() {
         calibration: Default::default(),
         fleet: 0,
         time_offset: 0.0,
+        multipath: 0.0,
+        wheel_slip: 0.0,
     }
     .sim_config();
     let mut robots = dc_loc::sim::fleet::fleet(&base, 2).expect("fleet");

@@ -31,6 +31,8 @@ fn main() {
         calibration: Default::default(),
         fleet: 0,
         time_offset: 0.0,
+        multipath: 0.0,
+        wheel_slip: 0.0,
     };
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

@@ -26,6 +26,8 @@ fn main() {
         calibration: Default::default(),
         fleet: 0,
         time_offset: 0.0,
+        multipath: 0.0,
+        wheel_slip: 0.0,
     };
     let (qid, mid): (u64, u64) = (a[5].parse().unwrap(), a[6].parse().unwrap());
     let drive = simulate(&sc.sim_config()).unwrap();

@@ -295,6 +295,8 @@ fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -
         calibration: Default::default(),
         fleet: 0,
         time_offset: 0.0,
+        multipath: 0.0,
+        wheel_slip: 0.0,
     }
 }
 

@@ -60,6 +60,8 @@ fn scenarios(args: &EvalArgs, set: &str) -> Result<Vec<RevisitScenario>, CliErro
                     calibration: Default::default(),
                     time_offset: 0.0,
                     fleet: 0,
+                    multipath: 0.0,
+                    wheel_slip: 0.0,
                 });
             }
         }

@@ -62,6 +62,13 @@ pub struct RevisitArgs {
     /// (`--direction` is not used then).
     #[arg(long, default_value_t = 0)]
     pub fleet: u32,
+    /// Multipath ghost probability of every radar: a reflection also seen via a wall, at its mirror
+    /// image, with this probability. 0: no ghosts.
+    #[arg(long, value_name = "P", default_value_t = 0.0)]
+    pub multipath: f64,
+    /// Wheel slip episodes per km driven (each 5-30 % extra odometry distance for 0.5-2 s). 0: none.
+    #[arg(long, value_name = "PER_KM", default_value_t = 0.0)]
+    pub wheel_slip: f64,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -159,6 +166,18 @@ fn scenarios_in(
             args.time_offset
         )));
     }
+    if !(0.0..=1.0).contains(&args.multipath) {
+        return Err(CliError::Usage(format!(
+            "--multipath: {} is not a probability",
+            args.multipath
+        )));
+    }
+    if !(0.0..=1000.0).contains(&args.wheel_slip) {
+        return Err(CliError::Usage(format!(
+            "--wheel-slip: {} is not within [0, 1000] per km",
+            args.wheel_slip
+        )));
+    }
     for r in &args.radars {
         let radars = parse_preset(r)?;
         for n in &args.noise {
@@ -194,6 +213,8 @@ fn scenarios_in(
                         calibration: calibration(args)?,
                         fleet: args.fleet,
                         time_offset: args.time_offset / 1e3,
+                        multipath: args.multipath,
+                        wheel_slip: args.wheel_slip,
                     });
                 }
             }

@@ -58,6 +58,10 @@ pub struct RevisitScenario {
     /// Robots of a fleet on this world, each driving one lap ([`crate::sim::fleet`]; `reverse` then
     /// unused); 0 or 1: one robot driving the two laps.
     pub fleet: u32,
+    /// Multipath ghost probability of every radar (`SimRadarConfig::multipath_probability`); 0: none.
+    pub multipath: f64,
+    /// Wheel slip episodes per km (`OdometrySimConfig::slip_rate`); 0: none.
+    pub wheel_slip: f64,
 }
 
 /// An extrinsic calibration error: each radar's extrinsic as the pipeline is told it is off from the
@@ -100,12 +104,14 @@ impl RevisitScenario {
         c.noise.model = self.noise;
         c.odometry.scale_error = self.drift;
         c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
-        if self.time_offset != 0.0 {
+        c.odometry.slip_rate = self.wheel_slip;
+        if self.time_offset != 0.0 || self.multipath != 0.0 {
             c.radars = c.radar_list();
             c.radar_preset = RadarPreset::Custom;
             for (i, r) in c.radars.iter_mut().enumerate() {
                 let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
                 r.stamp_offset = sign * self.time_offset;
+                r.multipath_probability = self.multipath;
             }
         }
         c.laps = vec![
@@ -142,13 +148,23 @@ impl RevisitScenario {
         } else {
             format!(" clock +-{}ms", (self.time_offset * 1e3).round())
         };
+        let multipath = if self.multipath == 0.0 {
+            String::new()
+        } else {
+            format!(" multipath {}", self.multipath)
+        };
+        let slip = if self.wheel_slip == 0.0 {
+            String::new()
+        } else {
+            format!(" slip {}/km", self.wheel_slip)
+        };
         let passes = match (self.fleet, self.reverse) {
             (0 | 1, false) => "same".to_string(),
             (0 | 1, true) => "reverse".to_string(),
             (n, _) => format!("fleet of {n}"),
         };
         format!(
-            "{world}{} {} {}% {passes}{calibration}{clock}",
+            "{world}{} {} {}% {passes}{calibration}{clock}{multipath}{slip}",
             preset_name(self.radars),
             noise_name(self.noise),
             fmt_pct(self.drift),

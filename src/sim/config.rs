@@ -402,7 +402,7 @@ impl RouteConfig {
 }
 
 /// Odometry error model: the true motion between two samples is distorted by a speed scale error, a
-/// yaw-rate bias and white noise, then integrated.
+/// yaw-rate bias, white noise and wheel slip episodes, then integrated.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometrySimConfig {
@@ -417,6 +417,15 @@ pub struct OdometrySimConfig {
     pub speed_noise: f64,
     /// White yaw-rate noise per sample, rad/s (default 0.2 deg/s).
     pub yaw_rate_noise: f64,
+    /// Wheel slip episodes per km driven, starting as a Poisson process in distance (default 0: none).
+    /// During an episode the wheels spin or slide: the odometry's distance and speed read `1 + s` times
+    /// the truth, the yaw rate (from the gyro) is unaffected, and the published covariance does not know.
+    pub slip_rate: f64,
+    /// Range of the relative extra distance `s` of an episode, drawn uniformly per episode (default 0.05
+    /// to 0.3).
+    pub slip: [f64; 2],
+    /// Range of an episode's duration, s, drawn uniformly per episode (default 0.5 to 2).
+    pub slip_duration: [f64; 2],
 }
 
 impl Default for OdometrySimConfig {
@@ -427,6 +436,9 @@ impl Default for OdometrySimConfig {
             yaw_rate_bias: 0.1f64.to_radians(),
             speed_noise: 0.05,
             yaw_rate_noise: 0.2f64.to_radians(),
+            slip_rate: 0.0,
+            slip: [0.05, 0.3],
+            slip_duration: [0.5, 2.0],
         }
     }
 }
@@ -450,6 +462,15 @@ impl OdometrySimConfig {
         v.range("yaw_rate_bias", self.yaw_rate_bias, half);
         v.non_negative("speed_noise", self.speed_noise);
         v.non_negative("yaw_rate_noise", self.yaw_rate_noise);
+        v.range("slip_rate", self.slip_rate, Range::closed(0.0, 1000.0));
+        v.interval("slip", self.slip, Range::NON_NEGATIVE);
+        v.require("slip", self.slip[1] <= 1.0, || {
+            "at most 1 (twice the true distance)".into()
+        });
+        v.interval("slip_duration", self.slip_duration, Range::POSITIVE);
+        v.require("slip_duration", self.slip_duration[1] <= 60.0, || {
+            "at most 60 s".into()
+        });
     }
 }
 
@@ -553,6 +574,18 @@ mod tests {
         let mut c = SimConfig::default();
         c.world.street.building_line = 9.0;
         assert_eq!(c.validate().unwrap_err().name, "world.street.building_line");
+        let mut c = SimConfig::default();
+        c.odometry.slip = [0.3, 0.1];
+        assert_eq!(c.validate().unwrap_err().name, "odometry.slip");
+        let mut c = SimConfig::with_preset(RadarPreset::Custom);
+        c.radars = vec![SimRadarConfig {
+            multipath_probability: 1.5,
+            ..SimRadarConfig::default()
+        }];
+        assert_eq!(
+            c.validate().unwrap_err().name,
+            "radars[0].multipath_probability"
+        );
     }
 
     #[test]

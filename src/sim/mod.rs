@@ -17,8 +17,9 @@
 //! `crate::radar::doppler::compensate` with the true `v_r` restores `(r + n_r, phi + n_phi)` exactly.
 //!
 //! Determinism: the world comes from `seed`; each scan draws from its own generator seeded by
-//! `(seed, radar, scan index)` and the odometry from another, so two runs with one seed are identical and
-//! changing, say, the noise model leaves the world and the trajectory unchanged.
+//! `(seed, radar, scan index)` (its multipath ghosts from a second one) and the odometry from another, so
+//! two runs with one seed are identical and changing, say, the noise model leaves the world and the
+//! trajectory unchanged.
 //!
 //! Time: stamps are integer nanoseconds from `start_time`; ground truth and odometry at their rates from
 //! the start, each radar at `phase + k / rate` plus a small jitter. Events at one stamp come in the order
@@ -78,6 +79,7 @@ pub(crate) fn stream_seed(seed: u64, tag: u64, index: u64) -> u64 {
 const TAG_SCAN: u64 = 0x5343_414e;
 const TAG_ODOM: u64 = 0x4f44_4f4d;
 const TAG_ROBOT: u64 = 0x0052_4f42_4f54;
+const TAG_GHOST: u64 = 0x0047_484f_5354;
 
 /// The seed of a robot's own noise (detections, stamps, odometry): the configuration seed for robot 0,
 /// so a single robot's drive does not depend on fleets existing.
@@ -233,6 +235,11 @@ impl SimSetup {
         );
         let movers = self.world.movers_at(ego.t);
         let refl = Reflectivity::from(&self.config.world);
+        let mut ghost_rng = StdRng::seed_from_u64(stream_seed(
+            robot_seed(&self.config),
+            TAG_GHOST + radar as u64,
+            k,
+        ));
         let (detections, truth, dropout) = sensor::simulate_scan(
             &self.world,
             rc,
@@ -243,6 +250,7 @@ impl SimSetup {
             &refl,
             noise,
             &mut rng,
+            &mut ghost_rng,
         );
         // Measured at `stamp`, stamped by the radar's own clock.
         let offset = (rc.stamp_offset * 1e9).round() as i64;

@@ -6,7 +6,10 @@
 //! Between consecutive samples the exact relative motion of the ground truth (translation `dp` in the
 //! previous body frame, heading change `dtheta`) is measured as
 //! `dp_odom = (1 + scale_error) dp + n_v dt dp/|dp|` and `dtheta_odom = dtheta + (bias + n_w) dt`
-//! (`n_v`, `n_w` white, per sample), and composed onto the previous odometry pose. So with all errors off
+//! (`n_v`, `n_w` white, per sample), and composed onto the previous odometry pose. During a wheel slip
+//! episode `dp_odom` and the reported speed are further multiplied by `1 + s` (episodes start as a Poisson
+//! process in distance driven, at `slip_rate` per km, each with its own `s` and duration, and draw from
+//! a random stream of their own, untouched when `slip_rate` is 0). So with all errors off
 //! the odometry is the ground truth seen from the odometry frame, with only a scale error it is the true
 //! path scaled about its start, and with only a bias its heading error is `bias * t`.
 //! The odometry frame starts at the ground-truth start pose (`t_map_odom`), the odometry at identity.
@@ -14,7 +17,8 @@
 //! bias), the last two being unknown constants with standard deviations `|scale_error|` and
 //! `|yaw_rate_bias|` (their configured magnitudes) and white noise adding `(n_v dt)^2` along the path and
 //! `(n_w dt)^2` in heading per sample. So the covariance grows with distance and time as the actual drift
-//! does, and is of the size of the actual error.
+//! does, and is of the size of the actual error; slip, which the odometry cannot tell from driving, is
+//! not in it.
 
 use crate::math::{Iso2, Mat3, Stamp, Vec2, iso3_from_iso2};
 use crate::msgs::geometry_msgs::{Pose, PoseWithCovariance, Twist, TwistWithCovariance, Vector3};
@@ -24,7 +28,7 @@ use crate::sim::config::OdometrySimConfig;
 use crate::sim::route::{EgoState, LapInfo};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
-use rand_distr::StandardNormal;
+use rand_distr::{Exp1, StandardNormal};
 
 /// A ground-truth sample (frame `map`, child `base_link`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -164,11 +168,79 @@ fn odometry_msg(
     }
 }
 
+/// Offset of the slip episodes' seed from the integrator's: their own random stream.
+const SLIP_SEED_OFFSET: u64 = 0x534c_4950;
+
+/// Wheel slip episodes: each starts once a distance drawn from the exponential distribution of mean
+/// `1 / slip_rate` has been driven since the previous one ended, and lasts its own duration.
+#[derive(Debug)]
+struct WheelSlip {
+    rng: StdRng,
+    /// Episodes per metre.
+    rate: f64,
+    slip: [f64; 2],
+    duration: [f64; 2],
+    /// Distance driven at which the next episode starts, m.
+    next_start: f64,
+    /// The current episode: its distance factor `1 + s` and end time, s.
+    episode: Option<(f64, f64)>,
+}
+
+impl WheelSlip {
+    /// The episodes of `cfg` (`None` when `slip_rate` is 0), from `seed`.
+    fn new(cfg: &OdometrySimConfig, seed: u64) -> Option<Self> {
+        (cfg.slip_rate > 0.0).then(|| {
+            let mut w = WheelSlip {
+                rng: StdRng::seed_from_u64(seed.wrapping_add(SLIP_SEED_OFFSET)),
+                rate: cfg.slip_rate / 1000.0,
+                slip: cfg.slip,
+                duration: cfg.slip_duration,
+                next_start: 0.0,
+                episode: None,
+            };
+            w.next_start = w.gap();
+            w
+        })
+    }
+    /// Distance to the next episode's start, m.
+    fn gap(&mut self) -> f64 {
+        let x: f64 = self.rng.sample(Exp1);
+        x / self.rate
+    }
+    /// A uniform draw in `[lo, hi]` (`lo` when the range is empty).
+    fn uniform(&mut self, [lo, hi]: [f64; 2]) -> f64 {
+        if hi > lo {
+            self.rng.random_range(lo..=hi)
+        } else {
+            lo
+        }
+    }
+    /// The distance factor at time `t` (s) after `distance` (m) driven: `1 + s` in an episode, else 1.
+    fn factor(&mut self, t: f64, distance: f64) -> f64 {
+        if let Some((f, end)) = self.episode {
+            if t <= end {
+                return f;
+            }
+            self.episode = None;
+            self.next_start = distance + self.gap();
+        }
+        if distance < self.next_start {
+            return 1.0;
+        }
+        let f = 1.0 + self.uniform(self.slip);
+        let end = t + self.uniform(self.duration);
+        self.episode = Some((f, end));
+        f
+    }
+}
+
 /// Integrates distorted ground-truth increments into drifting odometry.
 #[derive(Debug)]
 pub struct OdometryIntegrator {
     cfg: OdometrySimConfig,
     rng: StdRng,
+    /// Wheel slip episodes (`None`: no slip).
+    slip: Option<WheelSlip>,
     prev: Option<(Iso2, f64, f64)>,
     pose: Iso2,
     heading: f64,
@@ -184,6 +256,7 @@ impl OdometryIntegrator {
         OdometryIntegrator {
             cfg,
             rng: StdRng::seed_from_u64(seed),
+            slip: WheelSlip::new(&cfg, seed),
             prev: None,
             pose: Iso2::identity(),
             heading: 0.0,
@@ -202,6 +275,10 @@ impl OdometryIntegrator {
         let c = self.cfg;
         let n_v: f64 = self.rng.sample::<f64, _>(StandardNormal) * c.speed_noise;
         let n_w: f64 = self.rng.sample::<f64, _>(StandardNormal) * c.yaw_rate_noise;
+        let slip = self
+            .slip
+            .as_mut()
+            .map_or(1.0, |s| s.factor(truth.t, truth.distance));
         if let Some((prev_pose, prev_heading, prev_t)) = self.prev {
             let dt = truth.t - prev_t;
             let rel = prev_pose.inverse() * truth.t_map_body;
@@ -212,7 +289,7 @@ impl OdometryIntegrator {
             } else {
                 Vec2::new(1.0, 0.0)
             };
-            let dp_m = dp * (1.0 + c.scale_error) + along * (n_v * dt);
+            let dp_m = (dp * (1.0 + c.scale_error) + along * (n_v * dt)) * slip;
             let dth_m = (truth.heading - prev_heading) + (c.yaw_rate_bias + n_w) * dt;
             // First-order propagation of (x, y, yaw, scale error, yaw-rate bias); the last two are unknown
             // constants, so their share of the pose covariance grows linearly with distance and time.
@@ -245,7 +322,7 @@ impl OdometryIntegrator {
             stamp,
             t_odom_body: self.pose,
             heading: self.heading,
-            speed: truth.speed * (1.0 + c.scale_error) + n_v,
+            speed: (truth.speed * (1.0 + c.scale_error) + n_v) * slip,
             yaw_rate: truth.yaw_rate + c.yaw_rate_bias + n_w,
             covariance: self.cov.fixed_view::<3, 3>(0, 0).into_owned(),
             twist_variance: [
@@ -253,5 +330,115 @@ impl OdometryIntegrator {
                 (c.yaw_rate_noise.powi(2) + c.yaw_rate_bias.powi(2)).max(1e-12),
             ],
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::route::LapInfo;
+
+    const SPEED: f64 = 20.0;
+
+    /// The ego driving along x at 20 m/s, `t` s after the start.
+    fn straight(t: f64) -> EgoState {
+        EgoState {
+            t,
+            t_map_body: Iso2::new(Vec2::new(SPEED * t, 0.0), 0.0),
+            heading: 0.0,
+            speed: SPEED,
+            acceleration: 0.0,
+            yaw_rate: 0.0,
+            curvature: 0.0,
+            distance: SPEED * t,
+            lap: LapInfo {
+                lap: 0,
+                reverse: false,
+                turning: false,
+            },
+            loop_position: 0.0,
+        }
+    }
+
+    /// `seconds` of the straight drive sampled at `cfg.rate`.
+    fn drive(cfg: OdometrySimConfig, seconds: f64) -> Vec<OdometrySample> {
+        let mut integ = OdometryIntegrator::new(cfg, 9);
+        (0..=(seconds * cfg.rate).round() as u64)
+            .map(|k| {
+                let t = k as f64 / cfg.rate;
+                integ.step(Stamp::from_secs_f64(t), &straight(t))
+            })
+            .collect()
+    }
+
+    /// The runs of samples at one slipping speed: (relative extra distance, samples).
+    fn episodes(odo: &[OdometrySample]) -> Vec<(f64, usize)> {
+        let mut out: Vec<(f64, usize)> = Vec::new();
+        let mut prev = SPEED;
+        for o in odo {
+            if o.speed > SPEED * (1.0 + 1e-9) {
+                if o.speed == prev {
+                    out.last_mut().unwrap().1 += 1;
+                } else {
+                    out.push((o.speed / SPEED - 1.0, 1));
+                }
+            }
+            prev = o.speed;
+        }
+        out
+    }
+
+    /// 10 km at 5 slip episodes per km, otherwise perfect: each episode slips by 5 to 30 % for 0.5 to 2 s
+    /// (one sample more at most), and the odometry's extra distance is what the episodes add, within the
+    /// bounds the configuration implies. The heading and yaw rate are those of the run without slip.
+    #[test]
+    fn wheel_slip_lengthens_the_distance_by_its_episodes() {
+        let cfg = OdometrySimConfig {
+            slip_rate: 5.0,
+            ..OdometrySimConfig::perfect()
+        };
+        let seconds = 500.0;
+        let odo = drive(cfg, seconds);
+        let eps = episodes(&odo);
+        assert!((20..=80).contains(&eps.len()), "{} episodes", eps.len());
+        let dt = 1.0 / cfg.rate;
+        for &(s, n) in &eps {
+            assert!((0.05..=0.3).contains(&s), "{s}");
+            let d = n as f64 * dt;
+            assert!(d >= 0.5 - 1e-9 && d <= 2.0 + dt + 1e-9, "{d}");
+        }
+        let extra = odo.last().unwrap().t_odom_body.translation.vector.x - SPEED * seconds;
+        let from_episodes: f64 = eps.iter().map(|&(s, n)| s * SPEED * n as f64 * dt).sum();
+        assert!(
+            (extra - from_episodes).abs() < 1e-6,
+            "{extra} vs {from_episodes}"
+        );
+        let n = eps.len() as f64;
+        assert!(extra >= n * 0.05 * SPEED * 0.5 && extra <= n * 0.3 * SPEED * (2.0 + dt));
+        // The gyro does not slip: with noise on, the headings and yaw rates match the run without slip.
+        let noisy = |slip_rate| {
+            drive(
+                OdometrySimConfig {
+                    slip_rate,
+                    ..OdometrySimConfig::default()
+                },
+                60.0,
+            )
+        };
+        for (a, b) in noisy(5.0).iter().zip(&noisy(0.0)) {
+            assert_eq!((a.heading, a.yaw_rate), (b.heading, b.yaw_rate));
+        }
+    }
+
+    /// With `slip_rate` 0 the other slip settings change nothing.
+    #[test]
+    fn no_slip_rate_no_slip() {
+        let off = OdometrySimConfig {
+            slip_rate: 0.0,
+            slip: [0.5, 0.9],
+            slip_duration: [5.0, 10.0],
+            ..OdometrySimConfig::default()
+        };
+        assert_eq!(drive(off, 60.0), drive(OdometrySimConfig::default(), 60.0));
     }
 }

@@ -73,6 +73,11 @@ pub struct SimRadarConfig {
     pub empty_scan_probability: f64,
     /// Probability that a scan loses its tail (a random 20-80 % of its detections; default 0.02).
     pub partial_scan_probability: f64,
+    /// Probability that a reflection other than a wall point is also seen via a wall, as a multipath
+    /// ghost at its mirror image across the wall (default 0: no ghosts).
+    pub multipath_probability: f64,
+    /// RCS loss of the bounced path against the direct one, dB (default 10).
+    pub multipath_loss: f64,
 }
 
 impl Default for SimRadarConfig {
@@ -100,6 +105,8 @@ impl Default for SimRadarConfig {
             false_alarm_rate: 3.0,
             empty_scan_probability: 0.005,
             partial_scan_probability: 0.02,
+            multipath_probability: 0.0,
+            multipath_loss: 10.0,
         }
     }
 }
@@ -198,6 +205,12 @@ impl SimRadarConfig {
         );
         v.unit("empty_scan_probability", self.empty_scan_probability);
         v.unit("partial_scan_probability", self.partial_scan_probability);
+        v.unit("multipath_probability", self.multipath_probability);
+        v.range(
+            "multipath_loss",
+            self.multipath_loss,
+            Range::closed(0.0, 100.0),
+        );
     }
 }
 

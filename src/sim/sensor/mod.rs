@@ -11,6 +11,11 @@
 //!    relief) and car sides, random points in bushes, the near side of poles and trunks, building corners,
 //!    pedestrians. Each gets a Swerling-1 RCS (`10 log10(Exp(1))` around its mean) and, on walls, an
 //!    incidence loss.
+//!    With `multipath_probability > 0`, a reflection that is not a wall point is also seen via a wall with
+//!    that probability: a ghost at its mirror image across the wall's line, moving as that image,
+//!    `multipath_loss` dB weaker, seen through the wall's specular point (so that wall does not hide it).
+//!    Ghosts draw from a random stream of their own: the other candidates do not depend on them, and
+//!    with the probability at 0 the scan is the one of a radar without the model.
 //! 4. Physics (docs/algorithm.md, Doppler range distortion): true range `r`, azimuth `phi`, radial velocity
 //!    `v_r = d . (v_target - v_radar)`.
 //! 5. Resolution: candidates in one (range, azimuth, Doppler) resolution cell merge into one detection at
@@ -19,9 +24,10 @@
 //! 6. False alarms (random range, azimuth and Doppler), the cap on detections (strongest kept), dropouts.
 //! 7. Measurement: `r_hat = r + beta v_r + n_r`, `phi_hat = phi + n_phi`, `v_hat = v_r + n_v`, `z = 0`.
 //!
-//! Parts: `occlusion` (step 2), `reflections` (step 3), `detection` (steps 4 to 7).
+//! Parts: `occlusion` (step 2), `reflections` and `multipath` (step 3), `detection` (steps 4 to 7).
 
 mod detection;
+mod multipath;
 mod occlusion;
 mod reflections;
 
@@ -138,7 +144,8 @@ impl From<&WorldConfig> for Reflectivity {
 
 /// The world as one radar sees it at one instant: detections in the radar frame, their truth (same order)
 /// and the dropout that hit the scan. `lap` selects the parked cars; `movers` are the road users at the
-/// scan time; `rays` are the radar's [`occlusion_rays`].
+/// scan time; `rays` are the radar's [`occlusion_rays`]; `ghost_rng` draws the multipath ghosts and
+/// nothing else (untouched when `radar.multipath_probability` is 0).
 #[allow(clippy::too_many_arguments)]
 pub fn simulate_scan(
     world: &World,
@@ -150,10 +157,12 @@ pub fn simulate_scan(
     refl: &Reflectivity,
     noise: &NoiseSampler,
     rng: &mut StdRng,
+    ghost_rng: &mut StdRng,
 ) -> (Vec<Detection>, Vec<DetectionTruth>, Dropout) {
     let reach = occlusion::Reach::new(radar, motion);
     let scene = occlusion::scene_in_view(world, radar, rays, motion, &reach, lap, movers);
-    let cands = reflections::candidates(world, &scene, movers, &reach, refl, rng);
+    let mut cands = reflections::candidates(world, &scene, movers, &reach, refl, rng);
+    multipath::add_ghosts(&mut cands, &scene, radar, motion, ghost_rng);
     let cells = detection::resolution_cells(&cands, radar, motion, &scene.depth);
     let mut clean = detection::detect_cells(&cells, radar, rng);
     detection::add_false_alarms(&mut clean, radar, rng);
@@ -199,20 +208,45 @@ mod tests {
         }
     }
 
-    fn run(world: &World, scans: u64) -> Vec<DetectionTruth> {
-        let r = radar();
+    /// The detections of `scans` noise-free scans by radar `r` moving as `motion`, each with its truth.
+    fn scan_all(
+        world: &World,
+        r: &SimRadarConfig,
+        motion: &RadarMotion,
+        movers: &[MoverState],
+        refl: &Reflectivity,
+        scans: u64,
+    ) -> Vec<(Detection, DetectionTruth)> {
         let rays = occlusion_rays(r.half_fov());
         let noise = NoiseSampler::new(&NoiseConfig::none()).unwrap();
-        let motion = RadarMotion::new(Vec2::zeros(), 0.0, 0.0, 0.0, &[0.0; 6]);
         let mut all = Vec::new();
         for k in 0..scans {
             let mut rng = StdRng::seed_from_u64(k);
-            let (d, t, _) =
-                simulate_scan(world, &r, &rays, &motion, 0, &[], &refl(), &noise, &mut rng);
+            let mut ghost_rng = StdRng::seed_from_u64(k + 1000);
+            let (d, t, _) = simulate_scan(
+                world,
+                r,
+                &rays,
+                motion,
+                0,
+                movers,
+                refl,
+                &noise,
+                &mut rng,
+                &mut ghost_rng,
+            );
             assert_eq!(d.len(), t.len());
-            all.extend(t);
+            all.extend(d.into_iter().zip(t));
         }
         all
+    }
+
+    fn run(world: &World, scans: u64) -> Vec<DetectionTruth> {
+        let motion = RadarMotion::new(Vec2::zeros(), 0.0, 0.0, 0.0, &[0.0; 6]);
+        scan_all(world, &radar(), &motion, &[], &refl(), scans)
+            .into_iter()
+            .map(|(_, t)| t)
+            .collect()
     }
 
     fn empty_world() -> World {
@@ -283,6 +317,115 @@ mod tests {
         let t = run(&w, 20);
         assert_eq!(t.len(), 40);
         assert!(t.iter().all(|d| d.members == 1));
+    }
+
+    /// A world of one long wall along y = 10 facing the radar at the origin (no surface samples, so only
+    /// what it mirrors shows) and a pole at (30, 3); the wall runs over x in `wall_x`.
+    fn mirror_world(wall_x: (f64, f64)) -> World {
+        let mut w = empty_world();
+        w.walls.push(Wall {
+            normal: Vec2::new(0.0, -1.0),
+            ..wall((wall_x.0, 10.0), (wall_x.1, 10.0), 1)
+        });
+        w.scatterers.push(Scatterer {
+            p: Vec2::new(30.0, 3.0),
+            radius: 0.0,
+            rcs: 30.0,
+            kind: TargetKind::Pole,
+            id: 0,
+            wall: None,
+        });
+        w
+    }
+
+    /// The ghosts of `scans` scans of a radar at the origin driving along x at 10 m/s, with multipath
+    /// probability `p`.
+    fn ghosts(
+        world: &World,
+        p: f64,
+        movers: &[MoverState],
+        scans: u64,
+    ) -> Vec<(Detection, DetectionTruth)> {
+        let r = SimRadarConfig {
+            multipath_probability: p,
+            ..radar()
+        };
+        let motion = RadarMotion::new(Vec2::zeros(), 0.0, 10.0, 0.0, &[0.0; 6]);
+        let refl = Reflectivity {
+            facade_density: 0.0,
+            ..refl()
+        };
+        scan_all(world, &r, &motion, movers, &refl, scans)
+            .into_iter()
+            .filter(|(_, t)| t.kind == TargetKind::Ghost)
+            .collect()
+    }
+
+    /// The measured range and azimuth of a noise-free detection at `p` (radar frame) with radial velocity
+    /// `v_r`: the Doppler distortion `beta v_r` on the range.
+    fn assert_measured_at(d: &Detection, p: Vec2, v_r: f64) {
+        let beta = radar().beta;
+        assert!((d.p_radar.xy().norm() - (p.norm() + beta * v_r)).abs() < 1e-9);
+        assert!((d.p_radar.y.atan2(d.p_radar.x) - p.y.atan2(p.x)).abs() < 1e-9);
+        assert!((d.v_r - v_r).abs() < 1e-9, "{} vs {v_r}", d.v_r);
+    }
+
+    /// A pole seen via a wall: with probability 1 each scan holds its ghost at the mirror image (30, 17),
+    /// with the radial velocity of a static point there; with probability 0, or a wall that does not
+    /// reach the specular point (x = 17.6), none.
+    #[test]
+    fn a_wall_mirrors_a_pole_into_a_ghost() {
+        let w = mirror_world((0.0, 80.0));
+        let image = Vec2::new(30.0, 17.0);
+        let static_v_r = -image.normalize().dot(&Vec2::new(10.0, 0.0));
+        let g = ghosts(&w, 1.0, &[], 20);
+        assert_eq!(g.len(), 20);
+        for (d, t) in &g {
+            assert_eq!(t.object, 0);
+            assert!((t.p_radar.xy() - image).norm() < 1e-9);
+            assert_measured_at(d, image, static_v_r);
+        }
+        assert!(ghosts(&w, 0.0, &[], 50).is_empty());
+        assert!(ghosts(&mirror_world((20.0, 80.0)), 1.0, &[], 50).is_empty());
+    }
+
+    /// A pedestrian at (30, 3) walking at (1, 2) m/s has a ghost walking at (1, -2) m/s, its mirror image.
+    #[test]
+    fn a_moving_reflector_has_a_ghost_moving_as_its_mirror_image() {
+        let mut w = mirror_world((0.0, 80.0));
+        w.scatterers.clear();
+        let walker = MoverState {
+            mover: crate::sim::world::Mover {
+                kind: TargetKind::Pedestrian,
+                s0: 0.0,
+                rate: 0.0,
+                offset: 0.0,
+                length: 0.5,
+                width: 0.5,
+                rcs: 30.0,
+                id: 5,
+            },
+            body: crate::sim::world::CarBox {
+                center: Vec2::new(30.0, 3.0),
+                heading: 0.0,
+                length: 0.5,
+                width: 0.5,
+                lap: None,
+                id: 5,
+            },
+            velocity: Vec2::new(1.0, 2.0),
+            yaw_rate: 0.0,
+        };
+        let image = Vec2::new(30.0, 17.0);
+        let v_r = image
+            .normalize()
+            .dot(&(Vec2::new(1.0, -2.0) - Vec2::new(10.0, 0.0)));
+        let g = ghosts(&w, 1.0, &[walker], 10);
+        assert_eq!(g.len(), 10);
+        for (d, t) in &g {
+            assert_eq!(t.object, 5);
+            assert_measured_at(d, image, v_r);
+        }
     }
 
     /// Lever arm: a radar 3 m ahead of the body turning at 0.5 rad/s moves sideways at 1.5 m/s.

@@ -46,6 +46,9 @@ pub enum TargetKind {
     Pedestrian,
     /// A false alarm (clutter with random range, azimuth and Doppler).
     FalseAlarm,
+    /// A multipath ghost: a reflector seen via a wall, at its mirror image across the wall (the
+    /// detection's object is the reflector's id).
+    Ghost,
 }
 
 impl TargetKind {
@@ -53,9 +56,9 @@ impl TargetKind {
     pub fn is_moving(self) -> bool {
         matches!(self, TargetKind::Vehicle | TargetKind::Pedestrian)
     }
-    /// The target is part of the static world (false alarms are neither static nor moving).
+    /// The target is part of the static world (false alarms and ghosts are neither static nor moving).
     pub fn is_static(self) -> bool {
-        !self.is_moving() && self != TargetKind::FalseAlarm
+        !self.is_moving() && !matches!(self, TargetKind::FalseAlarm | TargetKind::Ghost)
     }
 }
 

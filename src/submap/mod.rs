@@ -241,15 +241,17 @@ pub struct SubmapConfig {
     /// spans a long stop in the data.
     pub max_span: f64,
     /// Largest correction of the odometry's distances by the radars' Doppler, as a share (default
-    /// 0.1; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
+    /// 0.5; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
     /// wheel radius or tyre wear; the submap's scans are placed with the odometry's translations
     /// from the anchor scaled by the distance the Doppler speeds integrate to over the distance the
     /// odometry moved ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift)
     /// stretches a 72 km/h submap by 15 cm from end to end, and two laps at different speeds are
     /// stretched differently: on the demo drive the correction brings DC-Loc's median error from
-    /// 0.065 to 0.058 m (README.md). A ratio off 1 by more than the bound is refused (the odometry
-    /// is then used as it is, and the node counts it in its diagnostics): no odometry is that
-    /// wrong, so the Doppler fit or the radar's configuration is.
+    /// 0.065 to 0.058 m (README.md). Wheels that spin or slide read 5-30 % more distance for a
+    /// second or two, which the correction also takes out. A ratio off 1 by more than the bound is
+    /// refused (the odometry is then used as it is, and the node counts it in its diagnostics):
+    /// wheels do not over-read by half, but a radial velocity of the wrong sign (a ratio near -1)
+    /// or in km/h (3.6) does.
     pub speed_scale_bound: f64,
 }
 
@@ -258,7 +260,7 @@ impl Default for SubmapConfig {
         SubmapConfig {
             size: 10,
             max_span: 3.0,
-            speed_scale_bound: 0.1,
+            speed_scale_bound: 0.5,
         }
     }
 }

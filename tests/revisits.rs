@@ -212,8 +212,8 @@ fn the_doppler_speed_scale_takes_out_wheel_slip() {
     (scenario.world, scenario.seed) = (w.family, w.seed);
     scenario.wheel_slip = 2.0;
     let corrected = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
-    let narrow = evaluate_scenario(&scenario, |c| c.submap.speed_scale_bound = 0.1)
-        .expect("scenario runs");
+    let narrow =
+        evaluate_scenario(&scenario, |c| c.submap.speed_scale_bound = 0.1).expect("scenario runs");
     eprintln!(
         "bound 0.5: {:?} {:?}; bound 0.1: {:?} {:?}",
         corrected.same, corrected.nees, narrow.same, narrow.nees
@@ -221,7 +221,11 @@ fn the_doppler_speed_scale_takes_out_wheel_slip() {
     assert_no_false_closure(&corrected);
     assert!(corrected.same.recall() >= 0.9, "{:?}", corrected.same);
     assert!(corrected.nees.mean <= 4.0, "{:?}", corrected.nees);
-    assert!(corrected.nees.share_above_99() <= 0.05, "{:?}", corrected.nees);
+    assert!(
+        corrected.nees.share_above_99() <= 0.05,
+        "{:?}",
+        corrected.nees
+    );
     assert!(
         narrow.same.false_closures > 0 || narrow.nees.share_above_99() > 0.05,
         "{:?} {:?}",

@@ -11,6 +11,7 @@
 //!   alignment) at most a third of the odometry's, and within 10 % of the same graph whose closures carry
 //!   the true relative poses of their pairs (tests/python/test_backend_graph.py builds those variants
 //!   offline with the back end's own code), so a closure error shows;
+//! - the same on the held-out suburb (detached houses behind gardens), which no parameter was tuned on;
 //! - on a figure eight whose halves cross at right angles (the query's and the match's frames a quarter
 //!   turn apart) the crossing closures exist, their NEES against the truth is small, and the back end
 //!   passes the same checks.
@@ -422,6 +423,23 @@ fn gtsam_back_end_on_drifting_odometry_is_as_good_as_with_true_closures() {
         vec![("covariance_turned_90", closures.to_vec(), 90.0)]
     });
     case.assert_back_end_is_as_good_as_true_closures(&["covariance_turned_90"]);
+}
+
+/// [`drifting_drive`] on the held-out suburb (`dc_loc revisits --set test`'s first world: its family and
+/// seed), which no parameter was tuned on: detached houses behind gardens, tree rows, two lanes.
+fn held_out_drive() -> String {
+    let world = dc_loc::sim::families::TEST[0];
+    let mut cfg: SimConfig = yaml_serde::from_str(&drifting_drive()).unwrap();
+    (cfg.world, cfg.seed) = (world.family.world(), world.seed);
+    yaml_serde::to_string(&cfg).unwrap()
+}
+
+/// The drifting drive on a held-out world: the back end with the closures is as good as with the true
+/// relative poses of the same pairs.
+#[test]
+fn gtsam_back_end_on_a_held_out_world_is_as_good_as_with_true_closures() {
+    let case = replay_case("held_out", &held_out_drive(), &|_| Vec::new());
+    case.assert_back_end_is_as_good_as_true_closures(&[]);
 }
 
 /// A figure eight of city blocks whose two halves cross at right angles at the origin, driven twice

@@ -146,9 +146,7 @@ fn held_out_worlds_true_closures_and_honest_covariances() {
 /// the bar of 5 %.
 #[test]
 fn declared_extrinsic_uncertainty_covers_a_calibration_error() {
-    let mut scenario = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, true);
-    let w = dc_loc::sim::families::TEST[0];
-    (scenario.world, scenario.seed) = (w.family, w.seed);
+    let mut scenario = held_out(0, RadarPreset::Nuscenes, true);
     scenario.calibration = dc_loc::eval::revisits::CalibrationError {
         yaw_deg: 1.5,
         offset: 0.05,
@@ -178,9 +176,7 @@ fn declared_extrinsic_uncertainty_covers_a_calibration_error() {
 /// within 4, and no closure is lost.
 #[test]
 fn declared_clock_uncertainty_covers_a_radar_clock_offset() {
-    let mut scenario = scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.01, false);
-    let w = dc_loc::sim::families::TEST[0];
-    (scenario.world, scenario.seed) = (w.family, w.seed);
+    let mut scenario = held_out(0, RadarPreset::Carla, false);
     scenario.time_offset = 0.03;
     let blind = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let declared =
@@ -207,9 +203,7 @@ fn declared_clock_uncertainty_covers_a_radar_clock_offset() {
 /// which keep their stretch: one closure is false and 6 % lie outside the bound.
 #[test]
 fn the_doppler_speed_scale_takes_out_wheel_slip() {
-    let mut scenario = scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.01, false);
-    let w = dc_loc::sim::families::TEST[1];
-    (scenario.world, scenario.seed) = (w.family, w.seed);
+    let mut scenario = held_out(1, RadarPreset::Carla, false);
     scenario.wheel_slip = 2.0;
     let corrected = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let narrow =
@@ -331,6 +325,16 @@ fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -
         time_offset: 0.0,
         multipath: 0.0,
         wheel_slip: 0.0,
+    }
+}
+
+/// [`scenario`] at 1 % drift with Gaussian noise on the held-out world `TEST[k]` (its family and seed).
+fn held_out(k: usize, radars: RadarPreset, reverse: bool) -> RevisitScenario {
+    let w = dc_loc::sim::families::TEST[k];
+    RevisitScenario {
+        world: w.family,
+        seed: w.seed,
+        ..scenario(radars, NoiseModel::Gaussian, 0.01, reverse)
     }
 }
 

@@ -16,7 +16,9 @@ use super::{CliError, progress};
 use crate::bag::BagReader;
 use crate::eval::export::export_pairs;
 use crate::eval::report::{self, MethodSummary};
-use crate::eval::{Collector, EvalConfig, EvalKeyframe, Method, PairResult, evaluate, make_pairs};
+use crate::eval::{
+    Collector, EvalConfig, EvalKeyframe, Method, Pair, PairResult, evaluate, make_pairs,
+};
 use crate::input::Input;
 use crate::pipeline::Config;
 
@@ -300,21 +302,22 @@ pub fn main(args: &EvalArgs) -> Result<(), CliError> {
     let kfs = collect(bag, &cfg, &args.ground_truth_topic, &eval)?;
     evaluate_and_report(&kfs, &cfg, &eval, &methods(args), &args.out_dir)?;
     if let Some(dir) = &args.export_pairs {
-        export(dir, &kfs, &cfg, &eval, &bag.display().to_string())?;
+        let pairs = make_pairs(&kfs, &eval);
+        export(dir, &kfs, &pairs, &cfg, &eval, &bag.display().to_string())?;
     }
     Ok(())
 }
 
-/// Writes the pairs of `kfs` for other tools into `dir` ([`crate::eval::export`]).
+/// Writes `pairs` of `kfs` for other tools into `dir` ([`crate::eval::export`]).
 pub fn export(
     dir: &Path,
     kfs: &[EvalKeyframe],
+    pairs: &[Pair],
     cfg: &Config,
     eval: &EvalConfig,
     source: &str,
 ) -> Result<(), CliError> {
-    let pairs = make_pairs(kfs, eval);
-    export_pairs(dir, kfs, &pairs, &cfg.registration, eval, source)
+    export_pairs(dir, kfs, pairs, &cfg.registration, eval, source)
         .map_err(|e| CliError::Runtime(format!("{}: {e}", dir.display())))?;
     println!(
         "pairs for other tools: {} ({} pairs)",

@@ -37,7 +37,14 @@ pub fn main(args: &EvalArgs) -> Result<(), CliError> {
             table.push(row(&s.label(), &m.name(), &of, &eval));
         }
         if let Some(dir) = &args.export_pairs {
-            export(&dir.join(slug(&s.label())), &kfs, &cfg, &eval, &s.label())?;
+            export(
+                &dir.join(slug(&s.label())),
+                &kfs,
+                &pairs,
+                &cfg,
+                &eval,
+                &s.label(),
+            )?;
         }
     }
     println!("{}", table.join("\n"));

@@ -14,7 +14,7 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
-use super::{EvalConfig, EvalKeyframe, Method, Pair, PairResult, dcloc, score};
+use super::{EvalConfig, EvalKeyframe, Method, Pair, PairResult, dcloc, ground_truth, score};
 use crate::math::Iso2;
 use crate::registration::RegistrationConfig;
 
@@ -54,11 +54,10 @@ pub fn export_pairs(
     let mut out = std::io::BufWriter::new(std::fs::File::create(dir.join("pairs.jsonl"))?);
     for pair in pairs {
         let (r, seconds) = one_thread.install(|| timed_dcloc(kfs, pair, registration));
-        let truth = kfs[pair.target].t_map_body.inverse() * kfs[pair.query].t_map_body;
         let line = serde_json::json!({
             "query": span_json(kfs, pair.query, &spans),
             "target": span_json(kfs, pair.target, &spans),
-            "truth": se2_array(&truth),
+            "truth": se2_array(&ground_truth(kfs, pair)),
             "distance": pair.distance,
             "dcloc": dcloc_json(&r, seconds),
         });

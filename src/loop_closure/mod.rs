@@ -433,13 +433,13 @@ impl LoopCloser {
     }
 }
 
-/// The session a closure goes to and the alignment of this session's odometry frame into that
-/// session's frame it implies.
 /// The odometry's speeds at a pair's keyframes, 0 where the map cannot tell.
 fn speeds(db: &KeyframeDb, query: &KeyframeRecord, cand: &KeyframeRecord) -> [f64; 2] {
     [query, cand].map(|r| db.speed_at(r).unwrap_or(0.0))
 }
 
+/// The session a closure goes to and the alignment of this session's odometry frame into that
+/// session's frame it implies.
 fn closure_alignment(
     db: &KeyframeDb,
     query: &KeyframeRecord,

@@ -89,6 +89,11 @@ pub struct LoopConfig {
     /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
     /// two robots driving it towards each other (docs/experiments.md, "Fleets").
     pub foreign_confirmations: usize,
+    /// A session's first closures to itself that lie beyond the drift model are held for
+    /// `foreign_confirmations` agreeing closures instead of refused (default true): odometry that
+    /// drifted that far (a yaw-rate bias, a long drive) no longer tells where the session is, as
+    /// between two sessions, and closures that agree with each other still do.
+    pub confirm_beyond_drift: bool,
     /// The confirming closures' query keyframes must lie at least this many metres of path apart
     /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two
     /// places along the route rarely alias the same way.
@@ -150,6 +155,7 @@ impl Default for LoopConfig {
             consistency_chi2: 16.27,
             confirmations: 2,
             foreign_confirmations: 4,
+            confirm_beyond_drift: true,
             confirmation_span: 30.0,
             confirmation_overlap: 0.6,
             confirmation_horizon: 150.0,

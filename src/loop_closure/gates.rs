@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use super::calibration::{add_planar, calibration_covariance, clock_covariance};
 use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
-use super::{Alignment, LoopClosure, LoopConfig, RejectReason};
+use super::{Alignment, LoopClosure, LoopConfig, RejectReason, Standing};
 use crate::keyframe_db::KeyframeRecord;
 use crate::math::{Iso2, iso3_from_iso2, se2_log};
 use crate::registration::{
@@ -55,8 +55,8 @@ pub struct Pair<'a> {
 pub struct Gated {
     /// The closure.
     pub closure: LoopClosure,
-    /// It agrees with a fresh accepted alignment (published alone).
-    pub agrees: bool,
+    /// What it needs before it is published.
+    pub standing: Standing,
     /// Where that alignment predicts the result, for the prediction test it still needs.
     pub prediction: Option<Iso2>,
     /// The slide test it still needs.
@@ -130,7 +130,8 @@ pub fn gate(
     common_view_gate(g.lc, p, &r)?;
     ambiguity(g, p, &r)?;
     covariance(g.lc, &r)?;
-    let agrees = consistency(g, p, &r)?;
+    let standing = consistency(g, p, &r)?;
+    let agrees = standing == Standing::Vouched;
     let lc = g.lc;
     // A closure published alone on the alignment's word: the prediction may be metres off, and a
     // street slid by as much agrees with it too.
@@ -150,7 +151,7 @@ pub fn gate(
     });
     Ok(Gated {
         closure: closure(p, &r, lc),
-        agrees,
+        standing,
         prediction,
         slide,
     })
@@ -278,20 +279,31 @@ pub fn covariance(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal
 }
 
 /// Consistency (`loop.consistency_chi2`) with the session's accepted alignment when there is one;
-/// whether the closure agrees with a fresh one. A closure that contradicts the alignment but agrees
-/// with odometry alone (or, for another session, has nothing to contradict) may still be right and
-/// waits for confirmation, unless the alignment's prediction fits the submaps nearly as well: then
-/// the scene aliases (a street sliding along itself) and the prior decides.
-pub fn consistency(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Result<bool, Refusal> {
+/// what the closure needs before it is published ([`Standing`]). A closure that contradicts the
+/// alignment but agrees with odometry alone (or, for another session, has nothing to contradict) may
+/// still be right and waits for confirmation, unless the alignment's prediction fits the submaps
+/// nearly as well: then the scene aliases (a street sliding along itself) and the prior decides. A
+/// closure to this session that contradicts odometry is refused once the session has an accepted
+/// alignment to itself; before, odometry has drifted beyond its model and no longer tells where
+/// the session is, and the closure waits for as many confirmations as one to another session.
+pub fn consistency(
+    g: &Gates<'_>,
+    p: &Pair<'_>,
+    r: &RegistrationResult,
+) -> Result<Standing, Refusal> {
     let lc = g.lc;
-    let agrees = g.trusted(p);
+    let unvouched = if g.trusted(p) {
+        Standing::Vouched
+    } else {
+        Standing::Unconfirmed
+    };
     if lc.consistency_chi2 <= 0.0 {
-        return Ok(agrees);
+        return Ok(unvouched);
     }
     let t = &r.t_target_source;
     let aligned = g.distance(p, r, t, true);
     if !aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
-        return Ok(agrees);
+        return Ok(unvouched);
     }
     if let Some(predicted) = g.predicted(p)
         && let Ok(Some((_, o))) = overlap_near(p.source, p.target, &predicted, g.rc)
@@ -306,26 +318,29 @@ pub fn consistency(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Resul
             ),
         ));
     }
-    if let Some(d2) = g
+    let Some(d2) = g
         .distance(p, r, t, false)
         .filter(|&d2| d2 > lc.consistency_chi2)
-    {
-        // Only a closure within its own session has an odometry prediction: how far off it lies.
-        let e = se2_log(&(t.inverse() * predict(&Iso2::identity(), p.query, p.cand)));
-        let off = format!(
-            " ({:.1} m, {:.1} deg from it)",
-            e.xy().norm(),
-            e.z.to_degrees()
-        );
-        return Err((
-            RejectReason::Inconsistent,
-            format!(
-                "squared Mahalanobis distance {d2:.1} to the odometry prediction{off}, {:.1} to the accepted alignment's",
-                aligned.unwrap_or(f64::NAN)
-            ),
-        ));
+    else {
+        return Ok(Standing::Unconfirmed);
+    };
+    if lc.confirm_beyond_drift && g.alignment(p.cand.session).is_none() {
+        return Ok(Standing::BeyondDrift);
     }
-    Ok(false)
+    // Only a closure within its own session has an odometry prediction: how far off it lies.
+    let e = se2_log(&(t.inverse() * predict(&Iso2::identity(), p.query, p.cand)));
+    let off = format!(
+        " ({:.1} m, {:.1} deg from it)",
+        e.xy().norm(),
+        e.z.to_degrees()
+    );
+    Err((
+        RejectReason::Inconsistent,
+        format!(
+            "squared Mahalanobis distance {d2:.1} to the odometry prediction{off}, {:.1} to the accepted alignment's",
+            aligned.unwrap_or(f64::NAN)
+        ),
+    ))
 }
 
 /// The prediction test of a closure that agrees with a fresh alignment and passed the other gates:
@@ -528,7 +543,7 @@ mod tests {
         let g = f
             .gate(result(Iso2::new(Vec2::new(2.0, 0.0), 0.0), 0.05))
             .expect("passes");
-        assert!(!g.agrees && g.prediction.is_none());
+        assert!(g.standing != Standing::Vouched && g.prediction.is_none());
         let slide = g.slide.expect("first closures are slide-tested");
         assert!(slide.first && slide.ratio == f.lc.maximum_slide_ratio);
         assert_eq!(g.closure.query_id, 60);
@@ -537,15 +552,24 @@ mod tests {
     }
 
     #[test]
-    fn odometry_refuses_a_closure_beyond_the_drift_model() {
-        let f = fixture();
+    fn a_first_closure_beyond_the_drift_model_waits_for_a_foreign_confirmation() {
+        let mut f = fixture();
         // 300 m of path: the drift model allows (15 + 15) / 3 = 10 m standard deviation.
-        let far = result(Iso2::new(Vec2::new(80.0, 0.0), 0.0), 0.05);
-        assert_eq!(reason(f.gate(far)), RejectReason::Inconsistent);
-        assert!(
-            f.gate(result(Iso2::new(Vec2::new(12.0, 0.0), 0.0), 0.05))
-                .is_ok()
+        let far = || result(Iso2::new(Vec2::new(80.0, 0.0), 0.0), 0.05);
+        let near = || result(Iso2::new(Vec2::new(12.0, 0.0), 0.0), 0.05);
+        assert_eq!(
+            f.gate(near()).expect("passes").standing,
+            Standing::Unconfirmed
         );
+        assert_eq!(f.gate(far()).expect("held").standing, Standing::BeyondDrift);
+        // Once the session has an accepted alignment to itself (here one whose prediction does not
+        // fit the submaps), odometry and the alignment refuse it.
+        let a = Iso2::new(Vec2::new(40.0, 0.0), 0.0);
+        f.alignments.insert(0, Alignment { t: a, path: 300.0 });
+        assert_eq!(reason(f.gate(far())), RejectReason::Inconsistent);
+        f.alignments.clear();
+        f.lc.confirm_beyond_drift = false;
+        assert_eq!(reason(f.gate(far())), RejectReason::Inconsistent);
     }
 
     #[test]
@@ -556,20 +580,23 @@ mod tests {
         f.alignments.insert(0, Alignment { t: a, path: 280.0 });
         let at = Iso2::new(Vec2::new(3.0, 0.0), 0.0);
         let g = f.gate(result(at, 0.05)).expect("agrees");
-        assert!(g.agrees && g.slide.is_none());
+        assert!(g.standing == Standing::Vouched && g.slide.is_none());
         assert_eq!(g.prediction, Some(at), "the prediction test remains");
         // 5 m from the prediction: contradicts the alignment but not odometry, so it waits.
         let off = f
             .gate(result(Iso2::new(Vec2::new(8.0, 0.0), 0.0), 0.05))
             .expect("held");
-        assert!(!off.agrees);
+        assert_ne!(off.standing, Standing::Vouched);
         let slide = off
             .slide
             .expect("not the first closure, still slide-tested");
         assert!(!slide.first && slide.ratio == 1.0);
         // An alignment too old to vouch (200 m of path back) vouches for nothing.
         f.alignments.insert(0, Alignment { t: a, path: 100.0 });
-        assert!(!f.gate(result(at, 0.05)).expect("passes").agrees);
+        assert_ne!(
+            f.gate(result(at, 0.05)).expect("passes").standing,
+            Standing::Vouched
+        );
     }
 
     #[test]
@@ -599,7 +626,7 @@ mod tests {
             },
         );
         let g = f.gate(at_identity).expect("resolved by the alignment");
-        assert!(g.agrees);
+        assert_eq!(g.standing, Standing::Vouched);
     }
 
     #[test]

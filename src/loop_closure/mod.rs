@@ -18,7 +18,7 @@ pub mod gates;
 mod session;
 
 pub use config::LoopConfig;
-pub use session::{Alignment, QueryPlace, Session};
+pub use session::{Alignment, QueryPlace, Session, Standing};
 
 use rayon::prelude::*;
 
@@ -187,7 +187,7 @@ impl LoopCloser {
         let horizon = self.lc.backfill_horizon;
         self.state
             .note_keyframe(query.id, query.path_distance, horizon);
-        if let Some((c, agrees)) = self.best_closure(db, query, prepared, out) {
+        if let Some((c, standing)) = self.best_closure(db, query, prepared, out) {
             let Some((session, a)) = closure_alignment(db, query, &c) else {
                 return;
             };
@@ -196,7 +196,7 @@ impl LoopCloser {
                 path: query.path_distance,
                 t_odom_body: query.t_odom_body,
             };
-            let publish = self.state.accept(&place, c, session, a, agrees, &self.lc);
+            let publish = self.state.accept(&place, c, session, a, standing, &self.lc);
             self.publish(publish, out);
         }
     }
@@ -258,8 +258,8 @@ impl LoopCloser {
             // Only what agrees with a fresh alignment to the robot's session is published from here:
             // the first closures to a session come from new keyframes, whose candidates compete.
             match self.first_that_passes(passed, &source, out) {
-                Some((c, true)) => self.publish(vec![c], out),
-                Some((c, false)) => log::debug!(
+                Some((c, Standing::Vouched)) => self.publish(vec![c], out),
+                Some((c, _)) => log::debug!(
                     "revisit {} -> {index} of another robot passed the gates, but no fresh alignment to its session vouches for it",
                     c.query_id
                 ),
@@ -306,7 +306,9 @@ impl LoopCloser {
                 return;
             }
             // Only what agrees with the alignment that vouches is published.
-            let Some((c, true)) = found else { continue };
+            let Some((c, Standing::Vouched)) = found else {
+                continue;
+            };
             if let Some((s, a)) = closure_alignment(db, &rec, &c) {
                 let path = rec.path_distance;
                 self.state.extend_chain(s, Alignment { t: a, path });
@@ -323,7 +325,7 @@ impl LoopCloser {
         query: &KeyframeRecord,
         prepared: &PreparedSubmap,
         out: &mut Decisions,
-    ) -> Option<(LoopClosure, bool)> {
+    ) -> Option<(LoopClosure, Standing)> {
         let alignment = self.state.search_prior(self.session).map(|a| (a.t, a.path));
         let candidates = db.candidates(
             &CandidateQuery { query, alignment },
@@ -375,10 +377,11 @@ impl LoopCloser {
         mut passed: Vec<(Gated, std::sync::Arc<PreparedSubmap>)>,
         prepared: &PreparedSubmap,
         out: &mut Decisions,
-    ) -> Option<(LoopClosure, bool)> {
+    ) -> Option<(LoopClosure, Standing)> {
         passed.sort_by(|(a, _), (b, _)| {
-            (b.agrees, b.closure.score)
-                .partial_cmp(&(a.agrees, a.closure.score))
+            let vouched = |g: &Gated| g.standing == Standing::Vouched;
+            (vouched(b), b.closure.score)
+                .partial_cmp(&(vouched(a), a.closure.score))
                 .unwrap_or(std::cmp::Ordering::Equal)
         });
         let g = self.gates();
@@ -393,7 +396,7 @@ impl LoopCloser {
                         .map_or(Ok(()), |s| slide_test(&self.rc, &s, prepared, &target))
                 });
             match tested {
-                Ok(()) => return Some((gated.closure, gated.agrees)),
+                Ok(()) => return Some((gated.closure, gated.standing)),
                 Err(refusal) => out.reject(c.query_id, c.match_id, refusal),
             }
         }

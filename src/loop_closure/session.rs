@@ -22,11 +22,28 @@ pub struct Alignment {
     pub path: f64,
 }
 
-/// A closure waiting for confirmation, with the alignment it implies.
+/// What a closure that passed the gates needs before it is published.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Standing {
+    /// It agrees with an accepted alignment fresh enough to vouch for it: published alone.
+    Vouched,
+    /// It agrees with odometry, or goes to another session that has nothing to contradict it:
+    /// published once `loop.confirmations` (another session's: `loop.foreign_confirmations`)
+    /// closures agree.
+    Unconfirmed,
+    /// One of this session's first closures to itself, beyond the drift model: odometry no longer
+    /// tells where the session is, as between two sessions, so it needs as many agreeing closures
+    /// as a closure to another session (`loop.foreign_confirmations`).
+    BeyondDrift,
+}
+
+/// A closure waiting for confirmation, with the alignment it implies and the number of agreeing
+/// closures (itself included) it needs.
 #[derive(Debug, Clone, PartialEq)]
 struct Held {
     closure: LoopClosure,
     alignment: Alignment,
+    needed: usize,
 }
 
 /// Where a closure's query keyframe lies: its id, path length and odometry pose.
@@ -96,32 +113,33 @@ impl Session {
     }
 
     /// Takes a closure that passed the gates, with the alignment `a` of this session into
-    /// `session` it implies: published at once when it agrees with the session's accepted
-    /// alignment (`agrees`) or one closure confirms a session; else held until a closure from
-    /// another query keyframe agrees with it (`loop.confirmations`, `confirmation_span`,
-    /// `confirmation_overlap`, `confirmation_horizon`). Returns what to publish now, in order; on a
-    /// confirmation the keyframes that got nothing since are queued to be searched again. A
-    /// closure that contradicts the accepted alignment and is confirmed replaces it, so that one
-    /// false closure that slipped through cannot block every true one after it.
+    /// `session` it implies: published at once when a fresh accepted alignment vouches for it
+    /// ([`Standing::Vouched`]) or one closure confirms a session; else held until closures from
+    /// other query keyframes agree with it (`loop.confirmations`, `foreign_confirmations`,
+    /// `confirmation_span`, `confirmation_overlap`, `confirmation_horizon`). Returns what to publish
+    /// now, in order; on a confirmation the keyframes that got nothing since are queued to be
+    /// searched again. A closure that contradicts the accepted alignment and is confirmed replaces
+    /// it, so that one false closure that slipped through cannot block every true one after it.
     pub fn accept(
         &mut self,
         query: &QueryPlace,
         c: LoopClosure,
         session: u32,
         a: Iso2,
-        agrees: bool,
+        standing: Standing,
         lc: &LoopConfig,
     ) -> Vec<LoopClosure> {
         let alignment = Alignment {
             t: a,
             path: query.path,
         };
-        let needed = if session == self.own {
+        let needed = if session == self.own && standing != Standing::BeyondDrift {
             lc.confirmations
         } else {
             lc.foreign_confirmations
         };
-        let publish = if (agrees && self.alignments.contains_key(&session)) || needed <= 1 {
+        let vouched = standing == Standing::Vouched && self.alignments.contains_key(&session);
+        let publish = if vouched || needed <= 1 {
             vec![c]
         } else {
             match self.confirm(query, c, (session, needed), alignment, lc) {
@@ -133,8 +151,9 @@ impl Session {
         publish
     }
 
-    /// Holds `c` or, when `needed` closures to `session` agree (held ones and `c`), returns them with
-    /// it (in query order, `c` last) and queues the keyframes since for searching again.
+    /// Holds `c` or, when enough closures to `session` agree (held ones and `c`, as many as the most
+    /// demanding of them needs), returns them with it (in query order, `c` last) and queues the
+    /// keyframes since for searching again.
     fn confirm(
         &mut self,
         query: &QueryPlace,
@@ -167,6 +186,10 @@ impl Session {
             || agree
                 .iter()
                 .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
+        let needed = agree
+            .iter()
+            .map(|&k| pending[k].needed)
+            .fold(needed, usize::max);
         if !(agree.len() + 1 >= needed && span >= lc.confirmation_span && strong) {
             log::debug!(
                 "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
@@ -181,6 +204,7 @@ impl Session {
             pending.push(Held {
                 closure: c,
                 alignment,
+                needed,
             });
             return None;
         }
@@ -257,6 +281,7 @@ impl Session {
 
 #[cfg(test)]
 mod tests {
+    use super::Standing::{BeyondDrift, Unconfirmed, Vouched};
     use super::*;
     use crate::math::{Iso3, Mat6, Stamp, Vec2};
 
@@ -305,7 +330,14 @@ mod tests {
         let lc = LoopConfig::default();
         let mut s = session_with_keyframes(20, &lc);
         let a = true_alignment();
-        let held = s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        let held = s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         assert!(held.is_empty(), "the first closure to a session waits");
         assert!(s.alignments().is_empty());
         assert_eq!(
@@ -315,11 +347,25 @@ mod tests {
         );
         // The same query keyframe does not confirm itself.
         assert!(
-            s.accept(&place(10, 100.0), closure(10, 1, 0.7), 0, a, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(10, 100.0),
+                closure(10, 1, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         // Another keyframe 40 m on, with an agreeing alignment: both published, in query order.
-        let published = s.accept(&place(14, 140.0), closure(14, 4, 0.5), 0, a, false, &lc);
+        let published = s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.5),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
         assert_eq!(ids, [10, 10, 14]);
         assert_eq!(s.alignments()[&0].t, a);
@@ -338,27 +384,110 @@ mod tests {
         let a = true_alignment();
         let mut s = Session::new(1);
         assert!(
-            s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(10, 100.0),
+                closure(10, 0, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         assert!(
-            s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc)
-                .is_empty(),
+            s.accept(
+                &place(14, 140.0),
+                closure(14, 4, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty(),
             "two agreeing closures do not confirm another session"
         );
         assert!(
-            s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, a, false, &lc)
-                .is_empty(),
+            s.accept(
+                &place(18, 180.0),
+                closure(18, 8, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty(),
             "nor do three"
         );
-        let published = s.accept(&place(22, 220.0), closure(22, 12, 0.7), 0, a, false, &lc);
+        let published = s.accept(
+            &place(22, 220.0),
+            closure(22, 12, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
         assert_eq!(ids, [10, 14, 18, 22]);
         // The own session (1) is confirmed by two.
         let mut s = Session::new(1);
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 1, a, false, &lc);
-        let published = s.accept(&place(14, 140.0), closure(14, 4, 0.7), 1, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            1,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        let published = s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.7),
+            1,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         assert_eq!(published.len(), 2);
+    }
+
+    /// A closure to the own session beyond the drift model needs `foreign_confirmations`, and so
+    /// does every confirmation it takes part in, whatever the others' standing.
+    #[test]
+    fn a_closure_beyond_the_drift_model_needs_a_foreign_confirmation() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::new(0);
+        assert!(
+            s.accept(
+                &place(10, 100.0),
+                closure(10, 0, 0.7),
+                0,
+                a,
+                BeyondDrift,
+                &lc
+            )
+            .is_empty()
+        );
+        for (k, q) in [(14u64, 140.0), (18, 180.0)] {
+            let published = s.accept(
+                &place(k, q),
+                closure(k, k - 10, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc,
+            );
+            assert!(published.is_empty(), "{k}: fewer than four agree");
+        }
+        let published = s.accept(
+            &place(22, 220.0),
+            closure(22, 12, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
+        assert_eq!(ids, [10, 14, 18, 22]);
     }
 
     #[test]
@@ -367,32 +496,88 @@ mod tests {
         let a = true_alignment();
         // Too close along the path (10 m < confirmation_span).
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         assert!(
-            s.accept(&place(11, 110.0), closure(11, 1, 0.7), 0, a, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(11, 110.0),
+                closure(11, 1, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         // Weak: no closure reaches confirmation_overlap.
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.5), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.5),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         assert!(
-            s.accept(&place(14, 140.0), closure(14, 4, 0.5), 0, a, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(14, 140.0),
+                closure(14, 4, 0.5),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         // Disagreeing: an alignment 20 m off.
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         let off = Iso2::new(Vec2::new(23.0, -2.0), 0.05);
         assert!(
-            s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, off, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(14, 140.0),
+                closure(14, 4, 0.7),
+                0,
+                off,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         // Expired: held longer than confirmation_horizon.
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         assert!(
-            s.accept(&place(30, 300.0), closure(30, 20, 0.7), 0, a, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(30, 300.0),
+                closure(30, 20, 0.7),
+                0,
+                a,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
     }
 
@@ -401,14 +586,28 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
-        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
-        let one = s.accept(&place(15, 150.0), closure(15, 5, 0.4), 0, a, true, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        let one = s.accept(&place(15, 150.0), closure(15, 5, 0.4), 0, a, Vouched, &lc);
         assert_eq!(one.len(), 1);
         assert_eq!(s.alignments()[&0].path, 150.0);
         // Without an accepted alignment `agrees` alone publishes nothing.
         assert!(
-            s.accept(&place(16, 160.0), closure(16, 6, 0.9), 1, a, true, &lc)
+            s.accept(&place(16, 160.0), closure(16, 6, 0.9), 1, a, Vouched, &lc)
                 .is_empty()
         );
         let single = LoopConfig {
@@ -417,8 +616,15 @@ mod tests {
         };
         let mut s = Session::default();
         assert_eq!(
-            s.accept(&place(10, 100.0), closure(10, 0, 0.1), 0, a, false, &single)
-                .len(),
+            s.accept(
+                &place(10, 100.0),
+                closure(10, 0, 0.1),
+                0,
+                a,
+                Unconfirmed,
+                &single
+            )
+            .len(),
             1
         );
     }
@@ -428,15 +634,43 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
-        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         let b = Iso2::new(Vec2::new(9.0, 4.0), -0.02);
         assert!(
-            s.accept(&place(20, 200.0), closure(20, 9, 0.7), 0, b, false, &lc)
-                .is_empty()
+            s.accept(
+                &place(20, 200.0),
+                closure(20, 9, 0.7),
+                0,
+                b,
+                Unconfirmed,
+                &lc
+            )
+            .is_empty()
         );
         assert_eq!(s.alignments()[&0].t, a, "held, not yet taken");
-        let published = s.accept(&place(24, 240.0), closure(24, 13, 0.7), 0, b, false, &lc);
+        let published = s.accept(
+            &place(24, 240.0),
+            closure(24, 13, 0.7),
+            0,
+            b,
+            Unconfirmed,
+            &lc,
+        );
         assert_eq!(published.len(), 2);
         assert_eq!(s.alignments()[&0].t, b);
     }
@@ -449,16 +683,30 @@ mod tests {
         };
         let a = true_alignment();
         let mut s = session_with_keyframes(20, &off);
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &off);
-        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &off);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &off,
+        );
+        s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &off,
+        );
         assert_eq!(s.backfill_len(), 0);
         // Keyframes beyond the horizon are forgotten; published ones leave the unclosed list.
         let lc = LoopConfig::default();
         let mut s = session_with_keyframes(3, &lc);
         s.note_keyframe(3, 10.0 + lc.backfill_horizon, lc.backfill_horizon);
         s.published(&closure(3, 0, 0.7));
-        s.accept(&place(4, 0.0), closure(4, 0, 0.7), 0, a, false, &lc);
-        s.accept(&place(8, 40.0), closure(8, 4, 0.7), 0, a, false, &lc);
+        s.accept(&place(4, 0.0), closure(4, 0, 0.7), 0, a, Unconfirmed, &lc);
+        s.accept(&place(8, 40.0), closure(8, 4, 0.7), 0, a, Unconfirmed, &lc);
         let mut queued = Vec::new();
         while let Some(id) = s.next_backfill() {
             queued.push(id);
@@ -471,10 +719,31 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(&place(10, 100.0), closure(10, 0, 0.7), 0, a, false, &lc);
-        s.accept(&place(14, 140.0), closure(14, 4, 0.7), 0, a, false, &lc);
+        s.accept(
+            &place(10, 100.0),
+            closure(10, 0, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
+        s.accept(
+            &place(14, 140.0),
+            closure(14, 4, 0.7),
+            0,
+            a,
+            Unconfirmed,
+            &lc,
+        );
         let newer = Iso2::new(Vec2::new(3.5, -2.0), 0.05);
-        s.accept(&place(18, 180.0), closure(18, 8, 0.7), 0, newer, true, &lc);
+        s.accept(
+            &place(18, 180.0),
+            closure(18, 8, 0.7),
+            0,
+            newer,
+            Vouched,
+            &lc,
+        );
         let chain = Alignment { t: a, path: 90.0 };
         s.extend_chain(0, chain);
         let swapped = s.swap_in_chain();

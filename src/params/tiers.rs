@@ -62,8 +62,11 @@ pub const TUNING: &[(&str, &str)] = &[
     ),
     (
         "loop.drift_rate",
-        "Your odometry's worst translation drift per metre driven. Too low refuses true closures after \
-         long loops as `inconsistent`; too high searches wider and registers more candidates.",
+        "Your odometry's worst translation drift per metre driven. Too low holds a session's first \
+         closures for four confirmations and refuses true closures after long gaps as `inconsistent`; \
+         too high searches wider, registers more candidates and lets an accepted alignment vouch for a \
+         street slid by a car length, which a short-range radar cannot tell apart (docs/experiments.md, \
+         TI-class radar).",
     ),
     (
         "loop.drift_yaw_rate",

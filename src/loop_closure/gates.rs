@@ -292,18 +292,19 @@ pub fn consistency(
     r: &RegistrationResult,
 ) -> Result<Standing, Refusal> {
     let lc = g.lc;
-    let unvouched = if g.trusted(p) {
+    // What a closure that passes needs: nothing more when a fresh alignment vouches for it.
+    let consistent = if g.trusted(p) {
         Standing::Vouched
     } else {
         Standing::Unconfirmed
     };
     if lc.consistency_chi2 <= 0.0 {
-        return Ok(unvouched);
+        return Ok(consistent);
     }
     let t = &r.t_target_source;
     let aligned = g.distance(p, r, t, true);
     if !aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
-        return Ok(unvouched);
+        return Ok(consistent);
     }
     if let Some(predicted) = g.predicted(p)
         && let Ok(Some((_, o))) = overlap_near(p.source, p.target, &predicted, g.rc)
@@ -327,20 +328,22 @@ pub fn consistency(
     if lc.confirm_beyond_drift && g.alignment(p.cand.session).is_none() {
         return Ok(Standing::BeyondDrift);
     }
-    // Only a closure within its own session has an odometry prediction: how far off it lies.
+    Err(contradicts_odometry(p, t, d2, aligned))
+}
+
+/// The refusal of `t`, a closure within its own session at squared Mahalanobis distance `d2` from
+/// the odometry prediction (and `aligned` from the accepted alignment's): how far off it lies.
+fn contradicts_odometry(p: &Pair<'_>, t: &Iso2, d2: f64, aligned: Option<f64>) -> Refusal {
     let e = se2_log(&(t.inverse() * predict(&Iso2::identity(), p.query, p.cand)));
-    let off = format!(
-        " ({:.1} m, {:.1} deg from it)",
-        e.xy().norm(),
-        e.z.to_degrees()
-    );
-    Err((
+    (
         RejectReason::Inconsistent,
         format!(
-            "squared Mahalanobis distance {d2:.1} to the odometry prediction{off}, {:.1} to the accepted alignment's",
+            "squared Mahalanobis distance {d2:.1} to the odometry prediction ({:.1} m, {:.1} deg from it), {:.1} to the accepted alignment's",
+            e.xy().norm(),
+            e.z.to_degrees(),
             aligned.unwrap_or(f64::NAN)
         ),
-    ))
+    )
 }
 
 /// The prediction test of a closure that agrees with a fresh alignment and passed the other gates:

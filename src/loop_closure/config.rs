@@ -89,10 +89,11 @@ pub struct LoopConfig {
     /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
     /// two robots driving it towards each other (docs/experiments.md, "Fleets").
     pub foreign_confirmations: usize,
-    /// A session's first closures to itself that lie beyond the drift model are held for
-    /// `foreign_confirmations` agreeing closures instead of refused (default true): odometry that
-    /// drifted that far (a yaw-rate bias, a long drive) no longer tells where the session is, as
-    /// between two sessions, and closures that agree with each other still do.
+    /// A session's first closures to itself that lie beyond the drift model, but within three times
+    /// its bounds, are held for `foreign_confirmations` agreeing closures instead of refused (default
+    /// true): odometry that drifted that far (a yaw-rate bias, a long drive) no longer tells where the
+    /// session is, as between two sessions, and closures that agree with each other still do. Further
+    /// out lie a street's look-alikes, such as its point-symmetric twin across a block.
     pub confirm_beyond_drift: bool,
     /// The confirming closures' query keyframes must lie at least this many metres of path apart
     /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two

@@ -19,6 +19,13 @@ use crate::registration::{
     overlap_near, slide_overlap,
 };
 
+/// How far beyond the drift model a session's first closures to itself may lie and still wait for
+/// confirmation (`loop.confirm_beyond_drift`): this many times its bounds, i.e. the bounds read as one
+/// standard deviation instead of three. A yaw-rate bias integrated over a lap lies within it; a street
+/// matched to its point-symmetric twin across a block (half a turn and a block's width off) does not,
+/// and such twins agree with each other from every keyframe along the street.
+const BEYOND_DRIFT_REACH: f64 = 3.0;
+
 /// Why a candidate was refused, for the log and the counters.
 pub type Refusal = (RejectReason, String);
 
@@ -325,7 +332,8 @@ pub fn consistency(
     else {
         return Ok(Standing::Unconfirmed);
     };
-    if lc.confirm_beyond_drift && g.alignment(p.cand.session).is_none() {
+    let within_reach = d2 <= BEYOND_DRIFT_REACH * BEYOND_DRIFT_REACH * lc.consistency_chi2;
+    if lc.confirm_beyond_drift && within_reach && g.alignment(p.cand.session).is_none() {
         return Ok(Standing::BeyondDrift);
     }
     Err(contradicts_odometry(p, t, d2, aligned))
@@ -565,6 +573,9 @@ mod tests {
             Standing::Unconfirmed
         );
         assert_eq!(f.gate(far()).expect("held").standing, Standing::BeyondDrift);
+        // Beyond three times the drift model's bounds it is refused: 198 m is 19.8 standard deviations.
+        let twin = result(Iso2::new(Vec2::new(200.0, 0.0), 0.0), 0.05);
+        assert_eq!(reason(f.gate(twin)), RejectReason::Inconsistent);
         // Once the session has an accepted alignment to itself (here one whose prediction does not
         // fit the submaps), odometry and the alignment refuse it.
         let a = Iso2::new(Vec2::new(40.0, 0.0), 0.0);

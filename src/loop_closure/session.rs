@@ -311,6 +311,18 @@ mod tests {
         }
     }
 
+    /// Offers query keyframe `q` at `path` metres, matched to keyframe `m` with overlap `score`, as an
+    /// unconfirmed closure to session 0 that implies the alignment `a`.
+    fn offer(
+        s: &mut Session,
+        (q, path): (u64, f64),
+        (m, score): (u64, f64),
+        a: Iso2,
+        lc: &LoopConfig,
+    ) -> Vec<LoopClosure> {
+        s.accept(&place(q, path), closure(q, m, score), 0, a, Unconfirmed, lc)
+    }
+
     /// The alignment to session 0 that every true closure of these tests implies.
     fn true_alignment() -> Iso2 {
         Iso2::new(Vec2::new(3.0, -2.0), 0.05)
@@ -330,14 +342,7 @@ mod tests {
         let lc = LoopConfig::default();
         let mut s = session_with_keyframes(20, &lc);
         let a = true_alignment();
-        let held = s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        let held = offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         assert!(held.is_empty(), "the first closure to a session waits");
         assert!(s.alignments().is_empty());
         assert_eq!(
@@ -346,26 +351,9 @@ mod tests {
             "searched around it"
         );
         // The same query keyframe does not confirm itself.
-        assert!(
-            s.accept(
-                &place(10, 100.0),
-                closure(10, 1, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        assert!(offer(&mut s, (10, 100.0), (1, 0.7), a, &lc).is_empty());
         // Another keyframe 40 m on, with an agreeing alignment: both published, in query order.
-        let published = s.accept(
-            &place(14, 140.0),
-            closure(14, 4, 0.5),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        let published = offer(&mut s, (14, 140.0), (4, 0.5), a, &lc);
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
         assert_eq!(ids, [10, 10, 14]);
         assert_eq!(s.alignments()[&0].t, a);
@@ -383,49 +371,16 @@ mod tests {
         assert_eq!((lc.confirmations, lc.foreign_confirmations), (2, 4));
         let a = true_alignment();
         let mut s = Session::new(1);
+        assert!(offer(&mut s, (10, 100.0), (0, 0.7), a, &lc).is_empty());
         assert!(
-            s.accept(
-                &place(10, 100.0),
-                closure(10, 0, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
-        assert!(
-            s.accept(
-                &place(14, 140.0),
-                closure(14, 4, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty(),
+            offer(&mut s, (14, 140.0), (4, 0.7), a, &lc).is_empty(),
             "two agreeing closures do not confirm another session"
         );
         assert!(
-            s.accept(
-                &place(18, 180.0),
-                closure(18, 8, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty(),
+            offer(&mut s, (18, 180.0), (8, 0.7), a, &lc).is_empty(),
             "nor do three"
         );
-        let published = s.accept(
-            &place(22, 220.0),
-            closure(22, 12, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        let published = offer(&mut s, (22, 220.0), (12, 0.7), a, &lc);
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
         assert_eq!(ids, [10, 14, 18, 22]);
         // The own session (1) is confirmed by two.
@@ -468,24 +423,10 @@ mod tests {
             .is_empty()
         );
         for (k, q) in [(14u64, 140.0), (18, 180.0)] {
-            let published = s.accept(
-                &place(k, q),
-                closure(k, k - 10, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc,
-            );
+            let published = offer(&mut s, (k, q), (k - 10, 0.7), a, &lc);
             assert!(published.is_empty(), "{k}: fewer than four agree");
         }
-        let published = s.accept(
-            &place(22, 220.0),
-            closure(22, 12, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        let published = offer(&mut s, (22, 220.0), (12, 0.7), a, &lc);
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
         assert_eq!(ids, [10, 14, 18, 22]);
     }
@@ -496,89 +437,21 @@ mod tests {
         let a = true_alignment();
         // Too close along the path (10 m < confirmation_span).
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        assert!(
-            s.accept(
-                &place(11, 110.0),
-                closure(11, 1, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        assert!(offer(&mut s, (11, 110.0), (1, 0.7), a, &lc).is_empty());
         // Weak: no closure reaches confirmation_overlap.
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.5),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        assert!(
-            s.accept(
-                &place(14, 140.0),
-                closure(14, 4, 0.5),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        offer(&mut s, (10, 100.0), (0, 0.5), a, &lc);
+        assert!(offer(&mut s, (14, 140.0), (4, 0.5), a, &lc).is_empty());
         // Disagreeing: an alignment 20 m off.
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         let off = Iso2::new(Vec2::new(23.0, -2.0), 0.05);
-        assert!(
-            s.accept(
-                &place(14, 140.0),
-                closure(14, 4, 0.7),
-                0,
-                off,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        assert!(offer(&mut s, (14, 140.0), (4, 0.7), off, &lc).is_empty());
         // Expired: held longer than confirmation_horizon.
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        assert!(
-            s.accept(
-                &place(30, 300.0),
-                closure(30, 20, 0.7),
-                0,
-                a,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        assert!(offer(&mut s, (30, 300.0), (20, 0.7), a, &lc).is_empty());
     }
 
     #[test]
@@ -586,22 +459,8 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        s.accept(
-            &place(14, 140.0),
-            closure(14, 4, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         let one = s.accept(&place(15, 150.0), closure(15, 5, 0.4), 0, a, Vouched, &lc);
         assert_eq!(one.len(), 1);
         assert_eq!(s.alignments()[&0].path, 150.0);
@@ -615,18 +474,7 @@ mod tests {
             ..lc
         };
         let mut s = Session::default();
-        assert_eq!(
-            s.accept(
-                &place(10, 100.0),
-                closure(10, 0, 0.1),
-                0,
-                a,
-                Unconfirmed,
-                &single
-            )
-            .len(),
-            1
-        );
+        assert_eq!(offer(&mut s, (10, 100.0), (0, 0.1), a, &single).len(), 1);
     }
 
     #[test]
@@ -634,43 +482,12 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        s.accept(
-            &place(14, 140.0),
-            closure(14, 4, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         let b = Iso2::new(Vec2::new(9.0, 4.0), -0.02);
-        assert!(
-            s.accept(
-                &place(20, 200.0),
-                closure(20, 9, 0.7),
-                0,
-                b,
-                Unconfirmed,
-                &lc
-            )
-            .is_empty()
-        );
+        assert!(offer(&mut s, (20, 200.0), (9, 0.7), b, &lc).is_empty());
         assert_eq!(s.alignments()[&0].t, a, "held, not yet taken");
-        let published = s.accept(
-            &place(24, 240.0),
-            closure(24, 13, 0.7),
-            0,
-            b,
-            Unconfirmed,
-            &lc,
-        );
+        let published = offer(&mut s, (24, 240.0), (13, 0.7), b, &lc);
         assert_eq!(published.len(), 2);
         assert_eq!(s.alignments()[&0].t, b);
     }
@@ -683,30 +500,16 @@ mod tests {
         };
         let a = true_alignment();
         let mut s = session_with_keyframes(20, &off);
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &off,
-        );
-        s.accept(
-            &place(14, 140.0),
-            closure(14, 4, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &off,
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &off);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &off);
         assert_eq!(s.backfill_len(), 0);
         // Keyframes beyond the horizon are forgotten; published ones leave the unclosed list.
         let lc = LoopConfig::default();
         let mut s = session_with_keyframes(3, &lc);
         s.note_keyframe(3, 10.0 + lc.backfill_horizon, lc.backfill_horizon);
         s.published(&closure(3, 0, 0.7));
-        s.accept(&place(4, 0.0), closure(4, 0, 0.7), 0, a, Unconfirmed, &lc);
-        s.accept(&place(8, 40.0), closure(8, 4, 0.7), 0, a, Unconfirmed, &lc);
+        offer(&mut s, (4, 0.0), (0, 0.7), a, &lc);
+        offer(&mut s, (8, 40.0), (4, 0.7), a, &lc);
         let mut queued = Vec::new();
         while let Some(id) = s.next_backfill() {
             queued.push(id);
@@ -719,22 +522,8 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let mut s = Session::default();
-        s.accept(
-            &place(10, 100.0),
-            closure(10, 0, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
-        s.accept(
-            &place(14, 140.0),
-            closure(14, 4, 0.7),
-            0,
-            a,
-            Unconfirmed,
-            &lc,
-        );
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         let newer = Iso2::new(Vec2::new(3.5, -2.0), 0.05);
         s.accept(
             &place(18, 180.0),

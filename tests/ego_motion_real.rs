@@ -64,7 +64,7 @@ fn nuscenes_doppler_fit_matches_compensated_fields() {
         // Ours: raw radial velocities only, no flags, moving points included.
         let dets: Vec<Detection> = pcd.detections(&NuscenesRadarFilter::keep_all());
         let fit =
-            fit_radar_velocity(&dets, FitDims::Auto, None, &EgoMotionConfig::default()).unwrap();
+            fit_radar_velocity(&dets, FitDims::Auto, &[], &EgoMotionConfig::default()).unwrap();
         // Doppler truth: least squares over the points the radar flags stationary, raw radial velocity.
         let stationary: Vec<(Vec3, f64)> = pcd
             .points
@@ -138,7 +138,7 @@ fn view_of_delft_doppler_fit_matches_compensated_fields() {
         let v_ref = reference_fit(&rows, 3);
         let dets: Vec<Detection> = pts.iter().filter_map(|p| p.to_detection()).collect();
         let fit =
-            fit_radar_velocity(&dets, FitDims::Auto, None, &EgoMotionConfig::default()).unwrap();
+            fit_radar_velocity(&dets, FitDims::Auto, &[], &EgoMotionConfig::default()).unwrap();
         let err = (fit.v_radar - v_ref).norm();
         println!(
             "VoD {frame}: fitted {:.3?} reference {:.3?} |err| {err:.4} m/s, {} of {} static",

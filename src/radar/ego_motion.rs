@@ -34,7 +34,9 @@ pub struct EgoMotionConfig {
     /// Upper bound on RANSAC hypotheses (default 200; stops earlier once 99.9 % confident).
     pub max_iterations: usize,
     /// When an odometry velocity is given as prior, hypotheses farther than this from it are discarded, m/s
-    /// (default 3.0). Protects against a large moving object outvoting the static world.
+    /// (default 3.0). Protects against a large moving object outvoting the static world. The submap
+    /// builder adds a second prior, the odometry's direction at the radar's previous Doppler speed,
+    /// so that wheels that slip do not pull the fit off the static world.
     pub prior_tolerance: f64,
     /// Seed of the RANSAC sampler; fits are deterministic (default 7).
     pub seed: u64,
@@ -161,7 +163,9 @@ struct LinearRansac<'a> {
     unknowns: usize,
     threshold: f64,
     min_threshold: f64,
-    prior: Option<(Vec3, f64)>,
+    /// Hypotheses farther than the tolerance from every one of these are discarded (none: all kept).
+    priors: Vec<Vec3>,
+    prior_tolerance: f64,
 }
 
 struct LinearFit {
@@ -250,8 +254,11 @@ impl LinearRansac<'_> {
             let Some(x) = self.minimal_solve(&sample[..self.unknowns]) else {
                 continue;
             };
-            if let Some((p, tol)) = self.prior
-                && (x - p).norm() > tol
+            if !self.priors.is_empty()
+                && self
+                    .priors
+                    .iter()
+                    .all(|p| (x - p).norm() > self.prior_tolerance)
             {
                 continue;
             }
@@ -326,12 +333,12 @@ impl LinearRansac<'_> {
 }
 
 /// Fits one radar's velocity (radar frame) to its detections' radial velocities: RANSAC over minimal
-/// sets, then least squares on the static consensus. `prior` (radar frame, e.g. from odometry) discards
-/// hypotheses farther than `cfg.prior_tolerance` from it.
+/// sets, then least squares on the static consensus. `priors` (radar frame, e.g. from odometry)
+/// discard hypotheses farther than `cfg.prior_tolerance` from all of them; none keeps every one.
 pub fn fit_radar_velocity(
     dets: &[Detection],
     dims: FitDims,
-    prior: Option<Vec3>,
+    priors: &[Vec3],
     cfg: &EgoMotionConfig,
 ) -> Result<VelocityFit, EgoMotionError> {
     let usable: Vec<(usize, Vec3)> = dets
@@ -361,12 +368,11 @@ pub fn fit_radar_velocity(
         unknowns: if full { 3 } else { 2 },
         threshold: cfg.inlier_threshold,
         min_threshold: cfg.min_inlier_threshold,
-        prior: prior.map(|p| {
-            (
-                if full { p } else { Vec3::new(p.x, p.y, 0.0) },
-                cfg.prior_tolerance,
-            )
-        }),
+        priors: priors
+            .iter()
+            .map(|p| if full { *p } else { Vec3::new(p.x, p.y, 0.0) })
+            .collect(),
+        prior_tolerance: cfg.prior_tolerance,
     };
     let fit = solver.run(cfg)?;
     let mut inliers = vec![false; dets.len()];
@@ -414,7 +420,8 @@ pub fn fit_body_twist(
         unknowns: 3,
         threshold: cfg.inlier_threshold,
         min_threshold: cfg.min_inlier_threshold,
-        prior: prior.map(|p| (p, cfg.prior_tolerance)),
+        priors: prior.into_iter().collect(),
+        prior_tolerance: cfg.prior_tolerance,
     };
     let fit = solver.run(cfg)?;
     let mut inliers: Vec<Vec<bool>> = scans.iter().map(|(_, d)| vec![false; d.len()]).collect();
@@ -486,7 +493,7 @@ mod tests {
         ];
         let dets = scene(v, 60, &movers, 1, false);
         let fit =
-            fit_radar_velocity(&dets, FitDims::Auto, None, &EgoMotionConfig::default()).unwrap();
+            fit_radar_velocity(&dets, FitDims::Auto, &[], &EgoMotionConfig::default()).unwrap();
         assert_relative_eq!(fit.v_radar, v, epsilon = 0.06);
         assert_eq!(fit.v_radar.z, 0.0);
         // Movers are rejected (their radial velocity differs by metres per second).
@@ -509,7 +516,7 @@ mod tests {
         let v = Vec3::new(2.9, -0.5, -0.08);
         let dets = scene(v, 300, &[(Vec3::new(10.0, 0.0, 0.0), 30)], 2, true);
         let fit =
-            fit_radar_velocity(&dets, FitDims::Auto, None, &EgoMotionConfig::default()).unwrap();
+            fit_radar_velocity(&dets, FitDims::Auto, &[], &EgoMotionConfig::default()).unwrap();
         // Each axis within 3 sigma of its own reported uncertainty (z is weakly observed: +-14 deg rays).
         for k in 0..3 {
             let sigma = fit.covariance[(k, k)].sqrt();
@@ -528,18 +535,13 @@ mod tests {
         let v = Vec3::new(10.0, 0.0, 0.0);
         let dets = scene(v, 20, &[(Vec3::new(9.0, 0.0, 0.0), 60)], 3, false);
         let cfg = EgoMotionConfig::default();
-        let blind = fit_radar_velocity(&dets, FitDims::Planar, None, &cfg).unwrap();
+        let blind = fit_radar_velocity(&dets, FitDims::Planar, &[], &cfg).unwrap();
         assert!(
             (blind.v_radar - v).norm() > 0.5,
             "without a prior the majority (the truck) wins"
         );
-        let fit = fit_radar_velocity(
-            &dets,
-            FitDims::Planar,
-            Some(Vec3::new(10.8, 0.3, 0.0)),
-            &cfg,
-        )
-        .unwrap();
+        let fit =
+            fit_radar_velocity(&dets, FitDims::Planar, &[Vec3::new(10.8, 0.3, 0.0)], &cfg).unwrap();
         assert_relative_eq!(fit.v_radar, v, epsilon = 0.1);
     }
 
@@ -548,7 +550,7 @@ mod tests {
         let cfg = EgoMotionConfig::default();
         let dets = scene(Vec3::new(5.0, 0.0, 0.0), 3, &[], 4, false);
         assert!(matches!(
-            fit_radar_velocity(&dets, FitDims::Planar, None, &cfg),
+            fit_radar_velocity(&dets, FitDims::Planar, &[], &cfg),
             Err(EgoMotionError::TooFewDetections { .. })
         ));
         // All on one line of sight: lateral velocity unobservable.
@@ -559,8 +561,8 @@ mod tests {
                 rcs: None,
             })
             .collect();
-        assert!(fit_radar_velocity(&one_ray, FitDims::Planar, None, &cfg).is_err());
-        assert!(fit_radar_velocity(&[], FitDims::Auto, None, &cfg).is_err());
+        assert!(fit_radar_velocity(&one_ray, FitDims::Planar, &[], &cfg).is_err());
+        assert!(fit_radar_velocity(&[], FitDims::Auto, &[], &cfg).is_err());
     }
 
     /// Five radars with the nuScenes mountings: the twist, including yaw rate, comes back.

@@ -242,16 +242,16 @@ pub struct SubmapConfig {
     pub max_span: f64,
     /// Largest correction of the odometry's distances by the radars' Doppler, as a share (default
     /// 0.5; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
-    /// wheel radius or tyre wear; the submap's scans are placed with the odometry's translations
-    /// from the anchor scaled by the distance the Doppler speeds integrate to over the distance the
-    /// odometry moved ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift)
+    /// wheel radius or tyre wear; the submap's scans are placed along the odometry's path with each
+    /// step between consecutive scans scaled to the distance the body's Doppler speed (a line fitted
+    /// through the scans' speeds) integrates to over the step's time ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift)
     /// stretches a 72 km/h submap by 15 cm from end to end, and two laps at different speeds are
     /// stretched differently: on the demo drive the correction brings DC-Loc's median error from
     /// 0.065 to 0.058 m (README.md). Wheels that spin or slide read 5-30 % more distance for a
-    /// second or two, which the correction also takes out. A ratio off 1 by more than the bound is
-    /// refused (the odometry is then used as it is, and the node counts it in its diagnostics):
-    /// wheels do not over-read by half, but a radial velocity of the wrong sign (a ratio near -1)
-    /// or in km/h (3.6) does.
+    /// second or two, which the correction also takes out where the slip covers only part of the
+    /// submap. A submap whose ratio is off 1 by more than the bound is refused (the odometry is
+    /// then used as it is, and the node counts it in its diagnostics): wheels do not over-read by
+    /// half, but a radial velocity of the wrong sign (a ratio near -1) or in km/h (3.6) does.
     pub speed_scale_bound: f64,
 }
 
@@ -282,24 +282,15 @@ impl SubmapConfig {
 /// (`submap.speed_scale_bound`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SpeedScale {
-    /// The scans were placed with the odometry's translations from the anchor times this factor: the
-    /// distance the Doppler speeds integrate to over the distance the odometry moved.
+    /// The scans were placed along the odometry's path with each step's length taken from the
+    /// Doppler speeds; the factor is the distance the Doppler speeds integrate to over the distance
+    /// the odometry moved, over the whole submap.
     Applied(f64),
     /// Not corrected: the correction is off, fewer than three scans have a Doppler fit, or the
     /// odometry moved less than 1 m between them.
     Unavailable,
     /// Not corrected: the ratio (given) is off 1 by more than the bound.
     Refused(f64),
-}
-
-impl SpeedScale {
-    /// The factor the translations were multiplied by.
-    pub fn factor(&self) -> f64 {
-        match self {
-            SpeedScale::Applied(k) => *k,
-            SpeedScale::Unavailable | SpeedScale::Refused(_) => 1.0,
-        }
-    }
 }
 
 /// A submap point, in the submap (anchor body) frame.
@@ -464,13 +455,14 @@ impl SubmapBuilder {
             let v_at_radar = v + Vec3::new(-w * t.y, w * t.x, 0.0);
             model.t_body_radar.rotation.inverse() * v_at_radar
         });
-        let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, prior_radar, &self.ego).ok();
+        let priors = self.priors(scan.radar, scan.stamp, prior_radar);
+        let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, &priors, &self.ego).ok();
         report.doppler_fit = fit.is_some();
         // The Doppler alone, against the odometry: a check of the radar's configuration.
         report.doppler_check = prior_radar
             .filter(|p| p.xy().norm() >= consistency::MIN_SPEED)
             .and_then(|p| {
-                let free = fit_radar_velocity(&scan.detections, FitDims::Planar, None, &self.ego);
+                let free = fit_radar_velocity(&scan.detections, FitDims::Planar, &[], &self.ego);
                 free.ok().map(|f| consistency::compare(&f.v_radar, &p))
             });
         let keep: Vec<bool> = match (&fit, prior_radar, self.ego.reject_dynamic) {
@@ -498,6 +490,30 @@ impl SubmapBuilder {
         });
         self.trim();
         Some(report)
+    }
+
+    /// The velocities a scan's Doppler fit may lie near (radar frame): the odometry's, and, when
+    /// this radar's previous fit is recent, the odometry's direction at the speed that fit measured.
+    /// Wheels that spin or slide read up to a third more speed at once, beyond the prior's
+    /// tolerance at highway speeds, while the body's true speed changes by no more than the
+    /// tolerance within the time hard braking (8 m/s^2) takes to shed it.
+    fn priors(&self, radar: usize, stamp: Stamp, odometry: Option<Vec3>) -> Vec<Vec3> {
+        let Some(odometry) = odometry else {
+            return Vec::new();
+        };
+        let recent = self.ego.prior_tolerance / HARD_BRAKING;
+        let previous = self
+            .scans
+            .iter()
+            .filter(|s| s.radar == radar && s.stamp < stamp)
+            .max_by_key(|s| s.stamp)
+            .filter(|s| stamp.secs_since(s.stamp) <= recent)
+            .and_then(|s| s.doppler_velocity);
+        let speed = odometry.xy().norm();
+        match previous {
+            Some(v) if speed > 1e-6 => vec![odometry, odometry * (v.xy().norm() / speed)],
+            _ => vec![odometry],
+        }
     }
 
     fn trim(&mut self) {
@@ -537,11 +553,20 @@ impl SubmapBuilder {
 
     /// Builds the submap in the body frame at the newest scan's stamp; `None` without scans.
     pub fn build(&self) -> Option<Submap> {
-        let anchor = self.scans.iter().max_by_key(|s| s.stamp)?;
-        let t_anchor_odom = anchor.t_odom_body.inverse();
         let mut order: Vec<&StackedScan> = self.scans.iter().collect();
         order.sort_by_key(|s| (s.stamp, s.radar));
-        let speed_scale = self.speed_scale(&order);
+        let anchor = *order.last()?;
+        let samples = self.doppler_speeds(&order);
+        let speed_scale = self.speed_scale(&samples);
+        let positions = match speed_scale {
+            SpeedScale::Applied(_) => doppler_path(&order, &samples),
+            SpeedScale::Unavailable | SpeedScale::Refused(_) => order
+                .iter()
+                .map(|s| s.t_odom_body.translation.vector)
+                .collect(),
+        };
+        let anchor_position = positions[positions.len() - 1];
+        let anchor_rotation = anchor.t_odom_body.rotation;
         let mut sub = Submap {
             anchor_stamp: anchor.stamp,
             t_odom_anchor: anchor.t_odom_body,
@@ -549,9 +574,11 @@ impl SubmapBuilder {
             scans: Vec::with_capacity(order.len()),
             speed_scale,
         };
-        for (k, s) in order.iter().enumerate() {
-            let mut t_anchor_body = t_anchor_odom * s.t_odom_body;
-            t_anchor_body.translation.vector *= speed_scale.factor();
+        for (k, (s, position)) in order.iter().zip(&positions).enumerate() {
+            let t_anchor_body = Iso3::from_parts(
+                (anchor_rotation.inverse() * (position - anchor_position)).into(),
+                anchor_rotation.inverse() * s.t_odom_body.rotation,
+            );
             let rot = t_anchor_body.rotation.to_rotation_matrix().into_inner();
             let to_anchor = |p: Vec3| (t_anchor_body * nalgebra::Point3::from(p)).coords;
             sub.scans.push(SubmapScan {
@@ -576,14 +603,10 @@ impl SubmapBuilder {
         Some(sub)
     }
 
-    /// The distance the Doppler says the body covered between the oldest and newest scans with a fit
-    /// (their body speeds, trapezoids between consecutive ones) over the odometry's path between
-    /// the same scans (`scans` in time order).
-    fn speed_scale(&self, scans: &[&StackedScan]) -> SpeedScale {
-        if self.cfg.speed_scale_bound <= 0.0 {
-            return SpeedScale::Unavailable;
-        }
-        let samples: Vec<(Stamp, f64, Vec3)> = scans
+    /// The body's speed over the ground from each scan's Doppler fit, with the scan's stamp and
+    /// odometry position (`scans` in time order; scans without a fit are left out).
+    fn doppler_speeds(&self, scans: &[&StackedScan]) -> Vec<SpeedSample> {
+        scans
             .iter()
             .filter_map(|s| {
                 let v_radar = s.doppler_velocity?;
@@ -594,21 +617,26 @@ impl SubmapBuilder {
                 let t = model.t_body_radar.translation.vector;
                 let v_body =
                     model.t_body_radar.rotation * v_radar + Vec3::new(w * t.y, -w * t.x, 0.0);
-                Some((
-                    s.stamp,
-                    v_body.xy().norm(),
-                    s.t_odom_body.translation.vector,
-                ))
+                Some(SpeedSample {
+                    stamp: s.stamp,
+                    speed: v_body.xy().norm(),
+                    position: s.t_odom_body.translation.vector,
+                })
             })
-            .collect();
-        if samples.len() < 3 {
+            .collect()
+    }
+
+    /// The distance the Doppler says the body covered between the oldest and newest scans with a fit
+    /// (their body speeds, trapezoids between consecutive ones) over the odometry's path between
+    /// the same scans.
+    fn speed_scale(&self, samples: &[SpeedSample]) -> SpeedScale {
+        if self.cfg.speed_scale_bound <= 0.0 || samples.len() < 3 {
             return SpeedScale::Unavailable;
         }
         let (mut doppler, mut odom) = (0.0, 0.0);
         for w in samples.windows(2) {
-            let ((t0, s0, p0), (t1, s1, p1)) = (w[0], w[1]);
-            doppler += 0.5 * (s0 + s1) * t1.secs_since(t0);
-            odom += (p1 - p0).xy().norm();
+            doppler += 0.5 * (w[0].speed + w[1].speed) * w[1].stamp.secs_since(w[0].stamp);
+            odom += (w[1].position - w[0].position).xy().norm();
         }
         if !(odom >= 1.0 && doppler.is_finite()) {
             return SpeedScale::Unavailable;
@@ -620,6 +648,55 @@ impl SubmapBuilder {
             SpeedScale::Applied(k)
         }
     }
+}
+
+/// Deceleration of hard braking, m/s^2: bounds how fast the body's true speed changes.
+const HARD_BRAKING: f64 = 8.0;
+
+/// One scan's Doppler speed over the ground, m/s, with its stamp and odometry position.
+#[derive(Debug, Clone, Copy)]
+struct SpeedSample {
+    stamp: Stamp,
+    speed: f64,
+    position: Vec3,
+}
+
+/// The scans' positions (odometry frame) along the odometry's path with each step's length taken from
+/// the Doppler: the step between consecutive scans keeps the odometry's direction and is scaled to
+/// the distance the body's speed integrates to over the step's time. A slip that covers part of the
+/// submap stretches only the steps it falls in, and those are the ones shortened. The body's speed
+/// changes smoothly over a submap's second or so, so it is taken as the least-squares line through
+/// the scans' Doppler speeds: that averages their noise as one factor for the whole submap would,
+/// and still follows an acceleration. `scans` in time order, `samples` their fitted subset (at
+/// least three).
+fn doppler_path(scans: &[&StackedScan], samples: &[SpeedSample]) -> Vec<Vec3> {
+    let t0 = samples[0].stamp;
+    let n = samples.len() as f64;
+    let mean_t = samples.iter().map(|s| s.stamp.secs_since(t0)).sum::<f64>() / n;
+    let mean_v = samples.iter().map(|s| s.speed).sum::<f64>() / n;
+    let (mut stt, mut stv) = (0.0, 0.0);
+    for s in samples {
+        let dt = s.stamp.secs_since(t0) - mean_t;
+        stt += dt * dt;
+        stv += dt * (s.speed - mean_v);
+    }
+    let slope = if stt > 0.0 { stv / stt } else { 0.0 };
+    let speed_at = |t: Stamp| mean_v + slope * (t.secs_since(t0) - mean_t);
+    let mut out = Vec::with_capacity(scans.len());
+    let mut position = scans[0].t_odom_body.translation.vector;
+    out.push(position);
+    for w in scans.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let step = b.t_odom_body.translation.vector - a.t_odom_body.translation.vector;
+        let length = step.xy().norm();
+        if length > 1e-9 {
+            let doppler =
+                0.5 * (speed_at(a.stamp) + speed_at(b.stamp)) * b.stamp.secs_since(a.stamp);
+            position += step * (doppler / length);
+        }
+        out.push(position);
+    }
+    out
 }
 
 #[cfg(test)]

@@ -114,11 +114,35 @@ fn circle_world() -> Vec<Vec3> {
 /// Drives the circle (truly at 10 m/s) for 14 scans of a forward radar, with an odometry that
 /// reports `odom_speed` on the same yaw rate, into a builder with `cfg`.
 fn circle_submap(odom_speed: f64, cfg: SubmapConfig) -> Submap {
+    circle_submap_with(|t| circle_pose_at(t, odom_speed), cfg)
+}
+
+/// The odometry of the circle (10 m/s, 0.2 rad/s) whose wheels read 13 m/s between 1.3 and 1.6 s:
+/// the heading stays the gyro's, the path's speed is the wheels'.
+fn slipping_circle_pose(t: f64) -> Iso3 {
+    let w = 0.2;
+    let speed = |t: f64| if (1.3..1.6).contains(&t) { 13.0 } else { 10.0 };
+    let knots = [0.0, 1.3, 1.6, f64::MAX];
+    let (mut x, mut y) = (0.0, 0.0);
+    for k in knots.windows(2) {
+        let (t0, t1) = (k[0], k[1].min(t));
+        if t1 <= t0 {
+            break;
+        }
+        let v = speed(t0);
+        x += v / w * ((w * t1).sin() - (w * t0).sin());
+        y += v / w * ((w * t0).cos() - (w * t1).cos());
+    }
+    iso3_from_xyz_rpy(x, y, 0.0, 0.0, 0.0, w * t)
+}
+
+/// Drives the circle (truly at 10 m/s) for 14 scans of a forward radar, with the odometry
+/// `odom_pose(t)`, into a builder with `cfg`.
+fn circle_submap_with(odom_pose: impl Fn(f64) -> Iso3, cfg: SubmapConfig) -> Submap {
     let mut odom = OdometryBuffer::new(OdometryConfig::default());
     for i in 0..=150 {
         let t = i as f64 / 50.0;
-        let p = circle_pose_at(t, odom_speed);
-        odom.push(Stamp::from_secs_f64(t), p).unwrap();
+        odom.push(Stamp::from_secs_f64(t), odom_pose(t)).unwrap();
     }
     let radar = RadarModel {
         t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
@@ -253,6 +277,112 @@ fn the_doppler_speeds_correct_the_odometry_distances() {
     assert_relative_eq!(worst_error(&refused, false), err_off, epsilon = 1e-12);
 }
 
+/// Wheels that read 30 % more for 0.3 s in the middle of the submap: the odometry's steps through
+/// the slip are the ones shortened, so the scans on either side of it land where they were seen
+/// (one factor for the whole submap would leave those just after the slip 0.4 m off).
+#[test]
+fn the_doppler_speeds_take_out_a_slip_in_part_of_the_submap() {
+    let off = circle_submap_with(
+        slipping_circle_pose,
+        SubmapConfig {
+            speed_scale_bound: 0.0,
+            ..ON
+        },
+    );
+    let err_off = worst_error(&off, false);
+    assert!(err_off > 0.5, "the slip stretches the submap ({err_off})");
+    let on = circle_submap_with(
+        slipping_circle_pose,
+        SubmapConfig {
+            speed_scale_bound: 0.5,
+            ..ON
+        },
+    );
+    let SpeedScale::Applied(k) = on.speed_scale else {
+        panic!("{:?}", on.speed_scale);
+    };
+    // The scans span 1 + 4/13 to 2 s: 9/13 s at 10 m/s, of which the odometry reads 3 m/s more
+    // until 1.6 s.
+    let doppler = 90.0 / 13.0;
+    assert_relative_eq!(
+        k,
+        doppler / (doppler + 3.0 * (1.6 - 17.0 / 13.0)),
+        epsilon = 1e-3
+    );
+    let err_on = worst_error(&on, false);
+    assert!(err_on < 0.02, "corrected points off the world by {err_on}");
+}
+
+/// 30 static points ahead of a radar moving with `v_radar` (radar frame), at 10-39 m over 2 rad.
+fn static_detections(v_radar: Vec3) -> Vec<Detection> {
+    (0..30)
+        .map(|i| {
+            let a = -1.0 + i as f64 / 15.0;
+            let d = Vec3::new(a.cos(), a.sin(), 0.0);
+            Detection {
+                p_radar: d * (10.0 + i as f64),
+                v_r: -d.dot(&v_radar),
+                rcs: None,
+            }
+        })
+        .collect()
+}
+
+/// A scan of radar 0, driving straight ahead at `speed`, at `stamp` (s).
+fn static_scan(stamp: f64, speed: f64) -> RadarScan {
+    RadarScan {
+        radar: 0,
+        stamp: Stamp::from_secs_f64(stamp),
+        detections: static_detections(Vec3::new(speed, 0.0, 0.0)),
+    }
+}
+
+/// Wheels that start to slip at 20 m/s read 26 m/s, 6 m/s from the truth, twice the prior's
+/// tolerance: a radar whose previous scan 70 ms before measured 20 m/s still fits its true speed
+/// and keeps the static world, where a radar with no recent fit, left with the odometry's prior,
+/// cannot.
+#[test]
+fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
+    let radar = RadarModel {
+        t_body_radar: Iso3::identity(),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    };
+    let builder = || {
+        SubmapBuilder::new(
+            SubmapConfig::default(),
+            EgoMotionConfig::default(),
+            vec![radar.clone()],
+        )
+    };
+    let slipping = Some((Vec3::new(26.0, 0.0, 0.0), 0.0));
+    let mut tracked = builder();
+    let before = tracked
+        .add_scan(
+            &static_scan(0.0, 20.0),
+            Iso3::identity(),
+            Some((Vec3::new(20.0, 0.0, 0.0), 0.0)),
+        )
+        .unwrap();
+    assert!(before.doppler_fit);
+    let during = tracked
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
+        .unwrap();
+    assert!(during.doppler_fit);
+    assert_eq!((during.kept, during.dynamic), (30, 0));
+    let v = tracked.scans.back().unwrap().doppler_velocity.unwrap();
+    assert_relative_eq!(v, Vec3::new(20.0, 0.0, 0.0), epsilon = 1e-6);
+    let mut fresh = builder();
+    let alone = fresh
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
+        .unwrap();
+    assert!(!alone.doppler_fit);
+    assert_eq!(
+        alone.kept, 0,
+        "the odometry's prior calls the static world moving"
+    );
+}
+
 #[test]
 fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
     let radars = vec![
@@ -280,17 +410,7 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
             } else {
                 Vec3::new(-10.0, 0.0, 0.0)
             };
-            let mut dets: Vec<Detection> = (0..30)
-                .map(|i| {
-                    let a = -1.0 + i as f64 / 15.0;
-                    let d = Vec3::new(a.cos(), a.sin(), 0.0);
-                    Detection {
-                        p_radar: d * (10.0 + i as f64),
-                        v_r: -d.dot(&v_radar),
-                        rcs: None,
-                    }
-                })
-                .collect();
+            let mut dets = static_detections(v_radar);
             // An oncoming car straight ahead.
             dets.push(Detection {
                 p_radar: Vec3::new(20.0, 0.5, 0.0),

@@ -87,11 +87,12 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
     assert!(r.same.recall() >= 0.9, "{:?}", r.same);
 }
 
-/// Five radars at 5 % drift (5.9 % measured, beyond the drift model): weak matches of a street
-/// 147 m away confirm each other; `loop.confirmation_overlap` wants one strong match among them.
+/// Five radars at 5 % drift (5.9 % measured, beyond the drift model), Student-t noise: weak matches
+/// of a street 147 m away confirm each other; `loop.confirmation_overlap` wants one strong match
+/// among them.
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
-    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.05, true);
+    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirmation_overlap = 0.0)
         .expect("scenario runs");
@@ -102,7 +103,6 @@ fn weak_matches_alone_do_not_confirm_a_session() {
         "{:?}",
         without.same
     );
-    assert!(with.reverse.recall() >= 0.6, "{:?}", with.reverse);
 }
 
 /// One forward radar at 3 % drift on the dev city's seed 2: the yaw-rate bias (0.3 deg/s) puts

@@ -106,8 +106,8 @@ fn weak_matches_alone_do_not_confirm_a_session() {
 }
 
 /// One forward radar at 3 % drift on the dev city's seed 2: the yaw-rate bias (0.3 deg/s) puts
-/// odometry 100-300 m off by the second lap, beyond the drift model. Refused as inconsistent, the
-/// session's first closures never come and nothing is published; held for
+/// odometry 100-300 m off by the second lap, beyond the drift model. Refused as inconsistent (the
+/// default), the session's first closures never come and nothing is published; held for
 /// `loop.foreign_confirmations`, as closures to another session are (`loop.confirm_beyond_drift`),
 /// they are confirmed, and the lap closes without a false closure (measured: 0 and 94.5 %).
 #[test]
@@ -116,9 +116,9 @@ fn first_closures_beyond_the_drift_model_are_confirmed_as_between_sessions() {
         seed: 2,
         ..scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.03, false)
     };
-    let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
-    let without = evaluate_scenario(&scenario, |c| c.r#loop.confirm_beyond_drift = false)
+    let with = evaluate_scenario(&scenario, |c| c.r#loop.confirm_beyond_drift = true)
         .expect("scenario runs");
+    let without = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("with {:?}; without {:?}", with.same, without.same);
     assert!(with.measured_drift > 0.03, "drift {}", with.measured_drift);
     assert_eq!(without.same.published, 0, "{:?}", without.same);

@@ -565,6 +565,7 @@ mod tests {
     #[test]
     fn a_first_closure_beyond_the_drift_model_waits_for_a_foreign_confirmation() {
         let mut f = fixture();
+        f.lc.confirm_beyond_drift = true;
         // 300 m of path: the drift model allows (15 + 15) / 3 = 10 m standard deviation.
         let far = || result(Iso2::new(Vec2::new(80.0, 0.0), 0.0), 0.05);
         let near = || result(Iso2::new(Vec2::new(12.0, 0.0), 0.0), 0.05);

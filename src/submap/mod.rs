@@ -244,8 +244,9 @@ pub struct SubmapConfig {
     /// 0.5; 0 = off). Each scan's Doppler fit gives the body's speed over the ground, independent of
     /// wheel radius or tyre wear; the submap's scans are placed along the odometry's path with each
     /// step between consecutive scans scaled to the distance the body's Doppler speed (a line fitted
-    /// through the scans' speeds) integrates to over the step's time ([`SpeedScale`]). A wheel odometry 1 % long (the simulator's default drift)
-    /// stretches a 72 km/h submap by 15 cm from end to end, and two laps at different speeds are
+    /// through the scans' speeds) integrates to over the step's time ([`SpeedScale`]). A wheel
+    /// odometry 1 % long (the simulator's default drift) stretches a 72 km/h submap by 15 cm from
+    /// end to end, and two laps at different speeds are
     /// stretched differently: on the demo drive the correction brings DC-Loc's median error from
     /// 0.065 to 0.058 m (README.md). Wheels that spin or slide read 5-30 % more distance for a
     /// second or two, which the correction also takes out where the slip covers only part of the

@@ -311,6 +311,21 @@ fn the_doppler_speeds_take_out_a_slip_in_part_of_the_submap() {
     );
     let err_on = worst_error(&on, false);
     assert!(err_on < 0.02, "corrected points off the world by {err_on}");
+    // The same factor applied to every translation from the anchor leaves the scans after the slip
+    // short by up to 0.4 m.
+    let one_factor = Submap {
+        points: off
+            .points
+            .iter()
+            .map(|q| SubmapPoint {
+                p: q.p + (k - 1.0) * off.scans[q.scan as usize].t_anchor_body.translation.vector,
+                ..*q
+            })
+            .collect(),
+        ..off.clone()
+    };
+    let err_one = worst_error(&one_factor, false);
+    assert!(err_one > 0.3, "one factor leaves {err_one}");
 }
 
 /// 30 static points ahead of a radar moving with `v_radar` (radar frame), at 10-39 m over 2 rad.

@@ -90,13 +90,13 @@ pub struct LoopConfig {
     /// two robots driving it towards each other (docs/experiments.md, "Fleets").
     pub foreign_confirmations: usize,
     /// A session's first closures to itself that lie beyond the drift model, but within three times
-    /// its bounds, are held for `foreign_confirmations` agreeing closures instead of refused (default
-    /// false): odometry that drifted that far (a yaw-rate bias, a long drive) no longer tells where
-    /// the session is, as between two sessions, and closures that agree with each other still do.
-    /// Further out lie a street's look-alikes, such as its point-symmetric twin across a block. Off by
-    /// default because look-alikes also lie within that reach: on the held-out industrial blocks a
-    /// parallel street 318 m away agreed with itself from seven keyframes and was published
-    /// (docs/experiments.md); on, one forward radar closes its laps at 3-5 % drift.
+    /// its bounds, are held for `foreign_confirmations` agreeing closures from keyframes on both
+    /// sides of a turn instead of refused (default true): odometry that drifted that far (a yaw-rate
+    /// bias, a long drive) no longer tells where the session is, as between two sessions, and
+    /// closures that agree with each other around a corner still do. Along one street they do not: a
+    /// parallel street a block away agrees with itself from every keyframe (docs/experiments.md).
+    /// Further out lie a street's look-alikes, such as its point-symmetric twin across a block. Off,
+    /// such closures are refused, and odometry beyond its model closes no lap.
     pub confirm_beyond_drift: bool,
     /// The confirming closures' query keyframes must lie at least this many metres of path apart
     /// (default 30): one aliased place seen from two neighbouring keyframes agrees with itself, two
@@ -159,7 +159,7 @@ impl Default for LoopConfig {
             consistency_chi2: 16.27,
             confirmations: 2,
             foreign_confirmations: 4,
-            confirm_beyond_drift: false,
+            confirm_beyond_drift: true,
             confirmation_span: 30.0,
             confirmation_overlap: 0.6,
             confirmation_horizon: 150.0,

@@ -289,7 +289,7 @@ impl LoopCloser {
             };
             // Searched around the chain's alignment instead of the newest one, which is put back
             // after.
-            let swapped = self.state.swap_in_chain();
+            let swapped = self.state.swap_in_chain(rec.path_distance, &self.lc);
             let fresh = self.state.any_vouches(rec.path_distance, &self.lc);
             let found = if fresh {
                 self.best_closure(db, &rec, &prepared, out)

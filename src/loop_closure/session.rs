@@ -12,6 +12,13 @@ use crate::math::Iso2;
 /// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
 const CONFIRM_CHI2: f64 = 16.27;
 
+/// Closures beyond the drift model confirm each other only when their query keyframes' headings
+/// differ by at least this, rad (45 degrees): they come from two streets that meet at an angle. Along
+/// one street the view repeats across the block grid, and a parallel street a block or more away
+/// agrees with itself from every keyframe; the same shift rarely also aligns the street that turns off
+/// it.
+const BEYOND_DRIFT_TURN: f64 = std::f64::consts::FRAC_PI_4;
+
 /// An accepted alignment of this session's odometry frame into an earlier session's frame, and the
 /// path length (m of this session's odometry) at which the closure that gave it was found.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,6 +51,10 @@ struct Held {
     closure: LoopClosure,
     alignment: Alignment,
     needed: usize,
+    /// The query keyframe's odometry heading, rad.
+    heading: f64,
+    /// It lies beyond the drift model: its confirmation must span a turn ([`BEYOND_DRIFT_TURN`]).
+    turn: bool,
 }
 
 /// Where a closure's query keyframe lies: its id, path length and odometry pose.
@@ -55,6 +66,25 @@ pub struct QueryPlace {
     pub path: f64,
     /// Its odometry pose.
     pub t_odom_body: Iso2,
+}
+
+/// What a held closure needs before it is published: this many agreeing closures, itself
+/// included, and whether their query keyframes must span a turn ([`BEYOND_DRIFT_TURN`]).
+#[derive(Debug, Clone, Copy)]
+struct Need {
+    closures: usize,
+    turn: bool,
+}
+
+/// Whether the headings, `first` and the rest, differ pairwise by at least [`BEYOND_DRIFT_TURN`]
+/// somewhere.
+fn turn_spanned(first: f64, rest: impl Iterator<Item = f64>) -> bool {
+    let all: Vec<f64> = std::iter::once(first).chain(rest).collect();
+    all.iter().enumerate().any(|(i, a)| {
+        all[i + 1..]
+            .iter()
+            .any(|b| crate::math::wrap_angle(a - b).abs() >= BEYOND_DRIFT_TURN)
+    })
 }
 
 /// Closure acceptance over one session.
@@ -75,6 +105,9 @@ pub struct Session {
     /// The alignment the queued keyframes are searched around (its session): the confirmation's,
     /// then each closure those searches publish.
     chain: Option<(u32, Alignment)>,
+    /// The alignments of the closures the confirmation published: a queued keyframe where the
+    /// chain's is no longer fresh is searched around the one found nearest to it along the path.
+    anchors: Vec<Alignment>,
 }
 
 impl Session {
@@ -133,7 +166,8 @@ impl Session {
             t: a,
             path: query.path,
         };
-        let needed = if session == self.own && standing != Standing::BeyondDrift {
+        let beyond = standing == Standing::BeyondDrift;
+        let needed = if session == self.own && !beyond {
             lc.confirmations
         } else {
             lc.foreign_confirmations
@@ -142,7 +176,11 @@ impl Session {
         let publish = if vouched || needed <= 1 {
             vec![c]
         } else {
-            match self.confirm(query, c, (session, needed), alignment, lc) {
+            let need = Need {
+                closures: needed,
+                turn: beyond,
+            };
+            match self.confirm(query, c, (session, need), alignment, lc) {
                 Some(p) => p,
                 None => return Vec::new(),
             }
@@ -152,13 +190,13 @@ impl Session {
     }
 
     /// Holds `c` or, when enough closures to `session` agree (held ones and `c`, as many as the most
-    /// demanding of them needs), returns them with it (in query order, `c` last) and queues the
-    /// keyframes since for searching again.
+    /// demanding of them needs, across a turn when one of them needs it), returns them with it (in
+    /// query order, `c` last) and queues the keyframes since for searching again.
     fn confirm(
         &mut self,
         query: &QueryPlace,
         c: LoopClosure,
-        (session, needed): (u32, usize),
+        (session, need): (u32, Need),
         alignment: Alignment,
         lc: &LoopConfig,
     ) -> Option<Vec<LoopClosure>> {
@@ -189,8 +227,11 @@ impl Session {
         let needed = agree
             .iter()
             .map(|&k| pending[k].needed)
-            .fold(needed, usize::max);
-        if !(agree.len() + 1 >= needed && span >= lc.confirmation_span && strong) {
+            .fold(need.closures, usize::max);
+        let heading = query.t_odom_body.rotation.angle();
+        let turned = !(need.turn || agree.iter().any(|&k| pending[k].turn))
+            || turn_spanned(heading, agree.iter().map(|&k| pending[k].heading));
+        if !(agree.len() + 1 >= needed && span >= lc.confirmation_span && strong && turned) {
             log::debug!(
                 "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
                 c.query_id,
@@ -205,13 +246,18 @@ impl Session {
                 closure: c,
                 alignment,
                 needed,
+                heading,
+                turn: need.turn,
             });
             return None;
         }
         let mut kept = std::mem::take(pending);
         let mut publish = Vec::new();
+        self.anchors = vec![alignment];
         for k in agree.into_iter().rev() {
-            publish.push(kept.swap_remove(k).closure);
+            let h = kept.swap_remove(k);
+            publish.push(h.closure);
+            self.anchors.push(h.alignment);
         }
         publish.sort_by_key(|p| p.query_id);
         publish.push(c);
@@ -259,13 +305,32 @@ impl Session {
 
     /// A closure published by a search again moves the chain to the alignment it implies.
     pub fn extend_chain(&mut self, session: u32, alignment: Alignment) {
+        if self.chain.is_some_and(|(s, _)| s != session) {
+            self.anchors.clear();
+        }
         self.chain = Some((session, alignment));
     }
 
-    /// Puts the chain's alignment in place of its session's accepted one; returns what to put back
-    /// with [`Session::restore`].
-    pub fn swap_in_chain(&mut self) -> Option<(u32, Option<Alignment>)> {
-        self.chain.map(|(s, a)| (s, self.alignments.insert(s, a)))
+    /// Puts the chain's alignment in place of its session's accepted one, or, where the chain's is no
+    /// longer fresh enough to vouch at `path`, the alignment of the confirmed closure found nearest
+    /// to it along the path (a yaw-rate bias turns the alignment as the robot drives); returns what to
+    /// put back with [`Session::restore`].
+    pub fn swap_in_chain(
+        &mut self,
+        path: f64,
+        lc: &LoopConfig,
+    ) -> Option<(u32, Option<Alignment>)> {
+        let (s, chain) = self.chain?;
+        let a = if vouches(path - chain.path, lc) {
+            chain
+        } else {
+            self.anchors
+                .iter()
+                .copied()
+                .min_by(|a, b| (a.path - path).abs().total_cmp(&(b.path - path).abs()))
+                .unwrap_or(chain)
+        };
+        Some((s, self.alignments.insert(s, a)))
     }
 
     /// Undoes [`Session::swap_in_chain`].
@@ -407,28 +472,41 @@ mod tests {
     /// A closure to the own session beyond the drift model needs `foreign_confirmations`, and so
     /// does every confirmation it takes part in, whatever the others' standing.
     #[test]
-    fn a_closure_beyond_the_drift_model_needs_a_foreign_confirmation() {
+    fn a_closure_beyond_the_drift_model_needs_foreign_confirmations_across_a_turn() {
         let lc = LoopConfig::default();
         let a = true_alignment();
+        let beyond = |s: &mut Session, q: QueryPlace, m: u64| {
+            s.accept(&q, closure(q.id, m, 0.7), 0, a, BeyondDrift, &lc)
+        };
         let mut s = Session::new(0);
-        assert!(
-            s.accept(
-                &place(10, 100.0),
-                closure(10, 0, 0.7),
-                0,
-                a,
-                BeyondDrift,
-                &lc
-            )
-            .is_empty()
-        );
+        assert!(beyond(&mut s, place(10, 100.0), 0).is_empty());
         for (k, q) in [(14u64, 140.0), (18, 180.0)] {
             let published = offer(&mut s, (k, q), (k - 10, 0.7), a, &lc);
             assert!(published.is_empty(), "{k}: fewer than four agree");
         }
-        let published = offer(&mut s, (22, 220.0), (12, 0.7), a, &lc);
+        // Four agree, but all along one street: a parallel street would agree as well.
+        assert!(beyond(&mut s, place(22, 220.0), 12).is_empty());
+        // Round a corner: the street that turns off confirms them.
+        let mut corner = place(24, 240.0);
+        corner.t_odom_body = Iso2::new(Vec2::new(230.0, 10.0), std::f64::consts::FRAC_PI_2);
+        let published = beyond(&mut s, corner, 16);
         let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
-        assert_eq!(ids, [10, 14, 18, 22]);
+        assert_eq!(ids, [10, 14, 18, 22, 24]);
+    }
+
+    #[test]
+    fn a_turn_is_read_from_the_headings_pairwise() {
+        let q = std::f64::consts::FRAC_PI_4;
+        assert!(!turn_spanned(0.0, [0.3, -0.3].into_iter()));
+        assert!(
+            turn_spanned(0.0, [0.5, -0.5].into_iter()),
+            "1 rad between the two others"
+        );
+        assert!(
+            turn_spanned(3.0, [-3.0 + 2.0 * q].into_iter()),
+            "across +-pi"
+        );
+        assert!(!turn_spanned(3.1, [-3.1].into_iter()));
     }
 
     #[test]
@@ -518,6 +596,33 @@ mod tests {
     }
 
     #[test]
+    fn a_keyframe_searched_again_is_searched_around_the_nearest_confirmed_closure() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let later = Iso2::new(Vec2::new(3.3, -2.0), 0.05);
+        let mut s = session_with_keyframes(30, &lc);
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        assert_eq!(offer(&mut s, (24, 240.0), (14, 0.7), later, &lc).len(), 2);
+        // The confirmation's alignment vouches up to 60 m back; beyond, the nearest confirmed one.
+        for (path, expected) in [(200.0, later), (150.0, a), (110.0, a), (290.0, later)] {
+            let swapped = s.swap_in_chain(path, &lc);
+            assert_eq!(s.alignments()[&0].t, expected, "at {path} m");
+            s.restore(swapped);
+        }
+        // A search again that publishes moves the chain on, and it is kept while it vouches.
+        let walked = Alignment {
+            t: Iso2::new(Vec2::new(3.1, -2.0), 0.05),
+            path: 150.0,
+        };
+        s.extend_chain(0, walked);
+        for (path, expected) in [(110.0, walked), (60.0, Alignment { t: a, path: 100.0 })] {
+            let swapped = s.swap_in_chain(path, &lc);
+            assert_eq!(s.alignments()[&0], expected, "at {path} m");
+            s.restore(swapped);
+        }
+    }
+
+    #[test]
     fn the_chain_alignment_is_swapped_in_and_restored() {
         let lc = LoopConfig::default();
         let a = true_alignment();
@@ -535,14 +640,14 @@ mod tests {
         );
         let chain = Alignment { t: a, path: 90.0 };
         s.extend_chain(0, chain);
-        let swapped = s.swap_in_chain();
+        let swapped = s.swap_in_chain(90.0, &lc);
         assert_eq!(s.alignments()[&0], chain);
         assert!(s.any_vouches(100.0, &lc) && !s.any_vouches(200.0, &lc));
         s.restore(swapped);
         assert_eq!(s.alignments()[&0].t, newer);
         // A chain to a session without an alignment leaves none behind.
         s.extend_chain(7, chain);
-        let swapped = s.swap_in_chain();
+        let swapped = s.swap_in_chain(90.0, &lc);
         assert!(s.alignments().contains_key(&7));
         s.restore(swapped);
         assert!(!s.alignments().contains_key(&7));

@@ -200,7 +200,12 @@ impl LinearRansac<'_> {
         let mut ata = Mat3::zeros();
         let mut atb = Vec3::zeros();
         for i in rows {
-            let a = Vec3::from(self.rows[i]);
+            // A planar fit leaves out the rows' z: an elevated ray's z would otherwise couple the
+            // unused unknown into the two it solves.
+            let mut a = Vec3::from(self.rows[i]);
+            for k in n..3 {
+                a[k] = 0.0;
+            }
             ata += a * a.transpose();
             atb += a * self.b[i];
         }
@@ -527,6 +532,18 @@ mod tests {
                 fit.v_radar
             );
         }
+    }
+
+    /// A planar fit of rays up to 14 degrees above and below the boresight, the radar moving level,
+    /// recovers its velocity and keeps the static detections: the rays' z must not enter it.
+    #[test]
+    fn planar_fit_of_elevated_rays() {
+        let v = Vec3::new(20.0, -0.6, 0.0);
+        let dets = scene(v, 300, &[(Vec3::new(-10.0, 0.0, 0.0), 30)], 5, true);
+        let fit =
+            fit_radar_velocity(&dets, FitDims::Planar, &[], &EgoMotionConfig::default()).unwrap();
+        assert_relative_eq!(fit.v_radar, v, epsilon = 0.05);
+        assert!(fit.num_inliers >= 290, "{} inliers", fit.num_inliers);
     }
 
     #[test]

@@ -188,11 +188,12 @@ fn print_summary(reports: &[RunReport]) {
         counts(&issues)
     );
     println!(
-        "scans {}, detections kept {} / moving {} / invalid {}, doppler fit failures {}",
+        "scans {}, detections kept {} / moving {} / invalid {} / outside the height band {}, doppler fit failures {}",
         sum(&|r| r.stats.scans),
         sum(&|r| r.stats.detections_kept),
         sum(&|r| r.stats.detections_dynamic),
         sum(&|r| r.stats.detections_invalid),
+        sum(&|r| r.stats.detections_out_of_band),
         sum(&|r| r.stats.doppler_fit_failures)
     );
     println!("dropped inputs: {}", counts(&dropped));

@@ -37,6 +37,7 @@ pub const SETUP: &[&str] = &[
     "node.extrinsics_from_tf",
     "loop.extrinsic_std",
     "loop.clock_std",
+    "submap.height_band",
     "map.file",
 ];
 
@@ -77,11 +78,6 @@ pub const TUNING: &[(&str, &str)] = &[
         "loop.minimum_path_gap",
         "Path driven before the robot may close onto its own trail; raise it above the longest \
          back-and-forth your robot drives.",
-    ),
-    (
-        "loop.maximum_candidates",
-        "More candidates find more revisits in aliased places; each costs one registration per \
-         keyframe.",
     ),
     (
         "loop.minimum_inliers",

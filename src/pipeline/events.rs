@@ -134,6 +134,8 @@ pub struct PipelineStats {
     pub detections_dynamic: u64,
     /// Non-finite or zero-range detections skipped while decoding or compensating.
     pub detections_invalid: u64,
+    /// Detections outside `submap.height_band` (road surface, overhead).
+    pub detections_out_of_band: u64,
     /// Scans without a valid detection, counted before the duplicate check (fed on all the same: an
     /// empty scene is possible).
     pub empty_scans: u64,

@@ -411,17 +411,19 @@ impl Ingest {
             stats.detections_kept += rep.kept as u64;
             stats.detections_dynamic += rep.dynamic as u64;
             stats.detections_invalid += rep.invalid as u64;
+            stats.detections_out_of_band += rep.out_of_band as u64;
             if !rep.doppler_fit {
                 stats.doppler_fit_failures += 1;
             }
             self.check_doppler(cfg, &scan, rep.doppler_check, stats);
             log::debug!(
-                "scan radar {} at {:.3} s: {} kept, {} moving, {} invalid",
+                "scan radar {} at {:.3} s: {} kept, {} moving, {} invalid, {} outside the height band",
                 scan.radar,
                 scan.stamp.as_secs_f64(),
                 rep.kept,
                 rep.dynamic,
-                rep.invalid
+                rep.invalid,
+                rep.out_of_band
             );
             return Some(pose);
         }

@@ -202,6 +202,10 @@ fn dropped(shared: &Shared, stats: &PipelineStats) -> (Vec<KeyValue>, u64) {
     let total: u64 = dropped.values().sum();
     let mut values: Vec<KeyValue> = dropped.iter().map(|(k, v)| kv(k, v.to_string())).collect();
     values.push(kv("nan_points", stats.detections_invalid.to_string()));
+    values.push(kv(
+        "points_outside_height_band",
+        stats.detections_out_of_band.to_string(),
+    ));
     values.push(kv("empty_clouds", stats.empty_scans.to_string()));
     values.push(kv("time_resets", stats.time_resets.to_string()));
     values.push(kv("odometry_resets", stats.odometry_resets.to_string()));

@@ -254,6 +254,13 @@ pub struct SubmapConfig {
     /// then used as it is, and the node counts it in its diagnostics): wheels do not over-read by
     /// half, but a radial velocity of the wrong sign (a ratio near -1) or in km/h (3.6) does.
     pub speed_scale_bound: f64,
+    /// Heights kept in a submap, `[lowest, highest]` in the body frame, m (default `[-100.0, 100.0]`:
+    /// all). The registration is planar: a radar that measures elevation sees the road surface and
+    /// what passes overhead (signs, bridges, tree crowns), which land in the plane as clutter. Set the
+    /// band to what stands on the ground at the radars' heights, e.g. `[0.3, 5.0]` for a body frame
+    /// on the ground; a planar radar's points all lie at its mounting height. The Doppler ego-motion
+    /// fit still uses every detection.
+    pub height_band: [f64; 2],
 }
 
 impl Default for SubmapConfig {
@@ -262,6 +269,7 @@ impl Default for SubmapConfig {
             size: 10,
             max_span: 3.0,
             speed_scale_bound: 0.5,
+            height_band: [-100.0, 100.0],
         }
     }
 }
@@ -276,6 +284,18 @@ impl SubmapConfig {
             self.speed_scale_bound,
             Range::NON_NEGATIVE.below(1.0),
         );
+        let [lo, hi] = self.height_band;
+        v.require(
+            "height_band",
+            lo.is_finite() && hi.is_finite() && lo < hi,
+            || format!("[{lo}, {hi}]: needs two finite heights, the lower first"),
+        );
+    }
+
+    /// `z` (body frame) lies within `height_band`.
+    pub fn in_band(&self, z: f64) -> bool {
+        let [lo, hi] = self.height_band;
+        (lo..=hi).contains(&z)
     }
 }
 
@@ -383,6 +403,8 @@ pub struct ScanReport {
     pub dynamic: usize,
     /// Detections dropped because their ray was undefined (zero range, non-finite).
     pub invalid: usize,
+    /// Detections dropped as outside `submap.height_band`.
+    pub out_of_band: usize,
     /// The Doppler ego-motion fit succeeded.
     pub doppler_fit: bool,
     /// The radar velocity fitted from the Doppler alone against the odometry's prediction, when the
@@ -477,6 +499,7 @@ impl SubmapBuilder {
             match model.to_body(det) {
                 None => report.invalid += 1,
                 Some(_) if !keep => report.dynamic += 1,
+                Some(b) if !self.cfg.in_band(b.p.z) => report.out_of_band += 1,
                 Some(b) => points.push(b),
             }
         }

@@ -99,6 +99,7 @@ const ON: SubmapConfig = SubmapConfig {
     size: 10,
     max_span: 3.0,
     speed_scale_bound: 0.1,
+    height_band: [-100.0, 100.0],
 };
 
 /// A world of static points around the circle.
@@ -456,4 +457,50 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
         )
         .is_none()
     );
+}
+
+/// A radar 0.5 m up that sees the road 0.5 m below it and a sign 5 m above the street besides the
+/// static world at its own height: with `height_band` [0.3, 5.0] the submap keeps only the world,
+/// counts the rest, and the Doppler fit still uses every detection; with the default band it keeps
+/// all.
+#[test]
+fn the_height_band_keeps_what_stands_on_the_ground() {
+    let radars = vec![RadarModel {
+        t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.5, 0.0, 0.0, 0.0),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    }];
+    let v_radar = Vec3::new(10.0, 0.0, 0.0);
+    let mut dets = static_detections(v_radar);
+    let world = dets.len();
+    for (x, z) in [(8.0, -0.5), (9.0, -0.5), (10.0, 5.5)] {
+        let p = Vec3::new(x, 1.0, z);
+        dets.push(Detection {
+            p_radar: p,
+            v_r: -p.normalize().dot(&v_radar),
+            rcs: None,
+        });
+    }
+    let scan = RadarScan {
+        radar: 0,
+        stamp: Stamp::from_secs_f64(1.0),
+        detections: dets,
+    };
+    for (band, kept) in [([0.3, 5.0], world), ([-100.0, 100.0], world + 3)] {
+        let cfg = SubmapConfig {
+            height_band: band,
+            ..SubmapConfig::default()
+        };
+        let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars.clone());
+        let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+        assert!(rep.doppler_fit);
+        assert_eq!((rep.kept, rep.dynamic), (kept, 0), "band {band:?}");
+        assert_eq!(rep.out_of_band, world + 3 - kept, "band {band:?}");
+        let sub = b.build().unwrap();
+        assert!(
+            sub.points
+                .iter()
+                .all(|p| (band[0]..=band[1]).contains(&p.p.z))
+        );
+    }
 }

@@ -8,7 +8,8 @@
 //! - usage errors exit 2 naming the parameter or key; a missing bag exits 1 naming the path;
 //! - the runner reports, and goes on after, an undecodable cloud, a cloud of another frame and a
 //!   non-finite odometry pose, and replaces a zero header stamp by the log time;
-//! - the shipped params files equal the configurations they stand for.
+//! - the shipped params files equal the configurations they stand for, and every example params file
+//!   is accepted.
 
 #[path = "python/venv.rs"]
 mod venv;
@@ -866,4 +867,25 @@ fn eval_without_ground_truth_is_a_usage_error() {
         "{}",
         text(&out.stderr)
     );
+}
+
+/// Every example params file of params/examples is accepted as the node and `dc_loc run` read it,
+/// and sets what it says it sets.
+#[test]
+fn example_params_files_are_accepted() {
+    let dir = Path::new(REPO).join("params/examples");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "yaml"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 3, "{files:?}");
+    for f in &files {
+        let cfg = dc_loc::cli::params::load_params(f, "/", "dc_loc", &[])
+            .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        if f.ends_with("imaging_4d.yaml") {
+            assert_eq!(cfg.submap.height_band, [0.3, 5.0]);
+        }
+    }
 }

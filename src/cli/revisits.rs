@@ -22,7 +22,7 @@ use crate::sim::{NoiseModel, RadarPreset, WorldFamily};
 #[derive(Debug, Clone, clap::Args)]
 pub struct RevisitArgs {
     /// Radar sets: `carla` (one forward radar), `nuscenes` (five ARS408), `ti` (one forward TI
-    /// AWR1843-class radar).
+    /// AWR1843-class radar), `imaging` (one forward 4D imaging radar).
     #[arg(long, value_delimiter = ',', default_value = "carla,nuscenes")]
     pub radars: Vec<String>,
     /// Noise models: `gaussian`, `gamma`, `student-t`.
@@ -82,8 +82,9 @@ pub(super) fn parse_preset(s: &str) -> Result<RadarPreset, CliError> {
         "carla" => Ok(RadarPreset::Carla),
         "nuscenes" => Ok(RadarPreset::Nuscenes),
         "ti" => Ok(RadarPreset::Ti),
+        "imaging" => Ok(RadarPreset::Imaging),
         _ => Err(CliError::Usage(format!(
-            "--radars: unknown radar set `{s}` (carla, nuscenes, ti)"
+            "--radars: unknown radar set `{s}` (carla, nuscenes, ti, imaging)"
         ))),
     }
 }

@@ -22,6 +22,8 @@ pub enum PresetArg {
     Nuscenes,
     /// One forward TI AWR1843-class radar (50 m, 120 deg, 15 Hz, noisier azimuth).
     Ti,
+    /// One forward 4D imaging radar (elevation, up to 2,000 detections a scan, road returns).
+    Imaging,
 }
 
 /// Kinds of street of `--world` ([`WorldFamily`]).
@@ -118,12 +120,13 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
             PresetArg::Carla => RadarPreset::Carla,
             PresetArg::Nuscenes => RadarPreset::Nuscenes,
             PresetArg::Ti => RadarPreset::Ti,
+            PresetArg::Imaging => RadarPreset::Imaging,
         };
-        // The TI radar's noise scales, the model kept (--noise below may change it); the other presets
-        // keep the noise of the config file.
-        if p == PresetArg::Ti {
+        // The TI and imaging radars' noise scales, the model kept (--noise below may change it); the
+        // other presets keep the noise of the config file.
+        if matches!(p, PresetArg::Ti | PresetArg::Imaging) {
             let model = cfg.noise.model;
-            cfg.noise = RadarPreset::Ti.noise();
+            cfg.noise = cfg.radar_preset.noise();
             cfg.noise.model = model;
         }
         // A preset replaces the custom radars of a config file.

@@ -183,12 +183,7 @@ fn fmt_pct(v: f64) -> String {
 
 /// The preset's name as on the command line.
 pub fn preset_name(p: RadarPreset) -> &'static str {
-    match p {
-        RadarPreset::Carla => "carla",
-        RadarPreset::Nuscenes => "nuscenes",
-        RadarPreset::Ti => "ti",
-        RadarPreset::Custom => "custom",
-    }
+    p.name()
 }
 
 /// The noise model's name as on the command line.

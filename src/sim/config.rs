@@ -112,7 +112,8 @@ impl SimConfig {
 
     /// The `crate::pipeline::Config` radar section matching the simulated radars: names, topics, frame ids,
     /// extrinsics, `beta`, field names `x, y, z, v_r, rcs` and the noise standard deviations of the selected
-    /// noise model (see [`NoiseConfig::std_devs`]).
+    /// noise model (see [`NoiseConfig::std_devs`]); with a radar that measures elevation, the height
+    /// band `[0.3, 5.0]` m.
     pub fn to_config(&self) -> Config {
         let std = self.noise.std_devs();
         let mut radars = BTreeMap::new();
@@ -134,12 +135,18 @@ impl SimConfig {
                 },
             );
         }
-        Config {
+        let mut cfg = Config {
             body_frame: self.body_frame.clone(),
             radar_names: names,
             radars,
             ..Config::default()
+        };
+        // Radars that measure elevation see the road and what stands above the street: keep what
+        // stands on the ground (the body frame is on the ground).
+        if self.radar_list().iter().any(SimRadarConfig::has_elevation) {
+            cfg.submap.height_band = [0.3, 5.0];
         }
+        cfg
     }
 
     /// Rejects values that cannot work; the error names the parameter (dotted, as in YAML).
@@ -189,7 +196,9 @@ impl SimConfig {
         }
         let radars_ok = match self.radar_preset {
             RadarPreset::Custom => !self.radars.is_empty(),
-            RadarPreset::Carla | RadarPreset::Nuscenes | RadarPreset::Ti => self.radars.is_empty(),
+            RadarPreset::Carla | RadarPreset::Nuscenes | RadarPreset::Ti | RadarPreset::Imaging => {
+                self.radars.is_empty()
+            }
         };
         v.require("radars", radars_ok, || {
             if self.radars.is_empty() {

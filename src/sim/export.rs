@@ -24,7 +24,7 @@ use crate::msgs::geometry_msgs::{Transform, TransformStamped};
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::sim::noise::NoiseModel;
-use crate::sim::{RadarPreset, SimConfig, SimDrive, SimEventRef};
+use crate::sim::{SimConfig, SimDrive, SimEventRef};
 
 /// Topic of the ground-truth odometry.
 pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/odom";
@@ -210,12 +210,7 @@ pub fn export_drive(drive: &SimDrive, dir: &Path) -> Result<ExportSummary, Expor
 /// One line describing a drive: seed, radars, noise, laps with speeds (km/h) and directions, odometry
 /// errors.
 pub fn drive_description(cfg: &SimConfig) -> String {
-    let preset = match cfg.radar_preset {
-        RadarPreset::Carla => "carla",
-        RadarPreset::Nuscenes => "nuscenes",
-        RadarPreset::Ti => "ti",
-        RadarPreset::Custom => "custom",
-    };
+    let preset = cfg.radar_preset.name();
     let noise = match cfg.noise.model {
         NoiseModel::None => "none",
         NoiseModel::Gaussian => "gaussian",

@@ -20,6 +20,11 @@ pub enum RadarPreset {
     /// azimuth (1.5 deg: [`RadarPreset::noise`], which `dc_loc sim --preset ti` and `dc_loc revisits
     /// --radars ti` apply; a config file sets `noise` itself).
     Ti,
+    /// A 4D imaging radar (Continental ARS548 or ZF FRGen21 class): one forward radar that measures
+    /// elevation (+-14 deg), 200 m ahead, 60 deg to each side at 60 m, fine cells (0.22 m, 1.2 deg),
+    /// a fast chirp (beta 0.005 s), 20 Hz, up to 2,000 detections a scan, road-surface returns, and a
+    /// finer range and azimuth noise (0.1 m, half the paper's azimuth: [`RadarPreset::noise`]).
+    Imaging,
     /// The radars listed in `radars`.
     Custom,
 }
@@ -78,6 +83,24 @@ pub struct SimRadarConfig {
     pub multipath_probability: f64,
     /// RCS loss of the bounced path against the direct one, dB (default 10).
     pub multipath_loss: f64,
+    /// Half the elevation field of view, rad (default 0: a planar radar, every detection at z = 0 in
+    /// its frame). Above 0 the radar measures elevation: each reflection gets a height within its
+    /// object's vertical extent (on flat ground, z = 0 at the body frame's origin), is seen when its
+    /// elevation lies within the field of view, and is reported at its slant range.
+    pub elevation_fov: f64,
+    /// Elevation resolution, rad (default 2 deg; used when `elevation_fov` > 0).
+    pub elevation_resolution: f64,
+    /// Standard deviation of the measured elevation, rad (default 0.3 deg; used when `elevation_fov`
+    /// > 0).
+    pub elevation_noise: f64,
+    /// Mean number of returns from the road surface per scan (default 0; used when `elevation_fov` >
+    /// 0): static points on the ground within `ground_range`, below the radar's boresight.
+    pub ground_rate: f64,
+    /// Farthest ground return, m (default 30).
+    pub ground_range: f64,
+    /// Factor on the world's surface sample densities (walls, car sides, bushes) this radar resolves
+    /// (default 1): an imaging radar's finer cells separate more scatterers on one surface.
+    pub scatter_gain: f64,
 }
 
 impl Default for SimRadarConfig {
@@ -107,6 +130,12 @@ impl Default for SimRadarConfig {
             partial_scan_probability: 0.02,
             multipath_probability: 0.0,
             multipath_loss: 10.0,
+            elevation_fov: 0.0,
+            elevation_resolution: 2f64.to_radians(),
+            elevation_noise: 0.3f64.to_radians(),
+            ground_rate: 0.0,
+            ground_range: 30.0,
+            scatter_gain: 1.0,
         }
     }
 }
@@ -211,6 +240,25 @@ impl SimRadarConfig {
             self.multipath_loss,
             Range::closed(0.0, 100.0),
         );
+        v.range(
+            "elevation_fov",
+            self.elevation_fov,
+            Range::NON_NEGATIVE.below(60f64.to_radians()),
+        );
+        v.positive("elevation_resolution", self.elevation_resolution);
+        v.range(
+            "elevation_noise",
+            self.elevation_noise,
+            Range::NON_NEGATIVE.below(0.2),
+        );
+        v.range("ground_rate", self.ground_rate, Range::closed(0.0, 10000.0));
+        v.positive("ground_range", self.ground_range);
+        v.range("scatter_gain", self.scatter_gain, Range::closed(0.0, 100.0));
+    }
+
+    /// The radar measures elevation.
+    pub fn has_elevation(&self) -> bool {
+        self.elevation_fov > 0.0
     }
 }
 
@@ -221,19 +269,35 @@ impl RadarPreset {
             RadarPreset::Carla => vec![SimRadarConfig::default()],
             RadarPreset::Nuscenes => nuscenes_radars(),
             RadarPreset::Ti => vec![ti_radar()],
+            RadarPreset::Imaging => vec![imaging_radar()],
             RadarPreset::Custom => Vec::new(),
         }
     }
 
+    /// The preset's name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            RadarPreset::Carla => "carla",
+            RadarPreset::Nuscenes => "nuscenes",
+            RadarPreset::Ti => "ti",
+            RadarPreset::Imaging => "imaging",
+            RadarPreset::Custom => "custom",
+        }
+    }
+
     /// The measurement noise of this preset's radars: the paper's for `carla`, `nuscenes` and `custom`;
-    /// for `ti` a finer range (0.1 m) and a three times coarser azimuth (1.5 deg Gaussian).
+    /// for `ti` a finer range (0.1 m) and a three times coarser azimuth (1.5 deg Gaussian); for
+    /// `imaging` a finer range (0.1 m) and half the azimuth noise (0.25 deg Gaussian).
     pub fn noise(self) -> NoiseConfig {
         let mut n = NoiseConfig::default();
-        if self == RadarPreset::Ti {
-            for s in [&mut n.gaussian, &mut n.gamma, &mut n.student_t] {
-                s.range = 0.1;
-                s.azimuth *= 3.0;
-            }
+        let azimuth_factor = match self {
+            RadarPreset::Ti => 3.0,
+            RadarPreset::Imaging => 0.5,
+            _ => return n,
+        };
+        for s in [&mut n.gaussian, &mut n.gamma, &mut n.student_t] {
+            s.range = 0.1;
+            s.azimuth *= azimuth_factor;
         }
         n
     }
@@ -252,6 +316,32 @@ fn ti_radar() -> SimRadarConfig {
         max_detections: 100,
         false_alarm_rate: 8.0,
         empty_scan_probability: 0.01,
+        ..SimRadarConfig::default()
+    }
+}
+
+/// The 4D imaging radar of [`RadarPreset::Imaging`], where the CARLA radar sits.
+fn imaging_radar() -> SimRadarConfig {
+    SimRadarConfig {
+        beta: 0.005,
+        rate: 20.0,
+        coverage: vec![
+            [0.0, 200.0],
+            [20f64.to_radians(), 120.0],
+            [60f64.to_radians(), 60.0],
+        ],
+        range_resolution: 0.22,
+        azimuth_resolution: 1.2f64.to_radians(),
+        velocity_resolution: 0.1,
+        reference_rcs: 5.0,
+        max_detections: 2000,
+        false_alarm_rate: 10.0,
+        elevation_fov: 14f64.to_radians(),
+        elevation_resolution: 2.3f64.to_radians(),
+        elevation_noise: 0.3f64.to_radians(),
+        ground_rate: 200.0,
+        ground_range: 30.0,
+        scatter_gain: 8.0,
         ..SimRadarConfig::default()
     }
 }

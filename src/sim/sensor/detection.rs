@@ -2,6 +2,7 @@
 //! of each candidate, merging into resolution cells and the detection draw per cell; false alarms, the
 //! cap on detections and dropouts; measurement noise and the Doppler range distortion.
 
+use super::elevation;
 use super::occlusion::DepthBuffer;
 use super::reflections::{Candidate, poisson};
 use super::{DetectionTruth, Dropout, NO_OBJECT, RadarMotion};
@@ -12,6 +13,7 @@ use crate::sim::radar_config::SimRadarConfig;
 use crate::sim::world::TargetKind;
 use rand::RngExt;
 use rand::rngs::StdRng;
+use rand_distr::StandardNormal;
 use std::collections::HashMap;
 
 /// One resolution cell being accumulated.
@@ -20,6 +22,7 @@ pub(super) struct Cell {
     wr: f64,
     wphi: f64,
     wv: f64,
+    we: f64,
     rcs_lin: f64,
     best_w: f64,
     kind: TargetKind,
@@ -27,10 +30,11 @@ pub(super) struct Cell {
     members: u32,
 }
 
-/// A detection before measurement noise.
+/// A detection before measurement noise (`r` the slant range, `elev` 0 for a planar radar).
 pub(super) struct Clean {
     r: f64,
     phi: f64,
+    elev: f64,
     v_r: f64,
     rcs: f64,
     margin: f64,
@@ -40,32 +44,45 @@ pub(super) struct Clean {
 }
 
 /// Steps 4 and 5, physics and resolution: each visible candidate in range, with its radial velocity and
-/// SNR margin, merged into its (range, azimuth, Doppler) cell, power-weighted.
+/// SNR margin, merged into its (range, azimuth, Doppler, elevation) cell, power-weighted. A radar that
+/// measures elevation sees each candidate at a height drawn from its object's extent (`rng`), at its
+/// slant range, and only within its elevation field of view; a planar one draws nothing.
 pub(super) fn resolution_cells(
     cands: &[Candidate],
     radar: &SimRadarConfig,
     motion: &RadarMotion,
     depth: &DepthBuffer<'_>,
+    rng: &mut StdRng,
 ) -> Vec<Cell> {
     let pos = motion.position;
     let mut cells: Vec<Cell> = Vec::new();
-    let mut cell_at: HashMap<(i64, i64, i64), usize> = HashMap::new();
+    let mut cell_at: HashMap<(i64, i64, i64, i64), usize> = HashMap::new();
     for c in cands {
         let q = motion.radar_from_map(c.p);
-        let r = q.norm();
+        let planar = q.norm();
         let phi = q.y.atan2(q.x);
         let r_max = radar.range_at(phi);
-        if r < radar.min_range || r > r_max || !depth.visible(phi, r, c.surface) {
+        if planar < radar.min_range || planar > r_max || !depth.visible(phi, planar, c.surface) {
             continue;
         }
-        let d = (c.p - pos) / r;
-        let v_r = d.dot(&(c.v - motion.velocity));
+        let (r, elev) = if radar.has_elevation() {
+            match elevation::place(radar, c.kind, planar, rng) {
+                Some(seen) => seen,
+                None => continue,
+            }
+        } else {
+            (planar, 0.0)
+        };
+        let d = (c.p - pos) / planar;
+        // The velocities are horizontal: the radial velocity along a ray at elevation `elev`.
+        let v_r = d.dot(&(c.v - motion.velocity)) * elev.cos();
         let margin = c.rcs - radar.reference_rcs - 40.0 * (r / r_max).log10();
         let w = 10f64.powf(margin / 10.0);
         let key = (
             (r / radar.range_resolution).floor() as i64,
             (phi / radar.azimuth_resolution).floor() as i64,
             (v_r / radar.velocity_resolution).floor() as i64,
+            (elev / radar.elevation_resolution).floor() as i64,
         );
         let idx = *cell_at.entry(key).or_insert_with(|| {
             cells.push(Cell {
@@ -73,6 +90,7 @@ pub(super) fn resolution_cells(
                 wr: 0.0,
                 wphi: 0.0,
                 wv: 0.0,
+                we: 0.0,
                 rcs_lin: 0.0,
                 best_w: 0.0,
                 kind: c.kind,
@@ -86,6 +104,7 @@ pub(super) fn resolution_cells(
         cell.wr += w * r;
         cell.wphi += w * phi;
         cell.wv += w * v_r;
+        cell.we += w * elev;
         cell.rcs_lin += 10f64.powf(c.rcs / 10.0);
         cell.members += 1;
         if w > cell.best_w {
@@ -108,6 +127,7 @@ pub(super) fn detect_cells(cells: &[Cell], radar: &SimRadarConfig, rng: &mut Std
             clean.push(Clean {
                 r: cell.wr / cell.w,
                 phi: cell.wphi / cell.w,
+                elev: cell.we / cell.w,
                 v_r: cell.wv / cell.w,
                 rcs: 10.0 * cell.rcs_lin.log10(),
                 margin,
@@ -129,9 +149,15 @@ pub(super) fn add_false_alarms(clean: &mut Vec<Clean>, radar: &SimRadarConfig, r
         if r_max <= radar.min_range {
             continue;
         }
+        let elev = if radar.has_elevation() {
+            elevation::random_elevation(radar, rng)
+        } else {
+            0.0
+        };
         clean.push(Clean {
             r: rng.random_range(radar.min_range..r_max),
             phi,
+            elev,
             v_r: rng.random_range(-25.0..25.0),
             rcs: rng.random_range(-15.0..-5.0),
             margin: 0.0,
@@ -182,14 +208,19 @@ pub(super) fn measure(
             continue;
         }
         let phi_hat = c.phi + n[1];
+        let elev_hat = if radar.has_elevation() {
+            c.elev + radar.elevation_noise * rng.sample::<f64, _>(StandardNormal)
+        } else {
+            0.0
+        };
         dets.push(Detection {
-            p_radar: Vec3::new(r_hat * phi_hat.cos(), r_hat * phi_hat.sin(), 0.0),
+            p_radar: spherical(r_hat, phi_hat, elev_hat),
             v_r: c.v_r + n[2],
             // The ARS408 reports RCS in 0.5 dBsm steps.
             rcs: Some((c.rcs * 2.0).round() / 2.0),
         });
         truth.push(DetectionTruth {
-            p_radar: Vec3::new(c.r * c.phi.cos(), c.r * c.phi.sin(), 0.0),
+            p_radar: spherical(c.r, c.phi, c.elev),
             v_r: c.v_r,
             noise: n,
             kind: c.kind,
@@ -198,4 +229,10 @@ pub(super) fn measure(
         });
     }
     (dets, truth)
+}
+
+/// The point at range `r`, azimuth `phi` and elevation `elev` (radar frame); `z = 0` at elevation 0.
+fn spherical(r: f64, phi: f64, elev: f64) -> Vec3 {
+    let h = r * elev.cos();
+    Vec3::new(h * phi.cos(), h * phi.sin(), r * elev.sin())
 }

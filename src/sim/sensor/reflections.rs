@@ -22,7 +22,7 @@ pub(super) struct Candidate {
 }
 
 /// Swerling-1 fluctuation in dB: exponential power around the mean.
-fn swerling(rng: &mut StdRng) -> f64 {
+pub(super) fn swerling(rng: &mut StdRng) -> f64 {
     let x: f64 = Exp1.sample(rng);
     10.0 * x.max(1e-12).log10()
 }

@@ -49,6 +49,8 @@ pub enum TargetKind {
     /// A multipath ghost: a reflector seen via a wall, at its mirror image across the wall (the
     /// detection's object is the reflector's id).
     Ghost,
+    /// The road surface, seen by a radar that measures elevation.
+    Ground,
 }
 
 impl TargetKind {

@@ -1,6 +1,7 @@
 //! What a radar that measures elevation adds to a scan: the height of each reflection within its
 //! object's vertical extent, the elevation it is seen at, and returns from the road surface. The world
-//! is planar; its objects stand on flat ground at z = 0 of the body frame.
+//! is planar; its objects stand on flat ground at z = 0 of the body frame, and occlusion stays planar: a
+//! parked car hides the whole facade behind it.
 
 use super::reflections::{Candidate, poisson, swerling};
 use super::{NO_OBJECT, RadarMotion};

@@ -470,7 +470,8 @@ mod tests {
     }
 
     /// A closure to the own session beyond the drift model needs `foreign_confirmations`, and so
-    /// does every confirmation it takes part in, whatever the others' standing.
+    /// does every confirmation it takes part in, whatever the others' standing; and the agreeing
+    /// closures' query keyframes must span a turn (two headings `BEYOND_DRIFT_TURN` apart).
     #[test]
     fn a_closure_beyond_the_drift_model_needs_foreign_confirmations_across_a_turn() {
         let lc = LoopConfig::default();

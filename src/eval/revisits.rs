@@ -165,8 +165,8 @@ impl RevisitScenario {
         };
         format!(
             "{world}{} {} {}% {passes}{calibration}{clock}{multipath}{slip}",
-            preset_name(self.radars),
-            noise_name(self.noise),
+            self.radars.name(),
+            self.noise.name(),
             fmt_pct(self.drift),
         )
     }
@@ -178,21 +178,6 @@ fn fmt_pct(v: f64) -> String {
         format!("{p:.0}")
     } else {
         format!("{p:.1}")
-    }
-}
-
-/// The preset's name as on the command line.
-pub fn preset_name(p: RadarPreset) -> &'static str {
-    p.name()
-}
-
-/// The noise model's name as on the command line.
-pub fn noise_name(n: NoiseModel) -> &'static str {
-    match n {
-        NoiseModel::None => "none",
-        NoiseModel::Gaussian => "gaussian",
-        NoiseModel::Gamma => "gamma",
-        NoiseModel::StudentT => "student-t",
     }
 }
 

@@ -23,7 +23,6 @@ use crate::math::Stamp;
 use crate::msgs::geometry_msgs::{Transform, TransformStamped};
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
-use crate::sim::noise::NoiseModel;
 use crate::sim::{SimConfig, SimDrive, SimEventRef};
 
 /// Topic of the ground-truth odometry.
@@ -211,12 +210,7 @@ pub fn export_drive(drive: &SimDrive, dir: &Path) -> Result<ExportSummary, Expor
 /// errors.
 pub fn drive_description(cfg: &SimConfig) -> String {
     let preset = cfg.radar_preset.name();
-    let noise = match cfg.noise.model {
-        NoiseModel::None => "none",
-        NoiseModel::Gaussian => "gaussian",
-        NoiseModel::Gamma => "gamma",
-        NoiseModel::StudentT => "student-t",
-    };
+    let noise = cfg.noise.model.name();
     let laps: Vec<String> = cfg
         .laps
         .iter()

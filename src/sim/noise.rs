@@ -36,6 +36,18 @@ pub enum NoiseModel {
     StudentT,
 }
 
+impl NoiseModel {
+    /// The model's name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseModel::None => "none",
+            NoiseModel::Gaussian => "gaussian",
+            NoiseModel::Gamma => "gamma",
+            NoiseModel::StudentT => "student-t",
+        }
+    }
+}
+
 /// One value per measured quantity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

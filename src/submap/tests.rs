@@ -459,10 +459,9 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
     );
 }
 
-/// A radar 0.5 m up that sees the road 0.5 m below it and a sign 5 m above the street besides the
-/// static world at its own height: with `height_band` [0.3, 5.0] the submap keeps only the world,
-/// counts the rest, and the Doppler fit still uses every detection; with the default band it keeps
-/// all.
+/// A radar 0.5 m up that sees the road 0.5 m below it and a sign 6 m above the ground besides the
+/// static world at its own height: with `height_band` [0.3, 5.0] the submap keeps only the world and
+/// counts the rest; with the default band it keeps all.
 #[test]
 fn the_height_band_keeps_what_stands_on_the_ground() {
     let radars = vec![RadarModel {

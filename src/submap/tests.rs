@@ -503,3 +503,57 @@ fn the_height_band_keeps_what_stands_on_the_ground() {
         );
     }
 }
+
+/// The Doppler ego-motion fit uses the detections the height band cuts: a scan whose static world
+/// is mostly road (cut by the band) and three posts, with a car moving among them, fits its
+/// velocity on the road returns and drops the car, which the three posts alone could not tell apart.
+#[test]
+fn the_doppler_fit_uses_the_points_the_height_band_cuts() {
+    let radars = vec![RadarModel {
+        t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.5, 0.0, 0.0, 0.0),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    }];
+    let v_radar = Vec3::new(10.0, 0.0, 0.0);
+    let radial = |p: Vec3, v: Vec3| -p.normalize().dot(&v);
+    let mut dets: Vec<Detection> = static_detections(v_radar)
+        .into_iter()
+        .map(|d| {
+            let p = d.p_radar - Vec3::new(0.0, 0.0, 0.5);
+            Detection {
+                p_radar: p,
+                v_r: radial(p, v_radar),
+                rcs: None,
+            }
+        })
+        .collect();
+    let road = dets.len();
+    for y in [-4.0, 3.0, 6.0] {
+        let p = Vec3::new(15.0, y, 0.0);
+        dets.push(Detection {
+            p_radar: p,
+            v_r: radial(p, v_radar),
+            rcs: None,
+        });
+    }
+    // A car ahead driving away at 8 m/s.
+    let car = Vec3::new(20.0, 1.0, 0.0);
+    dets.push(Detection {
+        p_radar: car,
+        v_r: radial(car, v_radar - Vec3::new(8.0, 0.0, 0.0)),
+        rcs: None,
+    });
+    let scan = RadarScan {
+        radar: 0,
+        stamp: Stamp::from_secs_f64(1.0),
+        detections: dets,
+    };
+    let cfg = SubmapConfig {
+        height_band: [0.3, 5.0],
+        ..SubmapConfig::default()
+    };
+    let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
+    let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+    assert!(rep.doppler_fit);
+    assert_eq!((rep.kept, rep.dynamic, rep.out_of_band), (3, 1, road));
+}

@@ -189,6 +189,7 @@ pub fn register_icp(
         cost: mse,
         runner_up_overlap: 0.0,
         alternatives: Vec::new(),
+        score_share: Mat3::zeros(),
     })
 }
 

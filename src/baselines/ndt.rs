@@ -540,6 +540,7 @@ fn ndt_result(
         cost: obj.value,
         runner_up_overlap: 0.0,
         alternatives: Vec::new(),
+        score_share: Mat3::zeros(),
     })
 }
 

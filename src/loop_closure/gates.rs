@@ -133,11 +133,12 @@ pub fn gate(
     res: Result<RegistrationResult, RegistrationError>,
 ) -> Result<Gated, Refusal> {
     let r = res.map_err(|e| (RejectReason::Registration, e.to_string()))?;
-    quality(g.lc, &r)?;
-    common_view_gate(g.lc, p, &r)?;
-    ambiguity(g, p, &r)?;
-    covariance(g.lc, &r)?;
-    let standing = consistency(g, p, &r)?;
+    let judged = judged(&r);
+    quality(g.lc, &judged)?;
+    common_view_gate(g.lc, p, &judged)?;
+    ambiguity(g, p, &judged)?;
+    covariance(g.lc, &judged)?;
+    let standing = consistency(g, p, &judged)?;
     let agrees = standing == Standing::Vouched;
     let lc = g.lc;
     // A closure published alone on the alignment's word: the prediction may be metres off, and a
@@ -162,6 +163,20 @@ pub fn gate(
         prediction,
         slide,
     })
+}
+
+/// The result as the gates judge it: without the score probe's share of its covariance
+/// ([`RegistrationResult::score_share`]). The gates' chi-square tests tell the result from
+/// alternatives a metre and more away; the share widens the covariance along the street by the pull
+/// of the facades and parked cars within the alignment, and in those tests it would make a street
+/// slid by a car length look as likely as the result. The published closure carries it, as it
+/// carries the calibration's share.
+fn judged(r: &RegistrationResult) -> RegistrationResult {
+    RegistrationResult {
+        covariance: add_planar(&r.covariance, &-r.score_share),
+        alternatives: r.alternatives.clone(),
+        ..*r
+    }
 }
 
 /// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`,
@@ -450,6 +465,7 @@ mod tests {
             overlap: 0.8,
             runner_up_overlap: 0.0,
             alternatives: Vec::new(),
+            score_share: Mat3::zeros(),
         }
     }
 
@@ -546,6 +562,24 @@ mod tests {
         };
         assert_eq!(reason(f.gate(thin)), RejectReason::LowOverlap);
         assert_eq!(reason(f.gate(result(t, 0.8))), RejectReason::Uncertain);
+    }
+
+    /// The gates judge a result without the score probe's share: 0.8 m along x on top of 5 cm passes
+    /// the covariance gate (0.5 m), which the same 0.8 m in the registration's own covariance does
+    /// not; the closure carries the share.
+    #[test]
+    fn the_gates_judge_without_the_score_probe_s_share() {
+        let f = fixture();
+        let t = Iso2::identity();
+        let share = Mat3::from_diagonal(&crate::math::Vec3::new(0.64, 0.0, 0.0));
+        let mut pulled = result(t, 0.05);
+        pulled.covariance = add_planar(&pulled.covariance, &share);
+        pulled.score_share = share;
+        let gated = f.gate(pulled.clone()).expect("passes");
+        assert!((gated.closure.covariance[(0, 0)] - (0.0025 + 0.64)).abs() < 1e-12);
+        assert_eq!(gated.closure.covariance, pulled.covariance);
+        pulled.score_share = Mat3::zeros();
+        assert_eq!(reason(f.gate(pulled)), RejectReason::Uncertain);
     }
 
     #[test]

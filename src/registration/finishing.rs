@@ -24,7 +24,8 @@ pub fn finish(
     let d = polish(ctx, d);
     let d = symmetrise(ctx, d);
     let d = soften(ctx, d);
-    let mut d = probe_bias(ctx, d);
+    let d = probe_bias(ctx, d);
+    let mut d = probe_score(ctx, d);
     let win = d.result.t_target_source;
     let far = |t: &Iso2| !cfg.same_alignment(&win, t);
     let mut alternatives: Vec<(Iso2, f64)> =
@@ -184,6 +185,7 @@ pub(super) fn conclude(
         overlap,
         runner_up_overlap: 0.0,
         alternatives: Vec::new(),
+        score_share: Mat3::zeros(),
     };
     Ok(RegistrationDetail {
         result,
@@ -342,6 +344,50 @@ pub(super) fn probe_bias(
     };
     let d = se2_log(&(forward.inverse() * backward));
     best.covariance_se2 += 0.5 * d * d.transpose();
+    best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
+    best
+}
+
+/// The winner's covariance widened by the pull of the objects that gave many points, when
+/// `registration.dense.score_probe` is on and the dense stage ran.
+///
+/// The dense stage weighs every point alike, so a facade or a row of parked cars that gave hundreds
+/// of detections pulls its pose where they outnumber the poles and corners; the fit score that picks
+/// the winner ([`dense::fit_score`], `selection_sigma`) weighs every object alike
+/// (`selection_object_radius`). The nearest local maximum of the fit score is a second estimate of
+/// the same translation whose error comes from other points. With the two errors independent and
+/// alike (covariance `P`), the translation `p` from the dense pose to that maximum has
+/// `E[p p^T] = 2 P`, so `p p^T / 2` is added, as for the association bias. The pose stays the dense
+/// estimate: where the points are few the fit score's maximum is the noisier of the two.
+pub(super) fn probe_score(
+    ctx: &PairContext<'_>,
+    mut best: RegistrationDetail,
+) -> RegistrationDetail {
+    let cfg = ctx.cfg;
+    if !(cfg.dense.enabled && cfg.dense.score_probe)
+        || cfg.selection_sigma <= 0.0
+        || best.dense_settled.is_none()
+    {
+        return best;
+    }
+    let DenseSets {
+        src,
+        weights,
+        tgt,
+        tree,
+        ..
+    } = ctx.sets;
+    let p = dense::score_peak(
+        src,
+        weights,
+        tgt,
+        tree,
+        &best.result.t_target_source,
+        cfg.selection_sigma,
+        cfg.ambiguity_translation,
+    );
+    best.result.score_share = 0.5 * p * p.transpose();
+    best.covariance_se2 += best.result.score_share;
     best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
     best
 }

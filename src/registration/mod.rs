@@ -99,6 +99,11 @@ pub struct RegistrationResult {
     /// a prior (an accepted alignment of the session) can tell them from the result where the
     /// submaps alone cannot. Empty for the baselines.
     pub alternatives: Vec<(Iso2, f64)>,
+    /// The share of `covariance` over `(x, y, theta)` that the score probe added
+    /// (`registration.dense.score_probe`): the pull of the objects that gave many points. The loop
+    /// closure gates judge the registration without it; published closures carry it. Zero for the
+    /// baselines and without the probe.
+    pub score_share: Mat3,
 }
 
 /// Why a registration produced no result.

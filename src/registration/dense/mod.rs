@@ -18,7 +18,7 @@ mod screening;
 
 pub use associate::associate;
 pub use rounds::{DenseResult, Rounds, refine_dense, soften};
-pub use screening::{Coverage, fit_score, object_weights, probes};
+pub use screening::{Coverage, fit_score, object_weights, probes, score_peak};
 
 use super::{PointSet2, RegistrationError};
 use crate::math::{Mat2, Vec2};
@@ -84,6 +84,12 @@ pub struct DenseConfig {
     /// outer product of the two poses' difference is added (docs/algorithm.md, "The covariance
     /// reported"). Costs one more run of this stage per registration.
     pub bias_probe: bool,
+    /// Widen the reported covariance by the pull of the objects that gave many points (default
+    /// true): the translation from the pose to the nearest local maximum of the fit score, which
+    /// counts every object once (`registration.selection_sigma`, `selection_object_radius`), adds half
+    /// its outer product (docs/algorithm.md, "The covariance reported"); the loop closure gates judge
+    /// without it. Costs about 20 evaluations of the fit score per registration.
+    pub score_probe: bool,
     /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
     /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
     /// every reflector several times.
@@ -117,6 +123,7 @@ impl Default for DenseConfig {
             polish_rounds: 0,
             symmetric: false,
             bias_probe: true,
+            score_probe: true,
             max_source_points: 2000,
             covariance_scale: 0.35,
             soft_rounds: 0,

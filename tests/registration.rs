@@ -315,11 +315,15 @@ fn pipeline_registers_dense_submaps() {
 /// without the scale this seed set gives about 4.5. The covariance floor
 /// (`RegistrationConfig::covariance_floor`) is off here: these reflectors are points seen again,
 /// not surfaces sampled anew by another pass, so the error it models is absent (with it: 1.4); the
-/// floor itself is checked to be added exactly.
+/// floor itself is checked to be added exactly. So is the score probe
+/// (`registration.dense.score_probe`): no object here gave more points than another, so the pull it
+/// models is absent too (with it: 1.7); it is checked to add its share, and nothing else.
 #[test]
 fn pipeline_covariance_is_roughly_consistent() {
     let mut rng = StdRng::seed_from_u64(18);
-    let floored = RegistrationConfig::default();
+    let probed = RegistrationConfig::default();
+    let mut floored = probed.clone();
+    floored.dense.score_probe = false;
     let cfg = RegistrationConfig {
         covariance_floor: [0.0, 0.0],
         ..floored.clone()
@@ -350,6 +354,10 @@ fn pipeline_covariance_is_roughly_consistent() {
             let added = f.covariance_se2 - d.covariance_se2;
             let want = Mat3::from_diagonal(&Vec3::new(ft * ft, ft * ft, fr * fr));
             assert!((added - want).norm() < 1e-12, "{added}");
+            let p = register_detailed(&s, &g, &probed).unwrap();
+            assert_eq!(p.result.t_target_source, f.result.t_target_source);
+            let share = p.result.score_share;
+            assert!((p.covariance_se2 - f.covariance_se2 - share).norm() < 1e-12);
         }
     }
     let m = sum / n as f64;

@@ -459,16 +459,21 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
     );
 }
 
+/// One radar 0.5 m above the body origin, looking ahead.
+fn raised_radar() -> Vec<RadarModel> {
+    vec![RadarModel {
+        t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.5, 0.0, 0.0, 0.0),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    }]
+}
+
 /// A radar 0.5 m up that sees the road 0.5 m below it and a sign 6 m above the ground besides the
 /// static world at its own height: with `height_band` [0.3, 5.0] the submap keeps only the world and
 /// counts the rest; with the default band it keeps all.
 #[test]
 fn the_height_band_keeps_what_stands_on_the_ground() {
-    let radars = vec![RadarModel {
-        t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.5, 0.0, 0.0, 0.0),
-        beta: 0.04,
-        noise: RadarNoise::default(),
-    }];
+    let radars = raised_radar();
     let v_radar = Vec3::new(10.0, 0.0, 0.0);
     let mut dets = static_detections(v_radar);
     let world = dets.len();
@@ -509,11 +514,7 @@ fn the_height_band_keeps_what_stands_on_the_ground() {
 /// velocity on the road returns and drops the car, which the three posts alone could not tell apart.
 #[test]
 fn the_doppler_fit_uses_the_points_the_height_band_cuts() {
-    let radars = vec![RadarModel {
-        t_body_radar: iso3_from_xyz_rpy(0.0, 0.0, 0.5, 0.0, 0.0, 0.0),
-        beta: 0.04,
-        noise: RadarNoise::default(),
-    }];
+    let radars = raised_radar();
     let v_radar = Vec3::new(10.0, 0.0, 0.0);
     let radial = |p: Vec3, v: Vec3| -p.normalize().dot(&v);
     let mut dets: Vec<Detection> = static_detections(v_radar)

@@ -11,7 +11,7 @@ use clap::ValueEnum;
 use super::CliError;
 use crate::bag::BagError;
 use crate::sim::export::{ExportError, drive_description, export_drive};
-use crate::sim::{NoiseModel, RadarPreset, SimConfig, WorldFamily, simulate};
+use crate::sim::{NoiseConfig, NoiseModel, RadarPreset, SimConfig, WorldFamily, simulate};
 
 /// Radar sets of `--preset`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -122,12 +122,13 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
             PresetArg::Ti => RadarPreset::Ti,
             PresetArg::Imaging => RadarPreset::Imaging,
         };
-        // The TI and imaging radars' noise scales, the model kept (--noise below may change it); the
-        // other presets keep the noise of the config file.
-        if matches!(p, PresetArg::Ti | PresetArg::Imaging) {
-            let model = cfg.noise.model;
-            cfg.noise = cfg.radar_preset.noise();
-            cfg.noise.model = model;
+        // A preset with radars of its own brings their noise scales, the model kept (--noise below
+        // may change it); the others keep the noise of the config file.
+        if let Some(own) = cfg.radar_preset.own_noise() {
+            cfg.noise = NoiseConfig {
+                model: cfg.noise.model,
+                ..own
+            };
         }
         // A preset replaces the custom radars of a config file.
         cfg.radars.clear();
@@ -262,4 +263,55 @@ fn write_drive(cfg: &SimConfig, out: &std::path::Path) -> Result<crate::sim::Sim
     }
     println!("params: {}", summary.params_file.display());
     Ok(drive)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(config: Option<PathBuf>, preset: PresetArg, noise: Option<NoiseArg>) -> SimArgs {
+        SimArgs {
+            out: PathBuf::from("unused"),
+            config,
+            seed: None,
+            preset: Some(preset),
+            world: None,
+            noise,
+            speeds: Vec::new(),
+            reverse_lap: false,
+            odom_scale_error: None,
+            odom_yaw_rate_bias_deg: None,
+            nuscenes_out: None,
+            fleet: None,
+        }
+    }
+
+    /// A preset with radars of its own brings their noise scales whatever the file says; the paper's
+    /// radars keep the file's. The model is the file's unless `--noise` names one.
+    #[test]
+    fn a_preset_brings_its_radars_noise_and_keeps_the_model() {
+        let dir = std::env::temp_dir().join(format!("dc_loc_sim_args_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("sim.yaml");
+        std::fs::write(&file, "noise:\n  model: gamma\n  gamma:\n    range: 0.4\n").unwrap();
+
+        let ti = sim_config(&args(Some(file.clone()), PresetArg::Ti, None)).unwrap();
+        assert_eq!(ti.noise.model, NoiseModel::Gamma);
+        assert_eq!(ti.noise.gamma.range, 0.1);
+        assert!((ti.noise.gaussian.azimuth - 1.5f64.to_radians()).abs() < 1e-12);
+
+        let carla = sim_config(&args(Some(file.clone()), PresetArg::Carla, None)).unwrap();
+        assert_eq!(carla.noise.model, NoiseModel::Gamma);
+        assert_eq!(carla.noise.gamma.range, 0.4);
+
+        let named = sim_config(&args(
+            Some(file),
+            PresetArg::Imaging,
+            Some(NoiseArg::StudentT),
+        ));
+        let named = named.unwrap();
+        assert_eq!(named.noise.model, NoiseModel::StudentT);
+        assert_eq!(named.noise.student_t.range, 0.1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -285,21 +285,26 @@ impl RadarPreset {
         }
     }
 
-    /// The measurement noise of this preset's radars: the paper's for `carla`, `nuscenes` and `custom`;
-    /// for `ti` a finer range (0.1 m) and a three times coarser azimuth (1.5 deg Gaussian); for
-    /// `imaging` a finer range (0.1 m) and half the azimuth noise (0.25 deg Gaussian).
+    /// The measurement noise of this preset's radars: [`Self::own_noise`], else the paper's.
     pub fn noise(self) -> NoiseConfig {
-        let mut n = NoiseConfig::default();
+        self.own_noise().unwrap_or_default()
+    }
+
+    /// The noise of a preset whose radars are not the paper's: for `ti` a finer range (0.1 m) and a
+    /// three times coarser azimuth (1.5 deg Gaussian); for `imaging` a finer range (0.1 m) and half
+    /// the azimuth noise (0.25 deg Gaussian). `None` for `carla`, `nuscenes` and `custom`.
+    pub fn own_noise(self) -> Option<NoiseConfig> {
         let azimuth_factor = match self {
             RadarPreset::Ti => 3.0,
             RadarPreset::Imaging => 0.5,
-            _ => return n,
+            RadarPreset::Carla | RadarPreset::Nuscenes | RadarPreset::Custom => return None,
         };
+        let mut n = NoiseConfig::default();
         for s in [&mut n.gaussian, &mut n.gamma, &mut n.student_t] {
             s.range = 0.1;
             s.azimuth *= azimuth_factor;
         }
-        n
+        Some(n)
     }
 }
 

@@ -203,6 +203,11 @@ pub struct JudgedClosure {
     /// Normalised estimation error squared of `(x, y, yaw)` under the closure's covariance (chi-square
     /// with 3 degrees of freedom when the covariance is right; `inf` when it is singular).
     pub nees: f64,
+    /// The error `delta = Log(T_est^-1 T_true)` over `(x m, y m, yaw rad)`, in the query keyframe's
+    /// frame (the published covariance's convention).
+    pub error: [f64; 3],
+    /// The published standard deviations of `(x m, y m, yaw rad)`.
+    pub sigma: [f64; 3],
 }
 
 /// Counts for one direction of travel.
@@ -499,6 +504,11 @@ fn judge_closures(
             inliers: c.inliers,
             score: c.score,
             nees,
+            error: se2_log(&(est.inverse() * t)).into(),
+            sigma: covariance_se2_from_ros(&c.covariance)
+                .diagonal()
+                .map(|v| v.max(0.0).sqrt())
+                .into(),
         });
     }
     closed

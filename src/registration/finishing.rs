@@ -330,10 +330,7 @@ pub(super) fn symmetrise(ctx: &PairContext<'_>, best: RegistrationDetail) -> Reg
 /// bias covariance, and is added to it: large along the direction in which the two directions of
 /// association disagree, nothing across it. The pose stays the forward estimate. A reverse stage that
 /// fails leaves the covariance as it was.
-pub(super) fn probe_bias(
-    ctx: &PairContext<'_>,
-    mut best: RegistrationDetail,
-) -> RegistrationDetail {
+pub(super) fn probe_bias(ctx: &PairContext<'_>, best: RegistrationDetail) -> RegistrationDetail {
     let cfg = ctx.cfg;
     if !(cfg.dense.enabled && cfg.dense.bias_probe) || best.dense_settled.is_none() {
         return best;
@@ -343,7 +340,12 @@ pub(super) fn probe_bias(
         return best;
     };
     let d = se2_log(&(forward.inverse() * backward));
-    best.covariance_se2 += 0.5 * d * d.transpose();
+    widen(best, 0.5 * d * d.transpose())
+}
+
+/// `best` with `c` over `(x, y, yaw)` added to its covariance, in both of its forms.
+fn widen(mut best: RegistrationDetail, c: Mat3) -> RegistrationDetail {
+    best.covariance_se2 += c;
     best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
     best
 }
@@ -387,9 +389,8 @@ pub(super) fn probe_score(
         cfg.ambiguity_translation,
     );
     best.result.score_share = 0.5 * p * p.transpose();
-    best.covariance_se2 += best.result.score_share;
-    best.result.covariance = covariance_ros_from_se2(&best.covariance_se2);
-    best
+    let share = best.result.score_share;
+    widen(best, share)
 }
 
 /// The dense stage run the other way round from `forward` (the target's points paired with their

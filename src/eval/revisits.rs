@@ -657,3 +657,71 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Mat3, Vec2, Vec3, iso3_from_iso2, se2_exp};
+    use crate::registration::covariance_ros_from_se2;
+
+    /// A closure off its truth by a known `delta` (`T_est = T_true Exp(-delta)`) is judged with that
+    /// error, its published standard deviations and the NEES they give.
+    #[test]
+    fn a_closure_is_judged_with_its_error_and_sigmas() {
+        let kf = |x: f64, pass: usize| KfTruth {
+            pose: Iso2::new(Vec2::new(x, 0.0), 0.0),
+            heading: 0.0,
+            pass,
+            turning: false,
+        };
+        let truth = BTreeMap::from([(1, kf(0.0, 0)), (10, kf(3.0, 1))]);
+        let delta = Vec3::new(0.3, -0.1, 0.02);
+        let t_true = truth[&1].pose.inverse() * truth[&10].pose;
+        let est = t_true * se2_exp(&(-delta));
+        let sigma = Vec3::new(0.2, 0.1, 0.01);
+        let closure = LoopClosure {
+            query_id: 10,
+            match_id: 1,
+            query_stamp: Stamp(0),
+            match_stamp: Stamp(0),
+            query_odom_pose: iso3_from_iso2(&truth[&10].pose),
+            match_odom_pose: iso3_from_iso2(&truth[&1].pose),
+            t_match_query: iso3_from_iso2(&est),
+            covariance: covariance_ros_from_se2(&Mat3::from_diagonal(&sigma.component_mul(&sigma))),
+            inliers: 40,
+            score: 0.7,
+            match_session: 0,
+            query_robot: 0,
+            match_origin: None,
+        };
+        let mut report = judge(
+            truth,
+            10.0,
+            0.01,
+            &Collected::default(),
+            &PipelineStats::default(),
+        );
+        judge_closures(
+            &mut report,
+            &BTreeMap::new(),
+            std::slice::from_ref(&closure),
+        );
+        assert!(
+            report.closures.is_empty(),
+            "unknown keyframes are not judged"
+        );
+        let truth = BTreeMap::from([(1, kf(0.0, 0)), (10, kf(3.0, 1))]);
+        judge_closures(&mut report, &truth, &[closure]);
+        let c = &report.closures[0];
+        for k in 0..3 {
+            assert!((c.error[k] - delta[k]).abs() < 1e-9, "{:?}", c.error);
+            assert!((c.sigma[k] - sigma[k]).abs() < 1e-9, "{:?}", c.sigma);
+        }
+        let want_nees = (0..3).map(|k| (delta[k] / sigma[k]).powi(2)).sum::<f64>();
+        assert!(
+            (c.nees - want_nees).abs() < 1e-6,
+            "{} vs {want_nees}",
+            c.nees
+        );
+    }
+}

@@ -17,7 +17,7 @@
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
 use crate::loop_closure::LoopClosure;
-use crate::math::{Iso2, Mat6, Stamp, iso2_from_iso3, se2_log, wrap_angle};
+use crate::math::{Iso2, Mat3, Mat6, Stamp, Vec3, iso2_from_iso3, se2_log, wrap_angle};
 use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
 use crate::registration::covariance_se2_from_ros;
@@ -470,7 +470,9 @@ fn judge_closures(
         let et = (t.translation.vector - est.translation.vector).norm();
         let er = wrap_angle(t.rotation.angle() - est.rotation.angle()).abs();
         let reverse = is_reverse(tq, tm);
-        let nees = closure_nees(&est, &t, &c.covariance);
+        let error = se2_log(&(est.inverse() * t));
+        let cov = covariance_se2_from_ros(&c.covariance);
+        let nees = nees(&error, &cov);
         let counts = if reverse {
             &mut report.reverse
         } else {
@@ -504,11 +506,8 @@ fn judge_closures(
             inliers: c.inliers,
             score: c.score,
             nees,
-            error: se2_log(&(est.inverse() * t)).into(),
-            sigma: covariance_se2_from_ros(&c.covariance)
-                .diagonal()
-                .map(|v| v.max(0.0).sqrt())
-                .into(),
+            error: error.into(),
+            sigma: cov.diagonal().map(|v| v.max(0.0).sqrt()).into(),
         });
     }
     closed
@@ -557,9 +556,15 @@ impl NeesSummary {
 /// NEES of an estimated `T_match_query` against the truth, with `covariance` (ROS order, over the
 /// right perturbation `T_true = T_est * Exp(delta)`) reduced to its `(x, y, yaw)` block.
 pub fn closure_nees(est: &Iso2, truth: &Iso2, covariance: &Mat6) -> f64 {
-    let e = se2_log(&(est.inverse() * truth));
-    covariance_se2_from_ros(covariance)
-        .try_inverse()
+    nees(
+        &se2_log(&(est.inverse() * truth)),
+        &covariance_se2_from_ros(covariance),
+    )
+}
+
+/// NEES of the error `e` over `(x, y, yaw)` under the covariance `c`; `inf` when `c` is singular.
+fn nees(e: &Vec3, c: &Mat3) -> f64 {
+    c.try_inverse()
         .map_or(f64::INFINITY, |ci| e.dot(&(ci * e)).max(0.0))
 }
 
@@ -661,7 +666,7 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::{Mat3, Vec2, Vec3, iso3_from_iso2, se2_exp};
+    use crate::math::{Vec2, iso3_from_iso2, se2_exp};
     use crate::registration::covariance_ros_from_se2;
 
     /// A closure off its truth by a known `delta` (`T_est = T_true Exp(-delta)`) is judged with that
@@ -674,9 +679,10 @@ mod tests {
             pass,
             turning: false,
         };
-        let truth = BTreeMap::from([(1, kf(0.0, 0)), (10, kf(3.0, 1))]);
+        let truth = || BTreeMap::from([(1, kf(0.0, 0)), (10, kf(3.0, 1))]);
         let delta = Vec3::new(0.3, -0.1, 0.02);
-        let t_true = truth[&1].pose.inverse() * truth[&10].pose;
+        let (m, q) = (truth()[&1].pose, truth()[&10].pose);
+        let t_true = m.inverse() * q;
         let est = t_true * se2_exp(&(-delta));
         let sigma = Vec3::new(0.2, 0.1, 0.01);
         let closure = LoopClosure {
@@ -684,8 +690,8 @@ mod tests {
             match_id: 1,
             query_stamp: Stamp(0),
             match_stamp: Stamp(0),
-            query_odom_pose: iso3_from_iso2(&truth[&10].pose),
-            match_odom_pose: iso3_from_iso2(&truth[&1].pose),
+            query_odom_pose: iso3_from_iso2(&q),
+            match_odom_pose: iso3_from_iso2(&m),
             t_match_query: iso3_from_iso2(&est),
             covariance: covariance_ros_from_se2(&Mat3::from_diagonal(&sigma.component_mul(&sigma))),
             inliers: 40,
@@ -695,7 +701,7 @@ mod tests {
             match_origin: None,
         };
         let mut report = judge(
-            truth,
+            truth(),
             10.0,
             0.01,
             &Collected::default(),
@@ -710,8 +716,7 @@ mod tests {
             report.closures.is_empty(),
             "unknown keyframes are not judged"
         );
-        let truth = BTreeMap::from([(1, kf(0.0, 0)), (10, kf(3.0, 1))]);
-        judge_closures(&mut report, &truth, &[closure]);
+        judge_closures(&mut report, &truth(), &[closure]);
         let c = &report.closures[0];
         for k in 0..3 {
             assert!((c.error[k] - delta[k]).abs() < 1e-9, "{:?}", c.error);

@@ -248,6 +248,8 @@ pub struct Occupancy {
     origin: Vec2,
     /// Occupied cells (column, row), widened by one.
     cells: Vec<(i32, i32)>,
+    /// Smallest and largest column and row of `cells`.
+    bounds: ((i32, i32), (i32, i32)),
     /// Extent of the points, m.
     lo: Vec2,
     hi: Vec2,
@@ -274,10 +276,15 @@ impl Occupancy {
         }
         cells.sort_unstable();
         cells.dedup();
+        let bounds = cells.iter().fold(
+            ((i32::MAX, i32::MAX), (i32::MIN, i32::MIN)),
+            |(lo, hi), &(i, j)| ((lo.0.min(i), lo.1.min(j)), (hi.0.max(i), hi.1.max(j))),
+        );
         Some(Occupancy {
             cell,
             origin,
             cells,
+            bounds,
             lo,
             hi,
         })
@@ -319,11 +326,45 @@ pub fn vote_translations(
     if w.saturating_mul(h) > MAX_CELLS {
         return Vec::new();
     }
+    let grid = tally(&turned, occupancy, t_lo, w, h);
+    strongest(&grid, w, top, separation)
+        .into_iter()
+        .map(|(s, i, j)| {
+            let t = t_lo + Vec2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+            (s, Iso2::from_parts(t.into(), rot))
+        })
+        .collect()
+}
+
+/// The vote grid (`w` x `h` cells of the occupancy's size, cell (0, 0) the translation `t_lo`): each
+/// probe `x` adds one to every translation that puts it into an occupied target cell.
+fn tally(turned: &[Vec2], occupancy: &Occupancy, t_lo: Vec2, w: usize, h: usize) -> Vec<u16> {
+    let cell = occupancy.cell;
     let mut grid = vec![0u16; w * h];
-    for x in &turned {
+    // The occupied cells as offsets into the vote grid from the corner of their bounding box: a
+    // probe whose box lies inside the grid adds its own base to each (no per-cell bounds test).
+    let (lo_c, hi_c) = occupancy.bounds;
+    let offsets: Vec<usize> = occupancy
+        .cells
+        .iter()
+        .map(|&(ci, cj)| (cj - lo_c.1) as usize * w + (ci - lo_c.0) as usize)
+        .collect();
+    for x in turned {
         // Index of the translation that puts x at the centre of target cell (0, 0).
         let t0 = (occupancy.origin + Vec2::repeat(0.5 * cell) - x - t_lo) / cell;
         let (oi, oj) = (t0.x.floor() as i64, t0.y.floor() as i64);
+        let (i0, j0) = (lo_c.0 as i64 + oi, lo_c.1 as i64 + oj);
+        let inside = i0 >= 0
+            && j0 >= 0
+            && ((hi_c.0 as i64 + oi) as usize) < w
+            && ((hi_c.1 as i64 + oj) as usize) < h;
+        if inside {
+            let votes = &mut grid[j0 as usize * w + i0 as usize..];
+            for &k in &offsets {
+                votes[k] = votes[k].saturating_add(1);
+            }
+            continue;
+        }
         for &(ci, cj) in &occupancy.cells {
             let (i, j) = (ci as i64 + oi, cj as i64 + oj);
             if i >= 0 && j >= 0 && (i as usize) < w && (j as usize) < h {
@@ -332,13 +373,30 @@ pub fn vote_translations(
             }
         }
     }
+    grid
+}
+
+/// The `top` most-voted cells of a `w`-wide vote grid as (votes, column, row), most votes first, no
+/// two within `separation` cells of each other; of equal votes the first in row-major order.
+fn strongest(grid: &[u16], w: usize, top: usize, separation: usize) -> Vec<(u32, usize, usize)> {
     let mut best: Vec<(u32, usize, usize)> = Vec::with_capacity(top + 1);
-    for j in 0..h {
-        for i in 0..w {
-            let s = grid[j * w + i] as u32;
-            if s == 0 || (best.len() == top && best.last().is_some_and(|b| s <= b.0)) {
+    // The votes a cell must beat: any once `top` are kept, else the weakest kept's.
+    let weakest = |best: &Vec<(u32, usize, usize)>| match best.last() {
+        Some(b) if best.len() == top => b.0,
+        _ => 0,
+    };
+    // In runs of cells in memory order; a run whose largest count does not beat it is skipped whole.
+    const RUN: usize = 32;
+    for (r, run) in grid.chunks(RUN).enumerate() {
+        if u32::from(run.iter().copied().max().unwrap_or(0)) <= weakest(&best) {
+            continue;
+        }
+        for (k, &s) in run.iter().enumerate() {
+            let s = u32::from(s);
+            if s <= weakest(&best) {
                 continue;
             }
+            let (i, j) = ((r * RUN + k) % w, (r * RUN + k) / w);
             let near = |b: &(u32, usize, usize)| {
                 b.1.abs_diff(i) <= separation && b.2.abs_diff(j) <= separation
             };
@@ -351,12 +409,7 @@ pub fn vote_translations(
             best.truncate(top);
         }
     }
-    best.into_iter()
-        .map(|(s, i, j)| {
-            let t = t_lo + Vec2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
-            (s, Iso2::from_parts(t.into(), rot))
-        })
-        .collect()
+    best
 }
 
 /// The search's candidate alignments (source -> target) with their votes, most votes first:
@@ -481,6 +534,53 @@ mod tests {
         };
         assert!(near(Vec2::new(19.0, 9.0)), "pole");
         assert!(near(Vec2::new(1.0, -1.0)), "facade");
+    }
+
+    /// The strongest cells of a vote grid are those a plain scan of every cell keeps: the most votes
+    /// first, none within the separation of a stronger one, of equal votes the first in row-major
+    /// order (grids with long empty stretches, ties and clusters).
+    #[test]
+    fn the_strongest_cells_are_those_every_cell_compared_keeps() {
+        use rand::{RngExt, SeedableRng};
+        let plain = |grid: &[u16], w: usize, top: usize, sep: usize| {
+            let mut best: Vec<(u32, usize, usize)> = Vec::new();
+            for (n, &s) in grid.iter().enumerate() {
+                let (s, i, j) = (u32::from(s), n % w, n / w);
+                if s == 0 || (best.len() == top && s <= best[top - 1].0) {
+                    continue;
+                }
+                let near =
+                    |b: &(u32, usize, usize)| b.1.abs_diff(i) <= sep && b.2.abs_diff(j) <= sep;
+                if best.iter().any(|b| near(b) && b.0 >= s) {
+                    continue;
+                }
+                best.retain(|b| !near(b));
+                let at = best.partition_point(|b| b.0 >= s);
+                best.insert(at, (s, i, j));
+                best.truncate(top);
+            }
+            best
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        for case in 0..200 {
+            let (w, h) = (rng.random_range(1..90), rng.random_range(1..60));
+            let mut grid = vec![0u16; w * h];
+            for _ in 0..rng.random_range(0..40) {
+                let (i, j) = (rng.random_range(0..w), rng.random_range(0..h));
+                let peak = rng.random_range(1..12u16);
+                for (dj, di) in [(0, 0), (0, 1), (1, 0)] {
+                    if i + di < w && j + dj < h {
+                        grid[(j + dj) * w + i + di] = peak - (di + dj) as u16;
+                    }
+                }
+            }
+            let (top, sep) = (rng.random_range(1..10), rng.random_range(0..5));
+            assert_eq!(
+                strongest(&grid, w, top, sep),
+                plain(&grid, w, top, sep),
+                "case {case}"
+            );
+        }
     }
 
     /// Degenerate input gives no candidate instead of a panic.

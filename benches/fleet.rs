@@ -19,7 +19,7 @@ use dc_loc::keyframe_db::KeyframeRecord;
 use dc_loc::msgs::dc_loc::Keyframe;
 use dc_loc::pipeline::{Event, Pipeline};
 use dc_loc::sim::inputs::{ScanEncoding, SimInputs};
-use dc_loc::sim::{NoiseModel, RadarPreset, WorldFamily, simulate};
+use dc_loc::sim::{NoiseModel, RadarPreset, simulate};
 
 fn summary(name: &str, mut ms: Vec<f64>) {
     ms.sort_by(f64::total_cmp);
@@ -66,20 +66,8 @@ fn drive(
 }
 
 fn main() {
-    let base = RevisitScenario {
-        radars: RadarPreset::Nuscenes,
-        noise: NoiseModel::Gaussian,
-        drift: 0.01,
-        reverse: false,
-        seed: 1,
-        world: WorldFamily::City,
-        calibration: Default::default(),
-        fleet: 0,
-        time_offset: 0.0,
-        multipath: 0.0,
-        wheel_slip: 0.0,
-    }
-    .sim_config();
+    let base =
+        RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false).sim_config();
     let mut robots = dc_loc::sim::fleet::fleet(&base, 2).expect("fleet");
     robots[1].laps[0].reverse = false;
     let (_, theirs, _) = drive(0, &robots[0], &[]);

@@ -13,27 +13,20 @@ fn main() {
     let a: Vec<String> = std::env::args().collect();
     let label = &a[2];
     let w: Vec<&str> = label.split_whitespace().collect();
-    let sc = RevisitScenario {
-        radars: if w[0] == "carla" {
+    let sc = RevisitScenario::new(
+        if w[0] == "carla" {
             RadarPreset::Carla
         } else {
             RadarPreset::Nuscenes
         },
-        noise: match w[1] {
+        match w[1] {
             "gamma" => NoiseModel::Gamma,
             "student-t" => NoiseModel::StudentT,
             _ => NoiseModel::Gaussian,
         },
-        drift: w[2].trim_end_matches('%').parse::<f64>().unwrap() / 100.0,
-        reverse: w[3] == "reverse",
-        seed: 1,
-        world: dc_loc::sim::WorldFamily::City,
-        calibration: Default::default(),
-        fleet: 0,
-        time_offset: 0.0,
-        multipath: 0.0,
-        wheel_slip: 0.0,
-    };
+        w[2].trim_end_matches('%').parse::<f64>().unwrap() / 100.0,
+        w[3] == "reverse",
+    );
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();
     c.r#loop.enabled = false;

@@ -8,27 +8,20 @@ use dc_loc::sim::{NoiseModel, RadarPreset, simulate};
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
-    let sc = RevisitScenario {
-        radars: if a[1] == "carla" {
+    let sc = RevisitScenario::new(
+        if a[1] == "carla" {
             RadarPreset::Carla
         } else {
             RadarPreset::Nuscenes
         },
-        noise: match a[2].as_str() {
+        match a[2].as_str() {
             "gamma" => NoiseModel::Gamma,
             "student-t" => NoiseModel::StudentT,
             _ => NoiseModel::Gaussian,
         },
-        drift: a[3].parse::<f64>().unwrap() / 100.0,
-        reverse: a[4] == "reverse",
-        seed: 1,
-        world: dc_loc::sim::WorldFamily::City,
-        calibration: Default::default(),
-        fleet: 0,
-        time_offset: 0.0,
-        multipath: 0.0,
-        wheel_slip: 0.0,
-    };
+        a[3].parse::<f64>().unwrap() / 100.0,
+        a[4] == "reverse",
+    );
     let (qid, mid): (u64, u64) = (a[5].parse().unwrap(), a[6].parse().unwrap());
     let drive = simulate(&sc.sim_config()).unwrap();
     let mut c = drive.to_config();

@@ -453,19 +453,7 @@ fn the_revisits_command_rejects_bad_arguments() {
 
 /// A simulated drive of `dc_loc revisits` (seed 1).
 fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -> RevisitScenario {
-    RevisitScenario {
-        radars,
-        noise,
-        drift,
-        reverse,
-        seed: 1,
-        world: WorldFamily::City,
-        calibration: Default::default(),
-        fleet: 0,
-        time_offset: 0.0,
-        multipath: 0.0,
-        wheel_slip: 0.0,
-    }
+    RevisitScenario::new(radars, noise, drift, reverse)
 }
 
 /// [`scenario`] at 1 % drift with Gaussian noise on the held-out world `TEST[k]` (its family and seed).

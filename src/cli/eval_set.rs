@@ -58,17 +58,9 @@ fn scenarios(args: &EvalArgs, set: &str) -> Result<Vec<RevisitScenario>, CliErro
         for r in &args.radars {
             for n in &args.noise {
                 out.push(RevisitScenario {
-                    radars: parse_preset(r)?,
-                    noise: parse_noise(n)?,
-                    drift: 0.01,
-                    reverse: false,
                     seed: world.seed,
                     world: world.family,
-                    calibration: Default::default(),
-                    time_offset: 0.0,
-                    fleet: 0,
-                    multipath: 0.0,
-                    wheel_slip: 0.0,
+                    ..RevisitScenario::new(parse_preset(r)?, parse_noise(n)?, 0.01, false)
                 });
             }
         }

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 
 use super::CliError;
 use crate::eval::revisits::{
-    CalibrationError, RevisitReport, RevisitScenario, evaluate_scenario, format_revisit_table,
+    CalibrationError, DEFAULT_GAMMA_SHAPE, RevisitReport, RevisitScenario, evaluate_scenario,
+    format_revisit_table,
 };
 use crate::params::{ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
@@ -69,6 +70,10 @@ pub struct RevisitArgs {
     /// Wheel slip episodes per km driven (each 5-30 % extra odometry distance for 0.5-2 s). 0: none.
     #[arg(long, value_name = "PER_KM", default_value_t = 0.0)]
     pub wheel_slip: f64,
+    /// Shape of the Gamma noise (with `--noise gamma`): 1 is the most skewed (skewness 2), larger
+    /// shapes are nearer a Gaussian (skewness 2 / sqrt(shape)); the scale stays the same.
+    #[arg(long, value_name = "K", default_value_t = DEFAULT_GAMMA_SHAPE)]
+    pub gamma_shape: f64,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -179,6 +184,12 @@ fn scenarios_in(
             args.wheel_slip
         )));
     }
+    if !(args.gamma_shape.is_finite() && (0.1..=1e4).contains(&args.gamma_shape)) {
+        return Err(CliError::Usage(format!(
+            "--gamma-shape: {} is not within [0.1, 10000]",
+            args.gamma_shape
+        )));
+    }
     for r in &args.radars {
         let radars = parse_preset(r)?;
         for n in &args.noise {
@@ -216,6 +227,7 @@ fn scenarios_in(
                         time_offset: args.time_offset / 1e3,
                         multipath: args.multipath,
                         wheel_slip: args.wheel_slip,
+                        gamma_shape: args.gamma_shape,
                     });
                 }
             }

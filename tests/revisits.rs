@@ -9,7 +9,7 @@ use std::process::Command;
 
 #[test]
 fn five_radars_same_direction_one_percent_drift_no_false_closure() {
-    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
+    let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!(
         "{}: {:?}; missed {:?}; rejected {:?}",
@@ -34,7 +34,7 @@ fn five_radars_same_direction_one_percent_drift_no_false_closure() {
 /// with the defaults, 89.0 % when the searches again reach 150 m back, 83.6 % without them).
 #[test]
 fn searching_keyframes_again_after_a_confirmation_adds_true_closures() {
-    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.01, false);
+    let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.01, false);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let short =
         evaluate_scenario(&scenario, |c| c.r#loop.backfill_horizon = 150.0).expect("scenario runs");
@@ -61,7 +61,7 @@ fn searching_keyframes_again_after_a_confirmation_adds_true_closures() {
 /// closure may be published there (before `loop.minimum_common_view`, 5 of 12 were false).
 #[test]
 fn one_forward_radar_reverse_lap_no_false_closure() {
-    let scenario = scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.01, true);
+    let scenario = RevisitScenario::new(RadarPreset::Carla, NoiseModel::Gaussian, 0.01, true);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.reverse, r.rejected);
     assert!(r.reverse.opportunities > 300, "{:?}", r.reverse);
@@ -79,7 +79,7 @@ fn one_forward_radar_reverse_lap_no_false_closure() {
 /// published (with the Doppler speed scale of `submap.speed_scale_bound`).
 #[test]
 fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
-    let scenario = scenario(RadarPreset::Carla, NoiseModel::Gamma, 0.01, false);
+    let scenario = RevisitScenario::new(RadarPreset::Carla, NoiseModel::Gamma, 0.01, false);
     let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     eprintln!("{}: {:?}; rejected {:?}", r.scenario, r.same, r.rejected);
     assert!(r.same.opportunities > 300, "{:?}", r.same);
@@ -92,7 +92,7 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
 /// among them.
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
-    let scenario = scenario(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);
+    let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirmation_overlap = 0.0)
         .expect("scenario runs");
@@ -115,7 +115,7 @@ fn weak_matches_alone_do_not_confirm_a_session() {
 fn first_closures_beyond_the_drift_model_are_confirmed_as_between_sessions() {
     let scenario = RevisitScenario {
         seed: 2,
-        ..scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.03, false)
+        ..RevisitScenario::new(RadarPreset::Carla, NoiseModel::Gaussian, 0.03, false)
     };
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirm_beyond_drift = false)
@@ -133,7 +133,7 @@ fn first_closures_beyond_the_drift_model_are_confirmed_as_between_sessions() {
 /// beyond the drift model gives the session an alignment that refuses them (0 false, 93.0 %).
 #[test]
 fn the_true_alignment_beyond_the_drift_model_keeps_out_look_alikes_within_it() {
-    let scenario = scenario(RadarPreset::Carla, NoiseModel::Gaussian, 0.05, false);
+    let scenario = RevisitScenario::new(RadarPreset::Carla, NoiseModel::Gaussian, 0.05, false);
     let with = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirm_beyond_drift = false)
         .expect("scenario runs");
@@ -176,7 +176,7 @@ fn a_parallel_street_does_not_confirm_itself_beyond_the_drift_model() {
 fn held_out_worlds_true_closures_and_honest_covariances() {
     for w in dc_loc::sim::families::TEST {
         for (radars, min_recall) in [(RadarPreset::Nuscenes, 0.95), (RadarPreset::Carla, 0.9)] {
-            let mut scenario = scenario(radars, NoiseModel::Gaussian, 0.01, false);
+            let mut scenario = RevisitScenario::new(radars, NoiseModel::Gaussian, 0.01, false);
             (scenario.world, scenario.seed) = (w.family, w.seed);
             let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
             eprintln!("{}: {:?}; NEES {:?}", r.scenario, r.same, r.nees);
@@ -216,7 +216,7 @@ fn an_imaging_radar_closes_revisits_with_the_road_cut_out() {
     assert!(r.nees.mean <= 4.0, "{:?}", r.nees);
     assert!(r.nees.share_above_99() <= 0.03, "{:?}", r.nees);
 
-    let dev = scenario(RadarPreset::Imaging, NoiseModel::Gaussian, 0.01, false);
+    let dev = RevisitScenario::new(RadarPreset::Imaging, NoiseModel::Gaussian, 0.01, false);
     let cut = evaluate_scenario(&dev, |_| {}).expect("scenario runs");
     let all =
         evaluate_scenario(&dev, |c| c.submap.height_band = [-100.0, 100.0]).expect("scenario runs");
@@ -375,7 +375,7 @@ fn a_slip_in_part_of_a_submap_slides_no_closure_on_the_arterial_road() {
 /// 3 % above the 99 % bound).
 #[test]
 fn a_fleet_closes_loops_between_robots() {
-    let mut fleet = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
+    let mut fleet = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
     fleet.fleet = 3;
     let r = evaluate_scenario(&fleet, |_| {}).expect("scenario runs");
     eprintln!(
@@ -396,7 +396,8 @@ fn a_fleet_closes_loops_between_robots() {
 /// both nodes.
 #[test]
 fn two_robots_driving_at_once_close_each_pair_once() {
-    let base = scenario(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false).sim_config();
+    let base =
+        RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false).sim_config();
     let mut robots = dc_loc::sim::fleet::fleet(&base, 2).expect("fleet");
     robots[1].laps[0].reverse = false;
     let r = dc_loc::eval::fleet::evaluate_fleet(&robots, |_| {}).expect("fleet runs");
@@ -451,18 +452,13 @@ fn the_revisits_command_rejects_bad_arguments() {
     }
 }
 
-/// A simulated drive of `dc_loc revisits` (seed 1).
-fn scenario(radars: RadarPreset, noise: NoiseModel, drift: f64, reverse: bool) -> RevisitScenario {
-    RevisitScenario::new(radars, noise, drift, reverse)
-}
-
-/// [`scenario`] at 1 % drift with Gaussian noise on the held-out world `TEST[k]` (its family and seed).
+/// [`RevisitScenario::new`] at 1 % drift with Gaussian noise on the held-out world `TEST[k]` (its family and seed).
 fn held_out(k: usize, radars: RadarPreset, reverse: bool) -> RevisitScenario {
     let w = dc_loc::sim::families::TEST[k];
     RevisitScenario {
         world: w.family,
         seed: w.seed,
-        ..scenario(radars, NoiseModel::Gaussian, 0.01, reverse)
+        ..RevisitScenario::new(radars, NoiseModel::Gaussian, 0.01, reverse)
     }
 }
 

@@ -337,7 +337,7 @@ pub fn vote_translations(
 }
 
 /// The vote grid (`w` x `h` cells of the occupancy's size, cell (0, 0) the translation `t_lo`): each
-/// probe `x` adds one to every translation that puts it into an occupied target cell.
+/// turned probe adds one to every translation that puts it into an occupied target cell.
 fn tally(turned: &[Vec2], occupancy: &Occupancy, t_lo: Vec2, w: usize, h: usize) -> Vec<u16> {
     let cell = occupancy.cell;
     let mut grid = vec![0u16; w * h];
@@ -380,7 +380,7 @@ fn tally(turned: &[Vec2], occupancy: &Occupancy, t_lo: Vec2, w: usize, h: usize)
 /// two within `separation` cells of each other; of equal votes the first in row-major order.
 fn strongest(grid: &[u16], w: usize, top: usize, separation: usize) -> Vec<(u32, usize, usize)> {
     let mut best: Vec<(u32, usize, usize)> = Vec::with_capacity(top + 1);
-    // The votes a cell must beat: any once `top` are kept, else the weakest kept's.
+    // The votes a cell must beat: 0 until `top` cells are kept, then the weakest kept's.
     let weakest = |best: &Vec<(u32, usize, usize)>| match best.last() {
         Some(b) if best.len() == top => b.0,
         _ => 0,
@@ -396,20 +396,31 @@ fn strongest(grid: &[u16], w: usize, top: usize, separation: usize) -> Vec<(u32,
             if s <= weakest(&best) {
                 continue;
             }
-            let (i, j) = ((r * RUN + k) % w, (r * RUN + k) / w);
-            let near = |b: &(u32, usize, usize)| {
-                b.1.abs_diff(i) <= separation && b.2.abs_diff(j) <= separation
-            };
-            if best.iter().any(|b| near(b) && b.0 >= s) {
-                continue;
-            }
-            best.retain(|b| !near(b));
-            let at = best.partition_point(|b| b.0 >= s);
-            best.insert(at, (s, i, j));
-            best.truncate(top);
+            let n = r * RUN + k;
+            keep(&mut best, (s, n % w, n / w), top, separation);
         }
     }
     best
+}
+
+/// Adds cell `c` (votes, column, row) to `best` (most votes first, at most `top`) unless a cell
+/// within `separation` has at least its votes; the weaker cells near it leave.
+fn keep(
+    best: &mut Vec<(u32, usize, usize)>,
+    c: (u32, usize, usize),
+    top: usize,
+    separation: usize,
+) {
+    let near = |b: &(u32, usize, usize)| {
+        b.1.abs_diff(c.1) <= separation && b.2.abs_diff(c.2) <= separation
+    };
+    if best.iter().any(|b| near(b) && b.0 >= c.0) {
+        return;
+    }
+    best.retain(|b| !near(b));
+    let at = best.partition_point(|b| b.0 >= c.0);
+    best.insert(at, c);
+    best.truncate(top);
 }
 
 /// The search's candidate alignments (source -> target) with their votes, most votes first:
@@ -536,28 +547,17 @@ mod tests {
         assert!(near(Vec2::new(1.0, -1.0)), "facade");
     }
 
-    /// The strongest cells of a vote grid are those a plain scan of every cell keeps: the most votes
-    /// first, none within the separation of a stronger one, of equal votes the first in row-major
-    /// order (grids with long empty stretches, ties and clusters).
+    /// Skipping runs of weak cells keeps the cells that offering every voted cell to [`keep`] keeps
+    /// (grids with long empty stretches, ties and clusters).
     #[test]
     fn the_strongest_cells_are_those_every_cell_compared_keeps() {
         use rand::{RngExt, SeedableRng};
         let plain = |grid: &[u16], w: usize, top: usize, sep: usize| {
-            let mut best: Vec<(u32, usize, usize)> = Vec::new();
+            let mut best = Vec::new();
             for (n, &s) in grid.iter().enumerate() {
-                let (s, i, j) = (u32::from(s), n % w, n / w);
-                if s == 0 || (best.len() == top && s <= best[top - 1].0) {
-                    continue;
+                if s > 0 {
+                    keep(&mut best, (u32::from(s), n % w, n / w), top, sep);
                 }
-                let near =
-                    |b: &(u32, usize, usize)| b.1.abs_diff(i) <= sep && b.2.abs_diff(j) <= sep;
-                if best.iter().any(|b| near(b) && b.0 >= s) {
-                    continue;
-                }
-                best.retain(|b| !near(b));
-                let at = best.partition_point(|b| b.0 >= s);
-                best.insert(at, (s, i, j));
-                best.truncate(top);
             }
             best
         };

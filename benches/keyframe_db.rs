@@ -45,6 +45,7 @@ fn build(n: usize, points: usize, rng: &mut StdRng) -> KeyframeDb {
     let stored_covs: Vec<[u8; 3]> = (0..stored_pts.len())
         .map(|_| quantise_cov(&Mat2::new(0.09, 0.01, 0.01, 0.25)))
         .collect();
+    let stored_rays: Vec<u8> = (0..stored_pts.len()).map(|k| (k % 256) as u8).collect();
     let mut db = KeyframeDb::new(place, 8);
     let (mut x, mut y, mut h, mut path) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for id in 0..n as u64 {
@@ -67,6 +68,7 @@ fn build(n: usize, points: usize, rng: &mut StdRng) -> KeyframeDb {
             path_distance: path,
             points: stored_pts.clone(),
             covs: stored_covs.clone(),
+            rays: stored_rays.clone(),
             place: scenes[rng.random_range(0..scenes.len())].clone(),
         };
         if !db.insert(rec) {

@@ -29,7 +29,7 @@ use dc_loc::io::nuscenes_pcd::{
     pcd_to_pointcloud2,
 };
 use dc_loc::io::rosbag::BagInputs;
-use dc_loc::keyframe_db::KeyframeDb;
+use dc_loc::keyframe_db::{KeyframeDb, MAP_FORMAT_VERSION};
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
@@ -439,20 +439,23 @@ pub fn cloud_to_bytes(
 /// Map file magic (as `src/keyframe_db/file.rs` writes it).
 pub const MAP_MAGIC: &[u8; 8] = b"DCLOCMAP";
 
-/// The map file of target `keyframe_map`. The first byte of the input chooses, modulo 3:
+/// The map file of target `keyframe_map`. The first byte of the input chooses, modulo 4:
 /// - 0: the rest is the whole file (magic, version, CRC and all);
 /// - 1: the rest is a format version 3 payload, framed as `read_map` expects: magic, version, payload,
 ///   CRC-32 of what precedes it;
-/// - 2: the same with format version 2.
+/// - 2: the same with format version 2;
+/// - 3: the same with the version written today.
 ///
 /// The framed modes let the fuzzer reach the payload decoding past the checksum.
 pub fn map_file_from_bytes(data: &[u8]) -> Vec<u8> {
     let Some((&mode, rest)) = data.split_first() else {
         return Vec::new();
     };
-    match mode % 3 {
+    match mode % 4 {
         0 => rest.to_vec(),
-        m => frame_map_payload(if m == 1 { 3 } else { 2 }, rest),
+        1 => frame_map_payload(3, rest),
+        2 => frame_map_payload(2, rest),
+        _ => frame_map_payload(MAP_FORMAT_VERSION, rest),
     }
 }
 

@@ -27,7 +27,9 @@ use dc_loc::bag::{BagReader, BagWriter, schema};
 use dc_loc::cloud::{CloudLayout, FieldRole, LayoutField, decode_detections, encode_detections};
 use dc_loc::input::InputLimits;
 use dc_loc::io::nuscenes_pcd::{NuscenesRadarPcd, nuscenes_fields_config};
-use dc_loc::keyframe_db::{KeyframeDb, KeyframeRecord, quantise_cov, quantise_point, save_records};
+use dc_loc::keyframe_db::{
+    KeyframeDb, KeyframeRecord, quantise_cov, quantise_point, quantise_ray, save_records,
+};
 use dc_loc::math::{Iso2, Mat2, Stamp, Vec2, Vec3};
 use dc_loc::msgs::geometry_msgs::{Quaternion, TransformStamped};
 use dc_loc::msgs::nav_msgs::Odometry;
@@ -735,12 +737,14 @@ fn keyframe(id: u64, n: usize) -> KeyframeRecord {
             .iter()
             .map(|_| quantise_cov(&Mat2::new(0.04, 0.001, 0.001, 0.09)))
             .collect(),
+        rays: pts.iter().map(|p| quantise_ray(&p.normalize())).collect(),
         place: PlaceDescriptor::from_points(&pts, &PlaceConfig::default()),
     }
 }
 
 /// Seeds of `keyframe_map`: a map file of three keyframes as `KeyframeDb` saves it (raw, mode 0), its
-/// payload (framed version 3, mode 1), and the same keyframes as a version 2 payload (mode 2). A
+/// payload (framed with today's version, mode 3), and the same keyframes as a version 2 payload
+/// (mode 2). A
 /// map of place settings other than the default is added, whose descriptors a load recomputes.
 fn keyframe_map_seeds() -> Vec<(&'static str, Vec<u8>)> {
     let records: Vec<Arc<KeyframeRecord>> = (0..3).map(|i| Arc::new(keyframe(i, 6))).collect();
@@ -757,16 +761,42 @@ fn keyframe_map_seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut other_shape = shape.clone();
     other_shape.place.max_range = 50.0;
     let other = saved(&other_shape);
+    // Versions 2 to 4 kept no rays.
+    #[derive(serde::Serialize)]
+    struct RecordV4<'a> {
+        id: u64,
+        session: u32,
+        stamp: Stamp,
+        t_odom_body: Iso2,
+        odom_pose: [f64; 7],
+        path_distance: f64,
+        points: &'a [[i16; 2]],
+        covs: &'a [[u8; 3]],
+        place: &'a PlaceDescriptor,
+    }
     #[derive(serde::Serialize)]
     struct MapFileV2<'a> {
         written_by: &'a str,
         place: &'a PlaceConfig,
-        keyframes: Vec<&'a KeyframeRecord>,
+        keyframes: Vec<RecordV4<'a>>,
     }
     let v2 = postcard::to_stdvec(&MapFileV2 {
         written_by: "dc_loc 0.1.0",
         place: &shape.place,
-        keyframes: records.iter().map(|r| r.as_ref()).collect(),
+        keyframes: records
+            .iter()
+            .map(|r| RecordV4 {
+                id: r.id,
+                session: r.session,
+                stamp: r.stamp,
+                t_odom_body: r.t_odom_body,
+                odom_pose: r.odom_pose,
+                path_distance: r.path_distance,
+                points: &r.points,
+                covs: &r.covs,
+                place: &r.place,
+            })
+            .collect(),
     })
     .unwrap();
     let with_mode = |mode: u8, bytes: &[u8]| {
@@ -775,12 +805,12 @@ fn keyframe_map_seeds() -> Vec<(&'static str, Vec<u8>)> {
         b
     };
     vec![
-        ("raw_v3", with_mode(0, &file)),
-        ("payload_v3", with_mode(1, payload)),
+        ("raw_v5", with_mode(0, &file)),
+        ("payload_v5", with_mode(3, payload)),
         ("payload_v2", with_mode(2, &v2)),
         (
-            "payload_v3_other_place",
-            with_mode(1, &other[12..other.len() - 4]),
+            "payload_v5_other_place",
+            with_mode(3, &other[12..other.len() - 4]),
         ),
     ]
 }

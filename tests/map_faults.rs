@@ -10,8 +10,8 @@ use std::sync::Arc;
 use dc_loc::keyframe_db::lock::MapLock;
 use dc_loc::keyframe_db::storage::{Disk, Storage, clean_temp_files, temp_path};
 use dc_loc::keyframe_db::{
-    KeyframeDb, KeyframeRecord, MapError, MapShape, quantise_cov, quantise_point, save_records,
-    save_records_with,
+    KeyframeDb, KeyframeRecord, MapError, MapShape, quantise_cov, quantise_point, quantise_ray,
+    save_records, save_records_with,
 };
 use dc_loc::math::{Iso2, Mat2, Stamp, Vec2};
 use dc_loc::place::{PlaceConfig, PlaceDescriptor};
@@ -38,6 +38,7 @@ fn record(id: u64, x: f64) -> KeyframeRecord {
             .iter()
             .map(|_| quantise_cov(&Mat2::new(0.04, 0.0, 0.0, 0.09)))
             .collect(),
+        rays: pts.iter().map(|p| quantise_ray(&p.normalize())).collect(),
         place: PlaceDescriptor::from_points(&pts, &PlaceConfig::default()),
     }
 }
@@ -215,7 +216,10 @@ fn intact_nonsense_is_refused() {
     let dir = common::scratch("map_faults", "nonsense");
     let path = dir.join("map.dcloc");
     type Damage = fn(&mut KeyframeRecord);
-    let bad: [(&str, Damage); 4] = [
+    let bad: [(&str, Damage); 5] = [
+        ("rays", |r| {
+            r.rays.pop();
+        }),
         ("not finite", |r| {
             r.t_odom_body = Iso2::new(Vec2::new(f64::NAN, 0.0), 0.0)
         }),

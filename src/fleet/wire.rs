@@ -101,6 +101,7 @@ pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, Str
             path_distance: msg.path_distance,
             points,
             covs,
+            rays: Vec::new(),
             place: PlaceDescriptor::from_points(&planar, place),
         },
         heard: msg
@@ -145,6 +146,7 @@ mod tests {
             path_distance: 512.5,
             points,
             covs: vec![quantise_cov(&cov); n],
+            rays: Vec::new(),
             place: PlaceDescriptor::from_points(&planar, &PlaceConfig::default()),
         }
     }

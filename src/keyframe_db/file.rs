@@ -18,9 +18,9 @@ use crate::place::{PlaceConfig, RING_KEY_DIM};
 
 /// Map file magic.
 const MAGIC: &[u8; 8] = b"DCLOCMAP";
-/// Map file format version written (versions 2, without [`MapShape`], and 3, without origins, are
-/// still read).
-pub const MAP_FORMAT_VERSION: u32 = 4;
+/// Map file format version written (versions 2, without [`MapShape`], 3, without origins, and 4,
+/// without the points' rays, are still read).
+pub const MAP_FORMAT_VERSION: u32 = 5;
 /// Highest session number a map may hold (a node start adds one).
 pub const MAX_SESSION: u32 = 1_000_000;
 
@@ -145,12 +145,21 @@ pub struct MapSnapshot {
     pub origins: Vec<(u64, Origin)>,
 }
 
+/// The payload of format version 4.
+#[derive(Deserialize)]
+struct MapFileV4 {
+    written_by: String,
+    shape: MapShape,
+    keyframes: Vec<RecordV4>,
+    origins: Vec<(u64, Origin)>,
+}
+
 /// The payload of format version 3.
 #[derive(Deserialize)]
 struct MapFileV3 {
     written_by: String,
     shape: MapShape,
-    keyframes: Vec<KeyframeRecord>,
+    keyframes: Vec<RecordV4>,
 }
 
 /// The payload of format version 2.
@@ -158,7 +167,42 @@ struct MapFileV3 {
 struct MapFileV2 {
     written_by: String,
     place: PlaceConfig,
-    keyframes: Vec<KeyframeRecord>,
+    keyframes: Vec<RecordV4>,
+}
+
+/// A keyframe of format versions 2 to 4: no rays.
+#[derive(Deserialize)]
+struct RecordV4 {
+    id: u64,
+    session: u32,
+    stamp: crate::math::Stamp,
+    t_odom_body: crate::math::Iso2,
+    odom_pose: [f64; 7],
+    path_distance: f64,
+    points: Vec<[i16; 2]>,
+    covs: Vec<[u8; 3]>,
+    place: crate::place::PlaceDescriptor,
+}
+
+impl From<RecordV4> for KeyframeRecord {
+    fn from(r: RecordV4) -> Self {
+        KeyframeRecord {
+            id: r.id,
+            session: r.session,
+            stamp: r.stamp,
+            t_odom_body: r.t_odom_body,
+            odom_pose: r.odom_pose,
+            path_distance: r.path_distance,
+            points: r.points,
+            covs: r.covs,
+            rays: Vec::new(),
+            place: r.place,
+        }
+    }
+}
+
+fn records(old: Vec<RecordV4>) -> Vec<KeyframeRecord> {
+    old.into_iter().map(KeyframeRecord::from).collect()
 }
 
 /// Reads and checks a map file: magic, version, checksum, payload, content.
@@ -207,7 +251,7 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
                 max_points_per_keyframe: 0,
                 place: v2.place,
             },
-            keyframes: v2.keyframes,
+            keyframes: records(v2.keyframes),
             origins: Vec::new(),
         }
     } else if version == 3 {
@@ -215,8 +259,16 @@ pub fn read_map(path: &Path) -> Result<MapFile, MapError> {
         MapFile {
             written_by: v3.written_by,
             shape: v3.shape,
-            keyframes: v3.keyframes,
+            keyframes: records(v3.keyframes),
             origins: Vec::new(),
+        }
+    } else if version == 4 {
+        let v4: MapFileV4 = postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?;
+        MapFile {
+            written_by: v4.written_by,
+            shape: v4.shape,
+            keyframes: records(v4.keyframes),
+            origins: v4.origins,
         }
     } else {
         postcard::from_bytes(payload).map_err(|e| corrupt(e.to_string()))?
@@ -254,6 +306,9 @@ pub fn check_records(file: &MapFile) -> Result<(), String> {
         }
         if r.points.len() != r.covs.len() {
             return bad("points and covariances differ in number");
+        }
+        if !(r.rays.is_empty() || r.rays.len() == r.points.len()) {
+            return bad("points and rays differ in number");
         }
         if r.session == 0 && file.origins.iter().any(|(i, _)| *i == r.id) {
             return bad("another robot's keyframe in session 0, which is always this robot's");

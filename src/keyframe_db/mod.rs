@@ -20,7 +20,8 @@ pub use file::{
 };
 pub use foreign::{ForeignRefusal, Foreigners, Origin};
 pub use record::{
-    KeyframeRecord, POINT_QUANTUM, dequantise_cov, dequantise_point, quantise_cov, quantise_point,
+    KeyframeRecord, POINT_QUANTUM, dequantise_cov, dequantise_point, dequantise_ray, quantise_cov,
+    quantise_point, quantise_ray,
 };
 
 use crate::growing_index::GrowingIndex;
@@ -44,12 +45,12 @@ pub struct MapConfig {
     pub start_empty_on_error: bool,
     /// Seconds between saves while keyframes are added (default 30; the node also saves at shutdown).
     pub save_interval: f64,
-    /// Most points kept per keyframe (default 4000: stored quantised at 7 bytes a point, under 32 KB per
+    /// Most points kept per keyframe (default 4000: stored quantised at 8 bytes a point, about 33 KB per
     /// keyframe with its descriptor).
     pub max_points_per_keyframe: usize,
     /// Registration-ready keyframes kept in memory (default 64).
     pub prepared_cache: usize,
-    /// Most keyframes in the map, loaded ones included (default 10000: about 300 MB at 4000 points
+    /// Most keyframes in the map, loaded ones included (default 10000: about 330 MB at 4000 points
     /// a keyframe). Once full, new keyframes still close loops against the map but are not added to
     /// it (counted as `map_full`): a robot that keeps driving known streets localises in the map it
     /// has, and its memory stays bounded.
@@ -409,6 +410,7 @@ mod tests {
                 .iter()
                 .map(|_| quantise_cov(&Mat2::new(0.04, 0.001, 0.001, 0.09)))
                 .collect(),
+            rays: pts.iter().map(|p| quantise_ray(&p.normalize())).collect(),
             place: PlaceDescriptor::from_points(&pts, &PlaceConfig::default()),
         }
     }
@@ -461,6 +463,28 @@ mod tests {
         // Degenerate input stays usable: a zero covariance becomes the smallest stored circle.
         let z = dequantise_cov(quantise_cov(&Mat2::zeros()));
         assert!(z.try_inverse().is_some());
+    }
+
+    /// A stored ray is within half a step (0.7 degrees) of the direction it stands for, across the
+    /// wrap at 180 degrees too.
+    #[test]
+    fn quantised_rays_keep_their_direction() {
+        let mut rng = StdRng::seed_from_u64(4);
+        for k in 0..2000 {
+            let a: f64 = if k < 2 {
+                [std::f64::consts::PI, -std::f64::consts::PI + 1e-12][k]
+            } else {
+                rng.random_range(-4.0..4.0)
+            };
+            let u = Vec2::new(a.cos(), a.sin());
+            let back = dequantise_ray(quantise_ray(&u));
+            assert!((back.norm() - 1.0).abs() < 1e-12);
+            let angle = u.x * back.y - u.y * back.x;
+            assert!(
+                angle.abs() <= (std::f64::consts::PI / 256.0).sin() + 1e-12 && u.dot(&back) > 0.0,
+                "{u:?} came back as {back:?}"
+            );
+        }
     }
 
     /// The cache hands out a prepared submap only for the settings it was prepared with.

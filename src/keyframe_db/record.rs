@@ -67,6 +67,18 @@ pub fn dequantise_cov(q: [u8; 3]) -> Mat2 {
     r * Mat2::new(s1 * s1, 0.0, 0.0, s2 * s2) * r.transpose()
 }
 
+/// A planar ray's direction in one byte: its angle from x in steps of 2 pi / 256 (1.4 degrees).
+pub fn quantise_ray(u: &Vec2) -> u8 {
+    let turns = u.y.atan2(u.x) / std::f64::consts::TAU;
+    ((turns * 256.0).round() as i64).rem_euclid(256) as u8
+}
+
+/// The unit direction a stored ray code stands for.
+pub fn dequantise_ray(q: u8) -> Vec2 {
+    let (s, c) = (f64::from(q) * std::f64::consts::TAU / 256.0).sin_cos();
+    Vec2::new(c, s)
+}
+
 /// A keyframe as the database keeps it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KeyframeRecord {
@@ -86,6 +98,9 @@ pub struct KeyframeRecord {
     pub points: Vec<[i16; 2]>,
     /// Their covariances, quantised ([`quantise_cov`]).
     pub covs: Vec<[u8; 3]>,
+    /// Per point, the direction of the ray from the radar that saw it ([`quantise_ray`]); empty when
+    /// not known (a keyframe of an older map or of another robot).
+    pub rays: Vec<u8>,
     /// Place descriptor of the points.
     pub place: PlaceDescriptor,
 }
@@ -111,11 +126,18 @@ impl KeyframeRecord {
         };
         let mut points: Vec<[i16; 2]> = Vec::with_capacity(keep.len());
         let mut covs: Vec<[u8; 3]> = Vec::with_capacity(keep.len());
+        let mut rays: Vec<u8> = Vec::with_capacity(keep.len());
         for &i in &keep {
             if let Some(q) = quantise_point(set.points[i]) {
                 points.push(q);
                 covs.push(quantise_cov(&set.covs[i]));
+                if let Some(u) = set.rays.get(i) {
+                    rays.push(quantise_ray(u));
+                }
             }
+        }
+        if rays.len() != points.len() {
+            rays.clear();
         }
         let planar: Vec<Vec2> = points.iter().map(|&q| dequantise_point(q)).collect();
         let t = submap.t_odom_anchor;
@@ -137,6 +159,7 @@ impl KeyframeRecord {
             path_distance,
             points,
             covs,
+            rays,
             place: PlaceDescriptor::from_points(&planar, place),
         }
     }
@@ -146,6 +169,7 @@ impl KeyframeRecord {
         PointSet2 {
             points: self.planar_points(),
             covs: self.covs.iter().map(|&c| dequantise_cov(c)).collect(),
+            rays: self.rays.iter().map(|&q| dequantise_ray(q)).collect(),
         }
     }
 
@@ -167,6 +191,7 @@ impl KeyframeRecord {
     pub fn heap_bytes(&self) -> usize {
         self.points.capacity() * 4
             + self.covs.capacity() * 3
+            + self.rays.capacity()
             + self.place.grid.len()
             + std::mem::size_of::<Self>()
     }

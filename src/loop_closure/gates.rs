@@ -447,6 +447,7 @@ mod tests {
             path_distance: path,
             points: Vec::new(),
             covs: Vec::new(),
+            rays: Vec::new(),
             place: PlaceDescriptor::from_points(&[], &PlaceConfig::default()),
         }
     }

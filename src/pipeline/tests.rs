@@ -97,6 +97,7 @@ fn other_robots_keyframes_are_counted_by_robot() {
                 .filter_map(|&q| crate::keyframe_db::quantise_point(q))
                 .collect(),
             covs: vec![[40, 40, 0]; 50],
+            rays: Vec::new(),
             place: crate::place::PlaceDescriptor::from_points(&pts, &place),
         };
         Input::Keyframe(Box::new(wire::encode(robot, &record, &[], 0, "base_link")))

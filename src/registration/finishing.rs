@@ -1,15 +1,17 @@
 //! The winner's last steps and what every refined alignment reports: its overlap, fit score and
 //! covariance ([`conclude`]); polishing, the symmetric dense stage and the soft rounds
-//! ([`polish`], [`symmetrise`], [`soften`]); the inliers re-selected with the noise model
+//! ([`polish`], [`symmetrise`], [`soften`]); the common offset along the rays ([`fit_offset`]); the
+//! inliers re-selected with the noise model
 //! ([`reselect`]); and the alternatives the ambiguity gate compares the winner with ([`finish`]).
 
+use super::offset::RaySide;
 use super::prepared::{DenseSets, PairContext};
 use super::ransac::Screened;
 use super::{
     PointSet2, RegistrationConfig, RegistrationDetail, RegistrationError, RegistrationResult,
-    correlative, covariance_ros_from_se2, dense, lm, ransac, robust,
+    correlative, covariance_ros_from_se2, dense, lm, offset, ransac, robust,
 };
-use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_log};
+use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_exp, se2_log};
 
 /// The winner `d` finished (polished, symmetrised, softened) and its alternatives: the other refined
 /// alignments, and the screened motions that were not refined, by their coverage relative to the
@@ -25,7 +27,8 @@ pub fn finish(
     let d = symmetrise(ctx, d);
     let d = soften(ctx, d);
     let d = probe_bias(ctx, d);
-    let mut d = probe_score(ctx, d);
+    let d = probe_score(ctx, d);
+    let mut d = fit_offset(ctx, d);
     let win = d.result.t_target_source;
     let far = |t: &Iso2| !cfg.same_alignment(&win, t);
     let mut alternatives: Vec<(Iso2, f64)> =
@@ -341,6 +344,54 @@ pub(super) fn probe_bias(ctx: &PairContext<'_>, best: RegistrationDetail) -> Reg
     };
     let d = se2_log(&(forward.inverse() * backward));
     widen(best, 0.5 * d * d.transpose())
+}
+
+/// The winner fitted once more with a common offset of the returns along their rays
+/// ([`offset::fit_offset`], `registration.dense.range_offset_std`), when the dense stage ran and both
+/// submaps' rays are known: at its dense pairs, the pose takes the joint step where the pair shows an
+/// offset at the 5 % level, and the offset's uncertainty widens the covariance along the direction it
+/// moves the pose. A fit that fails leaves the winner as it was.
+pub(super) fn fit_offset(ctx: &PairContext<'_>, best: RegistrationDetail) -> RegistrationDetail {
+    let PairContext { sets, cfg, .. } = *ctx;
+    let (src, tgt) = (sets.src, sets.tgt);
+    let known = |s: &PointSet2| !s.is_empty() && s.rays.len() == s.len();
+    if cfg.dense.range_offset_std <= 0.0
+        || best.dense_settled.is_none()
+        || !(known(src) && known(tgt))
+    {
+        return best;
+    }
+    let t = best.result.t_target_source;
+    let pairs = dense::associate(src, tgt, sets.tree, &t, &cfg.dense);
+    fn side(s: &PointSet2) -> RaySide<'_> {
+        RaySide {
+            points: &s.points,
+            covs: &s.covs,
+            rays: &s.rays,
+        }
+    }
+    let Some(f) = offset::fit_offset(
+        &t,
+        &side(src),
+        &side(tgt),
+        &pairs,
+        &cfg.lm,
+        cfg.dense.range_offset_std,
+    ) else {
+        return best;
+    };
+    log::debug!(
+        "common offset along the rays {:+.3} +- {:.3} m over {} pairs{}",
+        f.offset,
+        f.variance.sqrt(),
+        pairs.len(),
+        if f.significant() { ", taken" } else { "" }
+    );
+    let mut best = best;
+    if f.significant() {
+        best.result.t_target_source = t * se2_exp(&f.step);
+    }
+    widen(best, f.covariance())
 }
 
 /// `best` with `c` over `(x, y, yaw)` added to its covariance, in both of its forms.

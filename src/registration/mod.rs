@@ -23,6 +23,7 @@ mod finishing;
 pub mod grid;
 pub mod lm;
 pub mod matching;
+pub mod offset;
 mod prepared;
 mod probes;
 pub mod ransac;
@@ -49,6 +50,10 @@ pub struct PointSet2 {
     pub points: Vec<Vec2>,
     /// One covariance per point (symmetric positive definite), m^2.
     pub covs: Vec<Mat2>,
+    /// Per point, the unit planar direction of the ray from the radar that saw it, in the same
+    /// frame; empty when not known (the common offset along the rays is then not estimated,
+    /// [`offset`]).
+    pub rays: Vec<Vec2>,
 }
 
 impl PointSet2 {
@@ -63,7 +68,11 @@ impl PointSet2 {
     /// Points with an isotropic covariance `sigma^2 I`.
     pub fn isotropic(points: Vec<Vec2>, sigma: f64) -> Self {
         let covs = vec![Mat2::identity() * sigma * sigma; points.len()];
-        PointSet2 { points, covs }
+        PointSet2 {
+            points,
+            covs,
+            rays: Vec::new(),
+        }
     }
 }
 

@@ -246,6 +246,22 @@ pub fn check_point_set(set: &PointSet2) -> Result<(), RegistrationError> {
             set.covs.len()
         )));
     }
+    if !(set.rays.is_empty() || set.rays.len() == set.points.len()) {
+        return Err(RegistrationError::Numerical(format!(
+            "{} points but {} rays",
+            set.points.len(),
+            set.rays.len()
+        )));
+    }
+    if let Some(i) = set
+        .rays
+        .iter()
+        .position(|u| !u.iter().all(|v| v.is_finite()))
+    {
+        return Err(RegistrationError::Numerical(format!(
+            "point {i}: non-finite ray"
+        )));
+    }
     for (i, (p, c)) in set.points.iter().zip(&set.covs).enumerate() {
         let finite = p.iter().chain(c.iter()).all(|v| v.is_finite());
         let det = c[(0, 0)] * c[(1, 1)] - c[(0, 1)] * c[(1, 0)];

@@ -162,6 +162,7 @@ fn correlative_poses(sets: &DenseSets<'_>, cfg: &RegistrationConfig) -> Vec<Iso2
     let probes = PointSet2 {
         points: sets.probes.to_vec(),
         covs: Vec::new(),
+        rays: Vec::new(),
     };
     let mut scored: Vec<(f64, Iso2)> = found
         .into_iter()

@@ -9,7 +9,7 @@
 //! radar). Each scan is placed with the odometry pose interpolated at its own stamp, and the submap is
 //! expressed in the body frame at the newest scan's stamp (its *anchor*).
 
-use crate::math::{Iso3, Mat3, Stamp, Vec3, interpolate_iso3};
+use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, interpolate_iso3};
 use crate::radar::RadarScan;
 use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
@@ -370,6 +370,7 @@ impl Submap {
         let mut out = PointSet2 {
             points: Vec::with_capacity(self.points.len()),
             covs: Vec::with_capacity(self.points.len()),
+            rays: Vec::with_capacity(self.points.len()),
         };
         for q in &self.points {
             let (p, c) = if compensated {
@@ -379,6 +380,7 @@ impl Submap {
             };
             out.points.push(p.xy());
             out.covs.push(c.fixed_view::<2, 2>(0, 0).into_owned());
+            out.rays.push(planar_ray(&q.ray));
         }
         out
     }
@@ -392,6 +394,11 @@ impl Submap {
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
+}
+
+/// The planar direction of a 3D ray (unit); along x for a vertical one, which no radar reports.
+fn planar_ray(ray: &Vec3) -> Vec2 {
+    ray.xy().try_normalize(1e-9).unwrap_or_else(Vec2::x)
 }
 
 /// What happened to one scan on its way into the submap window.

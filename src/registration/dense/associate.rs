@@ -108,6 +108,7 @@ pub(super) fn soft_partners(
     let mut virt = PointSet2 {
         points: Vec::with_capacity(source.len()),
         covs: Vec::with_capacity(source.len()),
+        rays: Vec::new(),
     };
     let mut pairs = Vec::with_capacity(source.len());
     let r2 = cfg.max_distance * cfg.max_distance;

@@ -90,6 +90,14 @@ pub struct DenseConfig {
     /// its outer product (docs/algorithm.md, "The covariance reported"); the loop closure gates judge
     /// without it. Costs about 20 evaluations of the fit score per registration.
     pub score_probe: bool,
+    /// Prior standard deviation of a common offset of the returns along their rays, m (default
+    /// 0.25, the ARS408's range noise; 0 = not estimated). The winner's pose is fitted once more with
+    /// the offset (an object's near face, a skewed range noise) at its dense pairs; where the pair
+    /// shows one at the 5 % level the pose takes the joint fit, and the offset's uncertainty widens the
+    /// covariance along the direction it moves the pose (docs/algorithm.md, "The covariance
+    /// reported"). Two passes that saw the scene along the same rays cannot tell it, and are left as
+    /// they were.
+    pub range_offset_std: f64,
     /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
     /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
     /// every reflector several times.
@@ -124,6 +132,7 @@ impl Default for DenseConfig {
             symmetric: false,
             bias_probe: true,
             score_probe: true,
+            range_offset_std: 0.25,
             max_source_points: 2000,
             covariance_scale: 0.35,
             soft_rounds: 0,
@@ -141,6 +150,7 @@ impl DenseConfig {
         v.positive("surface_radius", self.surface_radius);
         v.positive("covariance_scale", self.covariance_scale);
         v.non_negative("robust_scale", self.robust_scale);
+        v.non_negative("range_offset_std", self.range_offset_std);
         v.count("coarse_rounds", self.coarse_rounds, 0, 100);
         v.count("polish_rounds", self.polish_rounds, 0, 100);
         v.count("soft_rounds", self.soft_rounds, 0, 100);
@@ -228,6 +238,11 @@ pub fn source_subset(set: &PointSet2, cfg: &DenseConfig) -> Option<PointSet2> {
     Some(PointSet2 {
         points: keep.iter().map(|&i| set.points[i as usize]).collect(),
         covs: keep.iter().map(|&i| set.covs[i as usize]).collect(),
+        rays: if set.rays.is_empty() {
+            Vec::new()
+        } else {
+            keep.iter().map(|&i| set.rays[i as usize]).collect()
+        },
     })
 }
 

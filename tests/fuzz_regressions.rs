@@ -28,7 +28,7 @@ use dc_loc::cloud::{CloudLayout, FieldRole, LayoutField, decode_detections, enco
 use dc_loc::input::InputLimits;
 use dc_loc::io::nuscenes_pcd::{NuscenesRadarPcd, nuscenes_fields_config};
 use dc_loc::keyframe_db::{
-    KeyframeDb, KeyframeRecord, quantise_cov, quantise_point, quantise_ray, save_records,
+    KeyframeDb, KeyframeRecord, RecordV4, quantise_cov, quantise_point, quantise_ray, save_records,
 };
 use dc_loc::math::{Iso2, Mat2, Stamp, Vec2, Vec3};
 use dc_loc::msgs::geometry_msgs::{Quaternion, TransformStamped};
@@ -761,42 +761,16 @@ fn keyframe_map_seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut other_shape = shape.clone();
     other_shape.place.max_range = 50.0;
     let other = saved(&other_shape);
-    // Versions 2 to 4 kept no rays.
-    #[derive(serde::Serialize)]
-    struct RecordV4<'a> {
-        id: u64,
-        session: u32,
-        stamp: Stamp,
-        t_odom_body: Iso2,
-        odom_pose: [f64; 7],
-        path_distance: f64,
-        points: &'a [[i16; 2]],
-        covs: &'a [[u8; 3]],
-        place: &'a PlaceDescriptor,
-    }
     #[derive(serde::Serialize)]
     struct MapFileV2<'a> {
         written_by: &'a str,
         place: &'a PlaceConfig,
-        keyframes: Vec<RecordV4<'a>>,
+        keyframes: Vec<RecordV4>,
     }
     let v2 = postcard::to_stdvec(&MapFileV2 {
         written_by: "dc_loc 0.1.0",
         place: &shape.place,
-        keyframes: records
-            .iter()
-            .map(|r| RecordV4 {
-                id: r.id,
-                session: r.session,
-                stamp: r.stamp,
-                t_odom_body: r.t_odom_body,
-                odom_pose: r.odom_pose,
-                path_distance: r.path_distance,
-                points: &r.points,
-                covs: &r.covs,
-                place: &r.place,
-            })
-            .collect(),
+        keyframes: records.iter().map(|r| RecordV4::from(r.as_ref())).collect(),
     })
     .unwrap();
     let with_mode = |mode: u8, bytes: &[u8]| {

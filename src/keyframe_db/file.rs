@@ -170,9 +170,9 @@ struct MapFileV2 {
     keyframes: Vec<RecordV4>,
 }
 
-/// A keyframe of format versions 2 to 4: no rays.
-#[derive(Deserialize)]
-struct RecordV4 {
+/// A keyframe as format versions 2 to 4 stored it: no rays.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RecordV4 {
     id: u64,
     session: u32,
     stamp: crate::math::Stamp,
@@ -182,6 +182,23 @@ struct RecordV4 {
     points: Vec<[i16; 2]>,
     covs: Vec<[u8; 3]>,
     place: crate::place::PlaceDescriptor,
+}
+
+/// A keyframe in the older form, its rays left out (for writing maps of versions 2 to 4 in tests).
+impl From<&KeyframeRecord> for RecordV4 {
+    fn from(r: &KeyframeRecord) -> Self {
+        RecordV4 {
+            id: r.id,
+            session: r.session,
+            stamp: r.stamp,
+            t_odom_body: r.t_odom_body,
+            odom_pose: r.odom_pose,
+            path_distance: r.path_distance,
+            points: r.points.clone(),
+            covs: r.covs.clone(),
+            place: r.place.clone(),
+        }
+    }
 }
 
 impl From<RecordV4> for KeyframeRecord {

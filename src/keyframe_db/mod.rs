@@ -15,8 +15,8 @@ pub mod storage;
 
 pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings};
 pub use file::{
-    MAP_FORMAT_VERSION, MapError, MapFile, MapShape, MapSnapshot, RadarMount, save_records,
-    save_records_with, save_snapshot,
+    MAP_FORMAT_VERSION, MapError, MapFile, MapShape, MapSnapshot, RadarMount, RecordV4,
+    save_records, save_records_with, save_snapshot,
 };
 pub use foreign::{ForeignRefusal, Foreigners, Origin};
 pub use record::{

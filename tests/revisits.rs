@@ -89,7 +89,10 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
 
 /// Five radars at 5 % drift (5.9 % measured, beyond the drift model), Student-t noise: weak matches
 /// of a street 147 m away confirm each other; `loop.confirmation_overlap` wants one strong match
-/// among them.
+/// among them. The session confirms itself within the first lap, and by the second lap the
+/// yaw-rate bias has turned that alignment as far as odometry: with no fresh alignment to vouch, the
+/// second lap's closures are held for confirmation beyond the drift model and the lap closes
+/// (measured: 98.4 %; refused as contradicting odometry while any alignment existed, 1.3 %).
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
     let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);
@@ -98,6 +101,7 @@ fn weak_matches_alone_do_not_confirm_a_session() {
         .expect("scenario runs");
     eprintln!("with {:?}; without {:?}", with.same, without.same);
     assert_no_false_closure(&with);
+    assert!(with.same.recall() >= 0.9, "{:?}", with.same);
     assert!(
         without.closures.iter().any(|c| c.translation_error > 100.0),
         "{:?}",

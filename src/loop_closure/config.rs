@@ -89,11 +89,13 @@ pub struct LoopConfig {
     /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
     /// two robots driving it towards each other (docs/experiments.md, "Fleets").
     pub foreign_confirmations: usize,
-    /// A session's first closures to itself that lie beyond the drift model, but within three times
-    /// its bounds, are held for `foreign_confirmations` agreeing closures from keyframes on both
-    /// sides of a turn instead of refused (default true): odometry that drifted that far (a yaw-rate
-    /// bias, a long drive) no longer tells where the session is, as between two sessions, and
-    /// closures that agree with each other around a corner still do. Along one street they do not: a
+    /// A session's closures to itself that lie beyond the drift model, but within three times its
+    /// bounds, while no accepted alignment to itself vouches for them (none yet, or one too far back
+    /// along the path, `trusted_prior_std`), are held for `foreign_confirmations` agreeing closures
+    /// from keyframes on both sides of a turn instead of refused (default true): odometry that
+    /// drifted that far (a yaw-rate bias, a long drive) no longer tells where the session is, as
+    /// between two sessions, nor does an alignment it has carried since, and closures that agree with
+    /// each other around a corner still do. Along one street they do not: a
     /// parallel street a block away agrees with itself from every keyframe (docs/experiments.md).
     /// Further out lie a street's look-alikes, such as its point-symmetric twin across a block. Off,
     /// such closures are refused, and odometry beyond its model closes no lap.

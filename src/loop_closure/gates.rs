@@ -19,7 +19,7 @@ use crate::registration::{
     overlap_near, slide_overlap,
 };
 
-/// How far beyond the drift model a session's first closures to itself may lie and still wait for
+/// How far beyond the drift model a session's closures to itself may lie and still wait for
 /// confirmation (`loop.confirm_beyond_drift`): this many times its bounds, i.e. the bounds read as one
 /// standard deviation instead of three. A yaw-rate bias integrated over a lap lies within it; a street
 /// matched to its point-symmetric twin across a block (half a turn and a block's width off) does not,
@@ -305,9 +305,12 @@ pub fn covariance(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal
 /// alignment but agrees with odometry alone (or, for another session, has nothing to contradict) may
 /// still be right and waits for confirmation, unless the alignment's prediction fits the submaps
 /// nearly as well: then the scene aliases (a street sliding along itself) and the prior decides. A
-/// closure to this session that contradicts odometry is refused once the session has an accepted
-/// alignment to itself; before, odometry has drifted beyond its model and no longer tells where
-/// the session is, and the closure waits for as many confirmations as one to another session.
+/// closure to this session that contradicts odometry is refused while the session's accepted
+/// alignment to itself is fresh enough to vouch (`loop.trusted_prior_std`). Before there is one,
+/// odometry has drifted beyond its model and no longer tells where the session is; once it is stale,
+/// a drift beyond the model (a yaw-rate bias turns the alignment as the robot drives) has moved it
+/// as far. Either way the closure waits for as many confirmations as one to another session, across
+/// a turn.
 pub fn consistency(
     g: &Gates<'_>,
     p: &Pair<'_>,
@@ -348,7 +351,7 @@ pub fn consistency(
         return Ok(Standing::Unconfirmed);
     };
     let within_reach = d2 <= BEYOND_DRIFT_REACH * BEYOND_DRIFT_REACH * lc.consistency_chi2;
-    if lc.confirm_beyond_drift && within_reach && g.alignment(p.cand.session).is_none() {
+    if lc.confirm_beyond_drift && within_reach && !g.trusted(p) {
         return Ok(Standing::BeyondDrift);
     }
     Err(contradicts_odometry(p, t, d2, aligned))
@@ -598,7 +601,8 @@ mod tests {
     }
 
     #[test]
-    fn a_first_closure_beyond_the_drift_model_waits_for_a_foreign_confirmation() {
+    fn a_closure_beyond_the_drift_model_waits_for_a_foreign_confirmation_unless_an_alignment_vouches()
+     {
         let mut f = fixture();
         f.lc.confirm_beyond_drift = true;
         // 300 m of path: the drift model allows (15 + 15) / 3 = 10 m standard deviation.
@@ -612,11 +616,14 @@ mod tests {
         // Beyond three times the drift model's bounds it is refused: 198 m is 19.8 standard deviations.
         let twin = result(Iso2::new(Vec2::new(200.0, 0.0), 0.0), 0.05);
         assert_eq!(reason(f.gate(twin)), RejectReason::Inconsistent);
-        // Once the session has an accepted alignment to itself (here one whose prediction does not
-        // fit the submaps), odometry and the alignment refuse it.
+        // Once the session has an accepted alignment to itself fresh enough to vouch (here one whose
+        // prediction does not fit the submaps), odometry and the alignment refuse it.
         let a = Iso2::new(Vec2::new(40.0, 0.0), 0.0);
         f.alignments.insert(0, Alignment { t: a, path: 300.0 });
         assert_eq!(reason(f.gate(far())), RejectReason::Inconsistent);
+        // An alignment 200 m of path back vouches for nothing: the closure waits again.
+        f.alignments.insert(0, Alignment { t: a, path: 100.0 });
+        assert_eq!(f.gate(far()).expect("held").standing, Standing::BeyondDrift);
         f.alignments.clear();
         f.lc.confirm_beyond_drift = false;
         assert_eq!(reason(f.gate(far())), RejectReason::Inconsistent);

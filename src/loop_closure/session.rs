@@ -38,9 +38,10 @@ pub enum Standing {
     /// published once `loop.confirmations` (another session's: `loop.foreign_confirmations`)
     /// closures agree.
     Unconfirmed,
-    /// One of this session's first closures to itself, beyond the drift model: odometry no longer
-    /// tells where the session is, as between two sessions, so it needs as many agreeing closures
-    /// as a closure to another session (`loop.foreign_confirmations`).
+    /// A closure to this session beyond the drift model while no accepted alignment vouches (none
+    /// yet, or a stale one): odometry no longer tells where the session is, as between two
+    /// sessions, so it needs as many agreeing closures as a closure to another session
+    /// (`loop.foreign_confirmations`), across a turn.
     BeyondDrift,
 }
 

@@ -444,5 +444,7 @@ pub mod dc_loc {
         pub points: Vec<i16>,
         /// Three covariance codes per point.
         pub covariances: Vec<u8>,
+        /// One ray direction code per point, or none.
+        pub rays: Vec<u8>,
     }
 }

@@ -1,5 +1,5 @@
-//! `dc_loc/msg/Keyframe`, the keyframe on the wire: the record's quantised points and covariances
-//! (7 bytes a point), at most a given number of them (an even subsample), with the odometry pose and
+//! `dc_loc/msg/Keyframe`, the keyframe on the wire: the record's quantised points, covariances and
+//! rays (8 bytes a point), at most a given number of them (an even subsample), with the odometry pose and
 //! path length. The place descriptor is not sent: the receiver makes it from the points with its own
 //! `place.*` settings.
 
@@ -11,7 +11,7 @@ use crate::msgs::geometry_msgs::Pose;
 use crate::msgs::std_msgs::Header;
 use crate::place::{PlaceConfig, PlaceDescriptor};
 
-/// Points sent per keyframe by default: 14 KB of points, under 16 KB a message.
+/// Points sent per keyframe by default: 16 000 bytes of points, under 16 KiB a message.
 pub const DEFAULT_WIRE_POINTS: usize = 2000;
 
 /// Most points a received keyframe may carry.
@@ -46,12 +46,17 @@ pub fn encode(
         heard_ids: heard.iter().map(|h| h.1).collect(),
         points: keep.iter().flat_map(|&i| rec.points[i]).collect(),
         covariances: keep.iter().flat_map(|&i| rec.covs[i]).collect(),
+        rays: if rec.rays.len() == n {
+            keep.iter().map(|&i| rec.rays[i]).collect()
+        } else {
+            Vec::new()
+        },
     }
 }
 
 /// The keyframe a message carries, its place descriptor made with `place`; why not, when the message
-/// is malformed (a bad stamp, a pose that is not finite or not a rotation, a negative path, points and
-/// covariances that do not pair up, too many points).
+/// is malformed (a bad stamp, a pose that is not finite or not a rotation, a negative path, points,
+/// covariances and rays that do not pair up, too many points).
 pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, String> {
     let t = msg.header.stamp;
     let stamp = Stamp::checked_from_sec_nanosec(t.sec, t.nanosec)
@@ -78,6 +83,9 @@ pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, Str
         ));
     }
     let n = msg.points.len() / 2;
+    if !(msg.rays.is_empty() || msg.rays.len() == n) {
+        return Err(format!("{n} points and {} rays", msg.rays.len()));
+    }
     if n > MAX_RECEIVED_POINTS {
         return Err(format!("{n} points, more than {MAX_RECEIVED_POINTS}"));
     }
@@ -101,7 +109,7 @@ pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, Str
             path_distance: msg.path_distance,
             points,
             covs,
-            rays: Vec::new(),
+            rays: msg.rays.clone(),
             place: PlaceDescriptor::from_points(&planar, place),
         },
         heard: msg
@@ -121,7 +129,7 @@ pub fn wire_bytes(msg: &Keyframe) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::keyframe_db::{quantise_cov, quantise_point};
+    use crate::keyframe_db::{quantise_cov, quantise_point, quantise_ray};
     use crate::math::{Iso2, Mat2, Vec2};
 
     fn record(n: usize) -> KeyframeRecord {
@@ -146,7 +154,10 @@ mod tests {
             path_distance: 512.5,
             points,
             covs: vec![quantise_cov(&cov); n],
-            rays: Vec::new(),
+            rays: planar
+                .iter()
+                .map(|p| quantise_ray(&p.normalize()))
+                .collect(),
             place: PlaceDescriptor::from_points(&planar, &PlaceConfig::default()),
         }
     }
@@ -160,7 +171,7 @@ mod tests {
         assert_eq!(got.heard, vec![(2, 90)]);
         let r = &got.record;
         assert!(r.place == rec.place, "the same points give the same place");
-        assert!(r.points == rec.points && r.covs == rec.covs);
+        assert!(r.points == rec.points && r.covs == rec.covs && r.rays == rec.rays);
         assert_eq!((r.id, r.session, r.stamp), (41, 2, rec.stamp));
         assert_eq!(r.path_distance, rec.path_distance);
         let pose_error = (0..7).map(|i| (r.odom_pose[i] - rec.odom_pose[i]).abs());
@@ -169,9 +180,30 @@ mod tests {
         let full = record(4000);
         let msg = encode(7, &full, &[], DEFAULT_WIRE_POINTS, "base_link");
         assert_eq!(msg.points.len(), 2 * DEFAULT_WIRE_POINTS);
+        assert_eq!(msg.rays.len(), DEFAULT_WIRE_POINTS);
         let bytes = wire_bytes(&msg);
         assert!(bytes <= 16 * 1024, "{bytes} bytes");
-        assert!(bytes > 7 * DEFAULT_WIRE_POINTS, "{bytes} bytes");
+        assert!(bytes > 8 * DEFAULT_WIRE_POINTS, "{bytes} bytes");
+        let got = decode(&msg, &PlaceConfig::default()).unwrap();
+        let sent: Vec<usize> = (0..DEFAULT_WIRE_POINTS)
+            .map(|k| k * 4000 / DEFAULT_WIRE_POINTS)
+            .collect();
+        assert!(
+            sent.iter()
+                .zip(&got.record.rays)
+                .all(|(&i, &q)| full.rays[i] == q)
+        );
+    }
+
+    /// A keyframe whose rays are not known (a map of an older format) goes without them.
+    #[test]
+    fn a_keyframe_without_rays_crosses_the_wire_without_them() {
+        let mut rec = record(300);
+        rec.rays.clear();
+        let msg = encode(7, &rec, &[], DEFAULT_WIRE_POINTS, "base_link");
+        assert!(msg.rays.is_empty());
+        let got = decode(&msg, &PlaceConfig::default()).unwrap();
+        assert!(got.record.rays.is_empty() && got.record.points == rec.points);
     }
 
     #[test]
@@ -199,6 +231,7 @@ mod tests {
                 "pair up",
             ),
             (Box::new(|m| m.heard_ids.push(4)), "heard"),
+            (Box::new(|m| m.rays.push(9)), "rays"),
         ];
         for (spoil, why) in cases {
             let mut m = good.clone();

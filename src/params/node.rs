@@ -289,8 +289,8 @@ pub const NODE_PARAMS: &[NodeParam] = &[
     },
     NodeParam {
         name: "node.fleet_points",
-        doc: "Most points sent per keyframe (an even subsample; 7 bytes a point): 2000 keep a \
-              keyframe under 16 KB on the wire.",
+        doc: "Most points sent per keyframe (an even subsample; 8 bytes a point): 2000 keep a \
+              keyframe under 16 KiB on the wire.",
     },
     NodeParam {
         name: "node.fleet_rate",

@@ -29,7 +29,17 @@ fn forward_scene(rng: &mut StdRng, n: usize) -> Scene {
     }
 }
 
-/// RANSAC + LM (+ re-selection) on the given correspondences, as the pipeline runs them.
+/// A submap of 10 stacked sweeps seen all round to 100 m, each reflector detected with probability
+/// 0.5, with false alarms `clutter_ratio` times as many as the detections.
+fn stacked_view(clutter_ratio: f64) -> View {
+    View {
+        sweeps: 10,
+        p_detect: 0.5,
+        clutter_ratio,
+        ..View::all(Iso2::identity())
+    }
+}
+
 /// RANSAC + LM on given correspondences, without the dense stage: these tests check eq. 10 on known
 /// pairs, which nearest-neighbour re-association would replace.
 fn ransac_lm(
@@ -90,14 +100,7 @@ fn recovers_known_transforms_from_noisy_correspondences() {
 fn pipeline_registers_independently_resampled_submaps() {
     let mut rng = StdRng::seed_from_u64(12);
     let cfg = RegistrationConfig::default();
-    let view = View {
-        t_world_sensor: Iso2::identity(),
-        max_range: 100.0,
-        half_fov: std::f64::consts::PI,
-        p_detect: 0.5,
-        clutter_ratio: 0.2,
-        sweeps: 10,
-    };
+    let view = stacked_view(0.2);
     let trials = 20;
     let (mut ok, mut te_sum, mut re_sum) = (0, 0.0, 0.0);
     for _ in 0..trials {
@@ -165,12 +168,7 @@ fn compare_configs(
 /// `n` independent pairs of random street scenes (220 reflectors, 10 sweeps at detection
 /// probability 0.5, 20 % clutter), motions within +-10 m and +-pi.
 fn street_pairs(rng: &mut StdRng, n: usize) -> Vec<(PointSet2, PointSet2, Iso2)> {
-    let view = View {
-        sweeps: 10,
-        p_detect: 0.5,
-        clutter_ratio: 0.2,
-        ..View::all(Iso2::identity())
-    };
+    let view = stacked_view(0.2);
     (0..n)
         .map(|_| {
             let scene = random_scene(rng, 220, 115.0);
@@ -227,12 +225,7 @@ fn tight_dense_loss_resists_moved_cars() {
     assert_eq!(tight.dense.robust_scale, 1.0);
     let mut loose = tight.clone();
     loose.dense.robust_scale = 0.0;
-    let view = View {
-        sweeps: 10,
-        p_detect: 0.5,
-        clutter_ratio: 0.1,
-        ..View::all(Iso2::identity())
-    };
+    let view = stacked_view(0.1);
     let pairs: Vec<_> = (0..24)
         .map(|_| {
             let n = 240;
@@ -328,14 +321,7 @@ fn pipeline_covariance_is_roughly_consistent() {
         covariance_floor: [0.0, 0.0],
         ..floored.clone()
     };
-    let view = View {
-        t_world_sensor: Iso2::identity(),
-        max_range: 100.0,
-        half_fov: std::f64::consts::PI,
-        p_detect: 0.5,
-        clutter_ratio: 0.2,
-        sweeps: 10,
-    };
+    let view = stacked_view(0.2);
     let (mut sum, mut n) = (0.0, 0);
     for _ in 0..60 {
         let scene = random_scene(&mut rng, 220, 115.0);
@@ -600,12 +586,7 @@ fn degenerate_inputs_are_refused() {
 #[test]
 fn result_covariance_is_in_ros_order() {
     let mut rng = StdRng::seed_from_u64(17);
-    let view = View {
-        sweeps: 10,
-        p_detect: 0.5,
-        clutter_ratio: 0.2,
-        ..View::all(Iso2::identity())
-    };
+    let view = stacked_view(0.2);
     let scene = random_scene(&mut rng, 220, 115.0);
     let t = random_motion(&mut rng, 5.0);
     let pair = independent_pair(&mut rng, &scene, t, view, view, &Noise::default());
@@ -737,12 +718,7 @@ fn the_common_offset_along_the_rays_holds_reverse_passes_to_the_known_transforms
     assert!(fitted.dense.range_offset_std > 0.0);
     let mut unfitted = fitted.clone();
     unfitted.dense.range_offset_std = 0.0;
-    let view = View {
-        sweeps: 10,
-        p_detect: 0.5,
-        clutter_ratio: 0.2,
-        ..View::all(Iso2::identity())
-    };
+    let view = stacked_view(0.2);
     let pairs: Vec<_> = (0..12)
         .map(|_| {
             let scene = two_carriageways(&mut rng);
@@ -765,7 +741,7 @@ fn the_common_offset_along_the_rays_holds_reverse_passes_to_the_known_transforms
     );
     assert!(errors_unfitted.len() >= 11, "{errors_unfitted:?}");
     assert!(errors_fitted.len() >= errors_unfitted.len());
-    // Measured: 12 and 12 registered, mean 0.027 m fitted, 0.066 m off (seeds 7 and 99 alike).
+    // Measured: 12 and 12 registered, mean 0.027 m fitted, 0.066 m off.
     assert!(m_fitted < 0.6 * m_unfitted, "{m_fitted} vs {m_unfitted}");
     let rayless = pairs.into_iter().map(|(mut s, mut t, m)| {
         s.rays.clear();

@@ -92,7 +92,7 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
 /// among them. The session confirms itself within the first lap, and by the second lap the
 /// yaw-rate bias has turned that alignment as far as odometry: with no fresh alignment to vouch, the
 /// second lap's closures are held for confirmation beyond the drift model and the lap closes
-/// (measured: 98.4 %; refused as contradicting odometry while any alignment existed, 1.3 %).
+/// (measured: 98.4 %).
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
     let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);

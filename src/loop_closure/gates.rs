@@ -601,8 +601,7 @@ mod tests {
     }
 
     #[test]
-    fn a_closure_beyond_the_drift_model_waits_for_a_foreign_confirmation_unless_an_alignment_vouches()
-     {
+    fn beyond_the_drift_model_a_closure_waits_unless_an_alignment_vouches() {
         let mut f = fixture();
         f.lc.confirm_beyond_drift = true;
         // 300 m of path: the drift model allows (15 + 15) / 3 = 10 m standard deviation.

@@ -719,4 +719,34 @@ mod tests {
             "nearest to the predicted position first"
         );
     }
+
+    #[test]
+    fn right_after_a_closure_the_default_search_reaches_the_other_carriageway() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        // A first pass along x every 5 m, on a six-lane road's outer lane (y = 0).
+        for id in 0..100u64 {
+            let mut r = record(id, 0, 5.0 * id as f64, &mut rng);
+            r.t_odom_body = Iso2::new(Vec2::new(5.0 * id as f64, 0.0), 0.0);
+            r.path_distance = 5.0 * id as f64;
+            assert!(db.insert(r));
+        }
+        // The way back on the other carriageway's outer lane, 2 x 2.5 lanes x 3.75 m = 18.75 m to the
+        // side, just after a closure aligned the session (odometry far off, the alignment exact).
+        let mut q = record(100, 0, 0.0, &mut rng);
+        q.t_odom_body = Iso2::new(
+            Vec2::new(250.0 + 300.0, 18.75 + 200.0),
+            std::f64::consts::PI,
+        );
+        q.path_distance = 1000.0;
+        let alignment = Iso2::new(Vec2::new(-300.0, -200.0), 0.0);
+        let mut s = crate::loop_closure::LoopConfig::default().search();
+        s.place_retrieve = 0;
+        let cq = CandidateQuery {
+            query: &q,
+            alignment: Some((alignment, q.path_distance)),
+        };
+        let found: Vec<usize> = db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect();
+        assert_eq!(found.first(), Some(&50), "{found:?}");
+    }
 }

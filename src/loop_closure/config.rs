@@ -11,7 +11,10 @@ use serde::{Deserialize, Serialize};
 pub struct LoopConfig {
     /// Search for revisits at all (default true; off for pure submap collection).
     pub enabled: bool,
-    /// Base search radius around the odometry position, m (default 15).
+    /// Base search radius around the odometry position and the position an alignment predicts, m
+    /// (default 25): the farthest apart two passes of one place may lie, e.g. the two carriageways of
+    /// a six-lane road (18.75 m between the outer lanes' centres), plus the odometry's error right
+    /// after a closure.
     pub search_radius: f64,
     /// Odometry drift model, translation: the search radius grows by this many metres per metre of path
     /// driven since the candidate keyframe, and the consistency check allows as much (default 0.05:
@@ -141,7 +144,7 @@ impl Default for LoopConfig {
     fn default() -> Self {
         LoopConfig {
             enabled: true,
-            search_radius: 15.0,
+            search_radius: 25.0,
             drift_rate: 0.05,
             drift_yaw_rate: 5e-4,
             search_radius_max: 300.0,

@@ -25,14 +25,20 @@ pub fn translation_std(cov: &Mat6) -> f64 {
     xy.symmetric_eigenvalues().max().max(0.0).sqrt()
 }
 
+/// The drift model's translation bound before any path is driven, m: odometry error that does not
+/// grow with the distance (wheel slip at a standstill, the error of the pose it started from). The
+/// search radius is wider: it also spans the distance between two passes of one place (the other
+/// carriageway), which is no error.
+const DRIFT_BOUND_BASE: f64 = 15.0;
+
 /// Standard deviations (m, rad) of the odometry drift over `path_gap` metres: the drift model's bounds
-/// (search radius plus `drift_rate` per metre, 0.05 rad plus `drift_yaw_rate` per metre) read as three
-/// standard deviations, so that the default 3-dof chi-square gate accepts a closure whose translation
-/// and heading errors both lie near their bounds (heading drift also moves the position).
+/// ([`DRIFT_BOUND_BASE`] plus `drift_rate` per metre, 0.05 rad plus `drift_yaw_rate` per metre) read as
+/// three standard deviations, so that the default 3-dof chi-square gate accepts a closure whose
+/// translation and heading errors both lie near their bounds (heading drift also moves the position).
 pub fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
     let gap = path_gap.abs();
     (
-        (lc.search_radius + lc.drift_rate * gap).min(lc.search_radius_max) / 3.0,
+        (DRIFT_BOUND_BASE + lc.drift_rate * gap).min(lc.search_radius_max) / 3.0,
         (0.05 + lc.drift_yaw_rate * gap).min(std::f64::consts::PI) / 3.0,
     )
 }

@@ -106,7 +106,7 @@ def main() -> int:
             check(values["submap.size"].type == ParameterType.PARAMETER_INTEGER
                   and values["submap.size"].integer_value == 7, "/car1/loc section of the file")
             check(values["submap.max_span"].double_value == 2.5, "/** section of the file")
-            check(values["loop.search_radius"].double_value == 15.0, "default value")
+            check(values["loop.search_radius"].double_value == 25.0, "default value")
             check(values["radars.front.topic"].string_value == "/radar/points", "string parameter")
             check(values["use_sim_time"].type == ParameterType.PARAMETER_BOOL
                   and not values["use_sim_time"].bool_value, "use_sim_time declared, false")

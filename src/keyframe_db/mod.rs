@@ -670,17 +670,22 @@ mod tests {
         assert_ne!(r.place, db.get(2).unwrap().place);
     }
 
-    #[test]
-    fn drift_radius_grows_with_path_and_min_gap_holds() {
-        let mut rng = StdRng::seed_from_u64(3);
+    /// `n` keyframes of session 0 along x every 5 m of path, all with y = 0.
+    fn straight_pass(n: u64, rng: &mut StdRng) -> KeyframeDb {
         let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
-        // Keyframes along x every 5 m of path, all session 0, all with y = 0 (enough to build the tree).
-        for id in 0..200u64 {
-            let mut r = record(id, 0, 5.0 * id as f64, &mut rng);
+        for id in 0..n {
+            let mut r = record(id, 0, 5.0 * id as f64, rng);
             r.t_odom_body = Iso2::new(Vec2::new(5.0 * id as f64, 0.0), 0.0);
             r.path_distance = 5.0 * id as f64;
             assert!(db.insert(r));
         }
+        db
+    }
+
+    #[test]
+    fn drift_radius_grows_with_path_and_min_gap_holds() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let db = straight_pass(200, &mut rng);
         // Query 60 m to the side of keyframe 0 after 1000 m of path: outside a fixed 15 m radius,
         // inside 15 m + 5 % of 1000 m.
         let mut q = record(200, 0, 0.0, &mut rng);
@@ -723,14 +728,8 @@ mod tests {
     #[test]
     fn right_after_a_closure_the_default_search_reaches_the_other_carriageway() {
         let mut rng = StdRng::seed_from_u64(5);
-        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
-        // A first pass along x every 5 m, on a six-lane road's outer lane (y = 0).
-        for id in 0..100u64 {
-            let mut r = record(id, 0, 5.0 * id as f64, &mut rng);
-            r.t_odom_body = Iso2::new(Vec2::new(5.0 * id as f64, 0.0), 0.0);
-            r.path_distance = 5.0 * id as f64;
-            assert!(db.insert(r));
-        }
+        // The first pass on a six-lane road's outer lane (y = 0).
+        let db = straight_pass(100, &mut rng);
         // The way back on the other carriageway's outer lane, 2 x 2.5 lanes x 3.75 m = 18.75 m to the
         // side, just after a closure aligned the session (odometry far off, the alignment exact).
         let mut q = record(100, 0, 0.0, &mut rng);

@@ -114,6 +114,7 @@ fn main() {
                 &CandidateQuery {
                     query: &q,
                     alignment: None,
+                    vouched: false,
                 },
                 q.session,
                 &search,

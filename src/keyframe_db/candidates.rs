@@ -37,6 +37,9 @@ pub struct CandidateQuery<'a> {
     /// The current session's odometry-to-corrected alignment, if a closure gave one, and the path length
     /// at which it was found.
     pub alignment: Option<(Iso2, f64)>,
+    /// The alignment is accepted and fresh enough to vouch for a closure alone
+    /// (`loop.trusted_prior_std`): the position it predicts is known to within metres.
+    pub vouched: bool,
 }
 
 /// Candidate-search settings (a view of [`crate::loop_closure::LoopConfig`]).
@@ -60,7 +63,8 @@ pub struct SearchSettings {
 
 impl KeyframeDb {
     /// Revisit candidates for `q`, at most `max_candidates`: alternately the next nearest to the predicted
-    /// position and the next closest place descriptor.
+    /// position and the next closest place descriptor; while the alignment vouches, the nearest to the
+    /// predicted position first.
     pub fn candidates(
         &self,
         q: &CandidateQuery<'_>,
@@ -89,7 +93,7 @@ impl KeyframeDb {
         // 2. Place descriptors, any session.
         search.add_place_hits(&mut found);
         let all = search.scored(merge_sources(found));
-        search.interleave(&all, centre)
+        search.interleave(&all, centre, q.vouched)
     }
 }
 
@@ -211,7 +215,11 @@ impl Search<'_> {
     /// Two rankings, interleaved: odometry candidates nearest to the (corrected) predicted position
     /// `centre` first (right when drift is small), and every candidate by place distance (right when
     /// the odometry has drifted or the keyframe is another session's); at most `max_candidates`.
-    fn interleave(&self, all: &[Candidate], centre: Vec2) -> Vec<Candidate> {
+    /// When `vouched`, every slot but the last goes to the position ranking, the last to the place
+    /// ranking: the revisit lies within metres of `centre`, and where the nearest keyframe fails to
+    /// register (a reverse pass sees the other side of every object) the next one often does, while
+    /// one place candidate a keyframe still lets closures that contradict the alignment be found.
+    fn interleave(&self, all: &[Candidate], centre: Vec2, vouched: bool) -> Vec<Candidate> {
         let max_candidates = self.s.max_candidates;
         let metric = |i: usize| (self.db.records[i].t_odom_body.translation.vector - centre).norm();
         let mut by_position: Vec<&Candidate> = all
@@ -231,6 +239,11 @@ impl Search<'_> {
         });
         let mut out: Vec<Candidate> = Vec::with_capacity(max_candidates);
         let (mut a, mut b) = (by_position.into_iter(), by_place.into_iter());
+        if vouched {
+            let quota = max_candidates.saturating_sub(1).max(1);
+            out.extend(a.by_ref().take(quota).copied());
+            std::mem::swap(&mut a, &mut b);
+        }
         while out.len() < max_candidates {
             let next = [a.next(), b.next()];
             if next.iter().all(Option::is_none) {

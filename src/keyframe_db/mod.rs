@@ -594,6 +594,7 @@ mod tests {
             &CandidateQuery {
                 query: &q,
                 alignment: None,
+                vouched: false,
             },
             3,
             &s,
@@ -703,6 +704,7 @@ mod tests {
         let cq = CandidateQuery {
             query: &q,
             alignment: None,
+            vouched: false,
         };
         assert!(db.candidates(&cq, 0, &s).is_empty());
         s.drift_rate = 0.05;
@@ -725,27 +727,58 @@ mod tests {
         );
     }
 
-    #[test]
-    fn right_after_a_closure_the_default_search_reaches_the_other_carriageway() {
-        let mut rng = StdRng::seed_from_u64(5);
-        // The first pass on a six-lane road's outer lane (y = 0).
-        let db = straight_pass(100, &mut rng);
-        // The way back on the other carriageway's outer lane, 2 x 2.5 lanes x 3.75 m = 18.75 m to the
-        // side, just after a closure aligned the session (odometry far off, the alignment exact).
-        let mut q = record(100, 0, 0.0, &mut rng);
+    /// The way back on the other carriageway's outer lane of a six-lane road whose first pass
+    /// ([`straight_pass`]) drove the outer lane at y = 0: 2 x 2.5 lanes x 3.75 m = 18.75 m to the side of
+    /// keyframe 50, just after a closure aligned the session (odometry far off, the alignment exact).
+    fn way_back_beside_keyframe_50(rng: &mut StdRng) -> (KeyframeRecord, Iso2) {
+        let mut q = record(100, 0, 0.0, rng);
         q.t_odom_body = Iso2::new(
             Vec2::new(250.0 + 300.0, 18.75 + 200.0),
             std::f64::consts::PI,
         );
         q.path_distance = 1000.0;
-        let alignment = Iso2::new(Vec2::new(-300.0, -200.0), 0.0);
+        (q, Iso2::new(Vec2::new(-300.0, -200.0), 0.0))
+    }
+
+    #[test]
+    fn right_after_a_closure_the_default_search_reaches_the_other_carriageway() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let db = straight_pass(100, &mut rng);
+        let (q, alignment) = way_back_beside_keyframe_50(&mut rng);
         let mut s = crate::loop_closure::LoopConfig::default().search();
         s.place_retrieve = 0;
         let cq = CandidateQuery {
             query: &q,
             alignment: Some((alignment, q.path_distance)),
+            vouched: true,
         };
         let found: Vec<usize> = db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect();
         assert_eq!(found.first(), Some(&50), "{found:?}");
+    }
+
+    #[test]
+    fn while_the_alignment_vouches_the_nearest_keyframes_take_all_slots_but_one() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let db = straight_pass(100, &mut rng);
+        let (mut q, alignment) = way_back_beside_keyframe_50(&mut rng);
+        // It looks like keyframe 10, 200 m away.
+        q.place = db.get(10).unwrap().place.clone();
+        let s = crate::loop_closure::LoopConfig::default().search();
+        assert_eq!(s.max_candidates, 4);
+        let search = |vouched: bool| -> Vec<usize> {
+            let cq = CandidateQuery {
+                query: &q,
+                alignment: Some((alignment, q.path_distance)),
+                vouched,
+            };
+            db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect()
+        };
+        // Not vouched: the nearest to the predicted position and the closest place descriptors
+        // alternate.
+        let free = search(false);
+        assert_eq!(free[..3], [50, 10, 49], "{free:?}");
+        // Vouched: the three nearest (49 and 51 equally near, the lower index first), then the
+        // closest place descriptor.
+        assert_eq!(search(true), [50, 49, 51, 10]);
     }
 }

@@ -32,7 +32,9 @@ pub struct LoopConfig {
     pub place_retrieve: usize,
     /// Largest place-descriptor distance (0..1) of a candidate found by place only (default 0.45).
     pub place_maximum_distance: f64,
-    /// Candidates registered per keyframe, best place match first (default 4).
+    /// Candidates registered per keyframe (default 4): the nearest to the predicted position and the
+    /// closest place descriptors in turn; while an accepted alignment vouches, the nearest take every
+    /// slot but one.
     pub maximum_candidates: usize,
     /// Fewest registration inliers to accept (default 15).
     pub minimum_inliers: usize,

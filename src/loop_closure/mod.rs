@@ -326,10 +326,12 @@ impl LoopCloser {
         prepared: &PreparedSubmap,
         out: &mut Decisions,
     ) -> Option<(LoopClosure, Standing)> {
-        let prior = self.state.search_prior(self.session);
-        let alignment = prior.map(|a| (a.t, a.path));
-        let vouched = self.state.alignments().contains_key(&self.session)
-            && prior.is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
+        let alignment = self.state.search_prior(self.session).map(|a| (a.t, a.path));
+        let vouched = self
+            .state
+            .alignments()
+            .get(&self.session)
+            .is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
         let candidates = db.candidates(
             &CandidateQuery {
                 query,

@@ -71,6 +71,21 @@ impl KeyframeDb {
         session: u32,
         s: &SearchSettings,
     ) -> Vec<Candidate> {
+        self.candidate_rounds(q, session, s)
+            .into_iter()
+            .next()
+            .unwrap_or_default()
+    }
+
+    /// The candidates of [`KeyframeDb::candidates`] as the first round and, while the alignment
+    /// vouches, further rounds of at most `max_candidates` each: the next nearest keyframes to the
+    /// predicted position, registered only when no candidate of the rounds before closes.
+    pub fn candidate_rounds(
+        &self,
+        q: &CandidateQuery<'_>,
+        session: u32,
+        s: &SearchSettings,
+    ) -> Vec<Vec<Candidate>> {
         let search = Search {
             db: self,
             query: q.query,
@@ -93,7 +108,7 @@ impl KeyframeDb {
         // 2. Place descriptors, any session.
         search.add_place_hits(&mut found);
         let all = search.scored(merge_sources(found));
-        search.interleave(&all, centre, q.vouched)
+        search.rounds(&all, centre, q.vouched)
     }
 }
 
@@ -212,15 +227,10 @@ impl Search<'_> {
             .collect()
     }
 
-    /// Two rankings, interleaved: odometry candidates nearest to the (corrected) predicted position
-    /// `centre` first (right when drift is small), and every candidate by place distance (right when
-    /// the odometry has drifted or the keyframe is another session's); at most `max_candidates`.
-    /// When `vouched`, every slot but the last goes to the position ranking, the last to the place
-    /// ranking: the revisit lies within metres of `centre`, and where the nearest keyframe fails to
-    /// register (a reverse pass sees the other side of every object) the next one often does, while
-    /// one place candidate a keyframe still lets closures that contradict the alignment be found.
-    fn interleave(&self, all: &[Candidate], centre: Vec2, vouched: bool) -> Vec<Candidate> {
-        let max_candidates = self.s.max_candidates;
+    /// The candidate rounds ([`KeyframeDb::candidate_rounds`]): the first from both rankings
+    /// ([`first_round`]), and while `vouched` up to [`VOUCHED_ROUNDS`] in all, the later ones of the
+    /// next keyframes nearest to `centre`.
+    fn rounds(&self, all: &[Candidate], centre: Vec2, vouched: bool) -> Vec<Vec<Candidate>> {
         let metric = |i: usize| (self.db.records[i].t_odom_body.translation.vector - centre).norm();
         let mut by_position: Vec<&Candidate> = all
             .iter()
@@ -237,26 +247,62 @@ impl Search<'_> {
                 .total_cmp(&b.place_distance)
                 .then(a.index.cmp(&b.index))
         });
-        let mut out: Vec<Candidate> = Vec::with_capacity(max_candidates);
-        let (mut a, mut b) = (by_position.into_iter(), by_place.into_iter());
-        if vouched {
-            let quota = max_candidates.saturating_sub(1).max(1);
-            out.extend(a.by_ref().take(quota).copied());
-            std::mem::swap(&mut a, &mut b);
+        let max_candidates = self.s.max_candidates;
+        let first = first_round(&by_position, &by_place, max_candidates, vouched);
+        let mut rounds = vec![first];
+        if vouched && max_candidates > 0 {
+            let rest: Vec<Candidate> = by_position
+                .iter()
+                .filter(|c| !rounds[0].iter().any(|o| o.index == c.index))
+                .map(|c| **c)
+                .collect();
+            let later = rest.chunks(max_candidates).take(VOUCHED_ROUNDS - 1);
+            rounds.extend(later.map(<[Candidate]>::to_vec));
         }
-        while out.len() < max_candidates {
-            let next = [a.next(), b.next()];
-            if next.iter().all(Option::is_none) {
-                break;
-            }
-            for c in next.into_iter().flatten() {
-                if out.len() < max_candidates && !out.iter().any(|o| o.index == c.index) {
-                    out.push(*c);
-                }
-            }
-        }
-        out
+        rounds
     }
+}
+
+/// Rounds of candidates at most while the alignment vouches. The revisit lies within metres of the
+/// predicted position, but on a reverse pass (the other side of every object in view) the nearest
+/// keyframes often fail to register where one a few metres on does; the later rounds, registered
+/// only when no candidate before them closes, reach those at no cost where the first round closes.
+/// Three rounds of four reach the eleven nearest keyframes within the search radius around the
+/// predicted position; the farther a candidate lies from the revisit, the more its overlap is the
+/// kind a closure slid along the street is made of.
+const VOUCHED_ROUNDS: usize = 3;
+
+/// The first round: the two rankings, `by_position` (odometry candidates nearest to the predicted
+/// position first: right when drift is small) and `by_place` (every candidate by place distance:
+/// right when the odometry has drifted or the keyframe is another session's), interleaved, at most
+/// `max_candidates`. When `vouched`, every slot but the last goes to the position ranking, the last
+/// to the place ranking: one place candidate a keyframe still lets closures that contradict the
+/// alignment be found.
+fn first_round(
+    by_position: &[&Candidate],
+    by_place: &[&Candidate],
+    max_candidates: usize,
+    vouched: bool,
+) -> Vec<Candidate> {
+    let mut out: Vec<Candidate> = Vec::with_capacity(max_candidates);
+    let (mut a, mut b) = (by_position.iter(), by_place.iter());
+    if vouched {
+        let quota = max_candidates.saturating_sub(1).max(1);
+        out.extend(a.by_ref().take(quota).map(|c| **c));
+        std::mem::swap(&mut a, &mut b);
+    }
+    while out.len() < max_candidates {
+        let next = [a.next(), b.next()];
+        if next.iter().all(Option::is_none) {
+            break;
+        }
+        for c in next.into_iter().flatten() {
+            if out.len() < max_candidates && !out.iter().any(|o| o.index == c.index) {
+                out.push(**c);
+            }
+        }
+    }
+    out
 }
 
 impl KeyframeDb {

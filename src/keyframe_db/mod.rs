@@ -781,4 +781,44 @@ mod tests {
         // closest place descriptor.
         assert_eq!(search(true), [50, 49, 51, 10]);
     }
+
+    #[test]
+    fn while_the_alignment_vouches_later_rounds_hold_the_next_nearest_keyframes() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let db = straight_pass(100, &mut rng);
+        let (mut q, alignment) = way_back_beside_keyframe_50(&mut rng);
+        q.place = db.get(10).unwrap().place.clone();
+        let mut s = crate::loop_closure::LoopConfig::default().search();
+        let rounds = |q: &KeyframeRecord, s: &SearchSettings, vouched: bool| -> Vec<Vec<usize>> {
+            let cq = CandidateQuery {
+                query: q,
+                alignment: Some((alignment, q.path_distance)),
+                vouched,
+            };
+            let rounds = db.candidate_rounds(&cq, 0, s);
+            rounds
+                .iter()
+                .map(|r| r.iter().map(|c| c.index).collect())
+                .collect()
+        };
+        // Not vouched: one round, the candidates of `candidates`.
+        assert_eq!(rounds(&q, &s, false).len(), 1);
+        // Vouched: the first round, then the next nearest to the predicted position, the place
+        // candidate of the first round not repeated, as far as the search radius reaches (25 m:
+        // keyframes 47 to 53 at 18.75 m beside the pass).
+        assert_eq!(
+            rounds(&q, &s, true),
+            [vec![50, 49, 51, 10], vec![48, 52, 47, 53]]
+        );
+        // With a 40 m radius, keyframes 43 to 57 lie within it: three rounds at most.
+        s.radius = 40.0;
+        assert_eq!(
+            rounds(&q, &s, true),
+            [
+                vec![50, 49, 51, 10],
+                vec![48, 52, 47, 53],
+                vec![46, 54, 45, 55]
+            ]
+        );
+    }
 }

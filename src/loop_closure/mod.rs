@@ -4,7 +4,8 @@
 //! Steps for each new keyframe ([`LoopCloser::search`]), in order: candidates from the keyframe map
 //! (around the odometry position under the drift model, around an accepted or held alignment, and
 //! by place descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
-//! that passes the prediction and slide tests; acceptance by the session ([`Session::accept`]:
+//! that passes the prediction and slide tests (while an alignment vouches and none passes, the same
+//! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]); acceptance by the session ([`Session::accept`]:
 //! published, held, or confirmed with those it agrees with). After a confirmation, the keyframes that
 //! got nothing are searched again, a few per new keyframe ([`LoopCloser::backfill`]).
 //!
@@ -22,7 +23,7 @@ pub use session::{Alignment, QueryPlace, Session, Standing};
 
 use rayon::prelude::*;
 
-use crate::keyframe_db::{CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
+use crate::keyframe_db::{Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
 use crate::math::{Iso2, Iso3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
 use gates::{Gated, Gates, Pair, gate, prediction_test, slide_test};
@@ -332,7 +333,7 @@ impl LoopCloser {
             .alignments()
             .get(&self.session)
             .is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
-        let candidates = db.candidates(
+        let rounds = db.candidate_rounds(
             &CandidateQuery {
                 query,
                 alignment,
@@ -341,6 +342,20 @@ impl LoopCloser {
             self.session,
             &self.lc.search(),
         );
+        rounds
+            .into_iter()
+            .find_map(|round| self.register_round(db, query, prepared, round, out))
+    }
+
+    /// One round of candidates registered, gated and tested: the best closure that passes.
+    fn register_round(
+        &self,
+        db: &mut KeyframeDb,
+        query: &KeyframeRecord,
+        prepared: &PreparedSubmap,
+        candidates: Vec<Candidate>,
+        out: &mut Decisions,
+    ) -> Option<(LoopClosure, Standing)> {
         let mut targets = Vec::with_capacity(candidates.len());
         for cand in candidates {
             let id = cand.index as u64;

@@ -34,7 +34,8 @@ pub struct LoopConfig {
     pub place_maximum_distance: f64,
     /// Candidates registered per keyframe (default 4): the nearest to the predicted position and the
     /// closest place descriptors in turn; while an accepted alignment vouches, the nearest take every
-    /// slot but one.
+    /// slot but one, and where none of them closes, up to two more rounds of as many of the next
+    /// nearest are registered.
     pub maximum_candidates: usize,
     /// Fewest registration inliers to accept (default 15).
     pub minimum_inliers: usize,

@@ -130,11 +130,13 @@ pub struct LoopConfig {
     /// first, and what agrees with the confirmed alignment is published, late. One at a time keeps the
     /// added latency to one more search per keyframe.
     pub backfill_per_keyframe: usize,
-    /// Metres of path back that a confirmation's searches again reach (default 500; at least
+    /// Metres of path back that a confirmation's searches again reach (default 2000; at least
     /// `confirmation_horizon`). They walk back along the route: each closure they publish gives the
     /// alignment the next older keyframe is searched around, so a confirmation that came late still
     /// closes the keyframes since the revisit began. The walk stops where no alignment is fresh
-    /// enough to vouch (`trusted_prior_std`).
+    /// enough to vouch (`trusted_prior_std`), before the revisit began; the horizon bounds the
+    /// keyframes a confirmation may search again, and should not cut the walk short: a confirmation
+    /// can come hundreds of metres into a revisit where places repeat.
     pub backfill_horizon: f64,
     /// Let the registration of revisit candidates run its correlative search
     /// (`registration.correlative`, default false): it finds alignments the descriptors missed, but
@@ -173,7 +175,7 @@ impl Default for LoopConfig {
             confirmation_horizon: 150.0,
             trusted_prior_std: 2.0,
             backfill_per_keyframe: 1,
-            backfill_horizon: 500.0,
+            backfill_horizon: 2000.0,
             correlative_search: false,
         }
     }

@@ -344,16 +344,20 @@ impl LoopCloser {
         );
         rounds
             .into_iter()
-            .find_map(|round| self.register_round(db, query, prepared, round, out))
+            .enumerate()
+            .find_map(|(i, round)| self.register_round(db, query, prepared, (round, i > 0), out))
     }
 
-    /// One round of candidates registered, gated and tested: the best closure that passes.
+    /// One round of candidates registered, gated and tested: the best closure that passes. A later
+    /// round's candidates lie farther from the predicted position than those of the first, which
+    /// did not close: a closure of theirs stands on less shared view, and is taken only with the
+    /// overlap a confirmation asks of its strongest closure (`loop.confirmation_overlap`).
     fn register_round(
         &self,
         db: &mut KeyframeDb,
         query: &KeyframeRecord,
         prepared: &PreparedSubmap,
-        candidates: Vec<Candidate>,
+        (candidates, later): (Vec<Candidate>, bool),
         out: &mut Decisions,
     ) -> Option<(LoopClosure, Standing)> {
         let mut targets = Vec::with_capacity(candidates.len());
@@ -384,6 +388,13 @@ impl LoopCloser {
                 speeds: speeds(db, query, cand),
             };
             match gate(&g, &pair, res) {
+                Ok(gated) if later && gated.closure.score < self.lc.confirmation_overlap => {
+                    let why = format!(
+                        "overlap {:.2} in a later round, below loop.confirmation_overlap",
+                        gated.closure.score
+                    );
+                    out.reject(query.id, id, (RejectReason::LowOverlap, why));
+                }
                 Ok(gated) => passed.push((gated, target)),
                 Err(refusal) => out.reject(query.id, id, refusal),
             }

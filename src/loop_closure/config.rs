@@ -112,7 +112,7 @@ pub struct LoopConfig {
     pub confirmation_span: f64,
     /// At least one of the closures that confirm each other must have this overlap (default 0.6;
     /// 0 disables): weak matches along an aliased street agree with each other as well as true
-    /// ones do.
+    /// ones do. A closure from a later round of nearest keyframes (`maximum_candidates`) needs it too.
     pub confirmation_overlap: f64,
     /// Held closures expire after this many metres of path without confirmation, before they may
     /// confirm a newer one (default 150): a true alignment is confirmed within a few keyframes, and

@@ -5,9 +5,10 @@
 //! (around the odometry position under the drift model, around an accepted or held alignment, and
 //! by place descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
 //! that passes the prediction and slide tests (while an alignment vouches and none passes, the same
-//! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]); acceptance by the session ([`Session::accept`]:
-//! published, held, or confirmed with those it agrees with). After a confirmation, the keyframes that
-//! got nothing are searched again, a few per new keyframe ([`LoopCloser::backfill`]).
+//! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]);
+//! acceptance by the session ([`Session::accept`]: published, held, or confirmed with those it
+//! agrees with). After a confirmation, the keyframes that got nothing are searched again, a few per
+//! new keyframe ([`LoopCloser::backfill`]).
 //!
 //! Entry points: [`LoopCloser`], [`LoopClosure`], [`Decision`], [`RejectReason`], [`LoopConfig`];
 //! the state of acceptance is [`Session`], the drift model [`drift`].

@@ -740,6 +740,26 @@ mod tests {
         (q, Iso2::new(Vec2::new(-300.0, -200.0), 0.0))
     }
 
+    /// The keyframe indices of each candidate round for `q` under `alignment` (accepted at the
+    /// query's own path length); the first round is what [`KeyframeDb::candidates`] returns.
+    fn rounds_of_ids(
+        db: &KeyframeDb,
+        q: &KeyframeRecord,
+        alignment: Iso2,
+        s: &SearchSettings,
+        vouched: bool,
+    ) -> Vec<Vec<usize>> {
+        let cq = CandidateQuery {
+            query: q,
+            alignment: Some((alignment, q.path_distance)),
+            vouched,
+        };
+        db.candidate_rounds(&cq, 0, s)
+            .iter()
+            .map(|r| r.iter().map(|c| c.index).collect())
+            .collect()
+    }
+
     #[test]
     fn right_after_a_closure_the_default_search_reaches_the_other_carriageway() {
         let mut rng = StdRng::seed_from_u64(5);
@@ -747,12 +767,7 @@ mod tests {
         let (q, alignment) = way_back_beside_keyframe_50(&mut rng);
         let mut s = crate::loop_closure::LoopConfig::default().search();
         s.place_retrieve = 0;
-        let cq = CandidateQuery {
-            query: &q,
-            alignment: Some((alignment, q.path_distance)),
-            vouched: true,
-        };
-        let found: Vec<usize> = db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect();
+        let found = rounds_of_ids(&db, &q, alignment, &s, true).remove(0);
         assert_eq!(found.first(), Some(&50), "{found:?}");
     }
 
@@ -765,14 +780,7 @@ mod tests {
         q.place = db.get(10).unwrap().place.clone();
         let s = crate::loop_closure::LoopConfig::default().search();
         assert_eq!(s.max_candidates, 4);
-        let search = |vouched: bool| -> Vec<usize> {
-            let cq = CandidateQuery {
-                query: &q,
-                alignment: Some((alignment, q.path_distance)),
-                vouched,
-            };
-            db.candidates(&cq, 0, &s).iter().map(|c| c.index).collect()
-        };
+        let search = |vouched: bool| rounds_of_ids(&db, &q, alignment, &s, vouched).remove(0);
         // Not vouched: the nearest to the predicted position and the closest place descriptors
         // alternate.
         let free = search(false);
@@ -789,17 +797,8 @@ mod tests {
         let (mut q, alignment) = way_back_beside_keyframe_50(&mut rng);
         q.place = db.get(10).unwrap().place.clone();
         let mut s = crate::loop_closure::LoopConfig::default().search();
-        let rounds = |q: &KeyframeRecord, s: &SearchSettings, vouched: bool| -> Vec<Vec<usize>> {
-            let cq = CandidateQuery {
-                query: q,
-                alignment: Some((alignment, q.path_distance)),
-                vouched,
-            };
-            let rounds = db.candidate_rounds(&cq, 0, s);
-            rounds
-                .iter()
-                .map(|r| r.iter().map(|c| c.index).collect())
-                .collect()
+        let rounds = |q: &KeyframeRecord, s: &SearchSettings, vouched: bool| {
+            rounds_of_ids(&db, q, alignment, s, vouched)
         };
         // Not vouched: one round, the candidates of `candidates`.
         assert_eq!(rounds(&q, &s, false).len(), 1);

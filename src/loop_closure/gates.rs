@@ -3,9 +3,10 @@
 //! verdict with its reason.
 //!
 //! In order ([`gate`]): registration, inliers, convergence, overlap, common view, ambiguity,
-//! covariance, consistency; then, on the best candidates only and in order until one passes, the
-//! prediction test ([`prediction_test`], for closures published on a fresh alignment's word) and the
-//! slide test ([`slide_test`], for a session's first closures and those that wait for confirmation).
+//! covariance, consistency, and for a later candidate round's closure [`later_round`]; then, on the
+//! best candidates only and in order until one passes, the prediction test ([`prediction_test`], for
+//! closures published on a fresh alignment's word) and the slide test ([`slide_test`], for a
+//! session's first closures and those that wait for confirmation).
 
 use std::collections::BTreeMap;
 
@@ -219,6 +220,23 @@ pub fn quality(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal> {
         ));
     }
     Ok(())
+}
+
+/// A closure of a later candidate round ([`crate::keyframe_db::KeyframeDb::candidate_rounds`]): its
+/// keyframe lies farther from the predicted position than those of the first round, which did not
+/// close, so it stands on less shared view and needs the overlap a confirmation asks of its strongest
+/// closure (`loop.confirmation_overlap`).
+pub fn later_round(lc: &LoopConfig, gated: Gated) -> Result<Gated, Refusal> {
+    if gated.closure.score < lc.confirmation_overlap {
+        return Err((
+            RejectReason::LowOverlap,
+            format!(
+                "overlap {:.2} in a later round, below loop.confirmation_overlap",
+                gated.closure.score
+            ),
+        ));
+    }
+    Ok(gated)
 }
 
 /// The two submaps looked in directions that can have seen the same things (`loop.minimum_common_view`).
@@ -584,6 +602,22 @@ mod tests {
         assert_eq!(gated.closure.covariance, pulled.covariance);
         pulled.score_share = Mat3::zeros();
         assert_eq!(reason(f.gate(pulled)), RejectReason::Uncertain);
+    }
+
+    /// An overlap the first round takes (0.3 and above) is refused in a later round below
+    /// `loop.confirmation_overlap` (0.6), and taken at or above it.
+    #[test]
+    fn a_later_round_asks_the_overlap_of_a_confirmation() {
+        let f = fixture();
+        let t = Iso2::new(Vec2::new(2.0, 0.0), 0.0);
+        let at = |overlap: f64| RegistrationResult {
+            overlap,
+            ..result(t, 0.05)
+        };
+        let thin = f.gate(at(0.45)).expect("the first round takes it");
+        assert_eq!(reason(later_round(&f.lc, thin)), RejectReason::LowOverlap);
+        let thick = f.gate(at(f.lc.confirmation_overlap)).expect("passes");
+        assert!(later_round(&f.lc, thick).is_ok());
     }
 
     #[test]

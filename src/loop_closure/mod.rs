@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use crate::keyframe_db::{Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
 use crate::math::{Iso2, Iso3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
-use gates::{Gated, Gates, Pair, gate, prediction_test, slide_test};
+use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
 
 /// A verified loop closure: the query keyframe's body frame in the match keyframe's body frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -346,19 +346,18 @@ impl LoopCloser {
         rounds
             .into_iter()
             .enumerate()
-            .find_map(|(i, round)| self.register_round(db, query, prepared, (round, i > 0), out))
+            .find_map(|(i, round)| self.register_round(db, query, prepared, round, i > 0, out))
     }
 
     /// One round of candidates registered, gated and tested: the best closure that passes. A later
-    /// round's candidates lie farther from the predicted position than those of the first, which
-    /// did not close: a closure of theirs stands on less shared view, and is taken only with the
-    /// overlap a confirmation asks of its strongest closure (`loop.confirmation_overlap`).
+    /// round's closures also pass [`later_round`].
     fn register_round(
         &self,
         db: &mut KeyframeDb,
         query: &KeyframeRecord,
         prepared: &PreparedSubmap,
-        (candidates, later): (Vec<Candidate>, bool),
+        candidates: Vec<Candidate>,
+        later: bool,
         out: &mut Decisions,
     ) -> Option<(LoopClosure, Standing)> {
         let mut targets = Vec::with_capacity(candidates.len());
@@ -388,14 +387,14 @@ impl LoopCloser {
                 target: &target,
                 speeds: speeds(db, query, cand),
             };
-            match gate(&g, &pair, res) {
-                Ok(gated) if later && gated.closure.score < self.lc.confirmation_overlap => {
-                    let why = format!(
-                        "overlap {:.2} in a later round, below loop.confirmation_overlap",
-                        gated.closure.score
-                    );
-                    out.reject(query.id, id, (RejectReason::LowOverlap, why));
+            let verdict = gate(&g, &pair, res).and_then(|gated| {
+                if later {
+                    later_round(&self.lc, gated)
+                } else {
+                    Ok(gated)
                 }
+            });
+            match verdict {
                 Ok(gated) => passed.push((gated, target)),
                 Err(refusal) => out.reject(query.id, id, refusal),
             }

@@ -286,6 +286,9 @@ pub struct RevisitReport {
     pub reverse: DirectionCounts,
     /// Largest translation / rotation error of a correct closure, m / rad.
     pub max_error: (f64, f64),
+    /// Largest translation error of a correct closure whose covariance does not cover it (NEES above
+    /// the chi-square(3) 99 % bound), m: the error a pose graph would take at its word.
+    pub max_error_uncovered: f64,
     /// Candidate rejections by reason.
     pub rejected: BTreeMap<String, u64>,
     /// Every published closure, judged.
@@ -409,6 +412,7 @@ pub(crate) fn judge(
         same: DirectionCounts::default(),
         reverse: DirectionCounts::default(),
         max_error: (0.0, 0.0),
+        max_error_uncovered: 0.0,
         rejected: stats
             .rejected
             .iter()
@@ -517,6 +521,9 @@ fn judge_closures(
             }
             report.max_error.0 = report.max_error.0.max(et);
             report.max_error.1 = report.max_error.1.max(er);
+            if nees.is_nan() || nees > CHI2_3_99 {
+                report.max_error_uncovered = report.max_error_uncovered.max(et);
+            }
             // The keyframe of the later pass is the opportunity (in a fleet, the node that registered
             // the pair may be the earlier robot's).
             let later = if tq.pass >= tm.pass {
@@ -659,7 +666,7 @@ pub(crate) fn measured_drift(drive: &SimDrive) -> f64 {
 /// The README table: one row per scenario.
 pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     let mut s = String::new();
-    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) | NEES mean / above 99 % |\n");
+    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) / outside the bound (m) | NEES mean / above 99 % |\n");
     s.push_str("|---|---|---|---|---|---|---|\n");
     let dir = |c: &DirectionCounts| {
         if c.opportunities == 0 && c.published == 0 {
@@ -678,7 +685,7 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     };
     for r in reports {
         s.push_str(&format!(
-            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} | {:.1} / {:.1} % |\n",
+            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} / {:.2} | {:.1} / {:.1} % |\n",
             r.scenario,
             100.0 * r.measured_drift,
             r.keyframes,
@@ -686,6 +693,7 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
             dir(&r.reverse),
             r.max_error.0,
             r.max_error.1,
+            r.max_error_uncovered,
             r.nees.mean,
             100.0 * r.nees.share_above_99()
         ));
@@ -770,7 +778,7 @@ mod tests {
             report.closures.is_empty(),
             "unknown keyframes are not judged"
         );
-        judge_closures(&mut report, &truth(), &[closure]);
+        judge_closures(&mut report, &truth(), std::slice::from_ref(&closure));
         let c = &report.closures[0];
         for k in 0..3 {
             assert!((c.error[k] - delta[k]).abs() < 1e-9, "{:?}", c.error);
@@ -781,6 +789,19 @@ mod tests {
             (c.nees - want_nees).abs() < 1e-6,
             "{} vs {want_nees}",
             c.nees
+        );
+        // NEES 7.25 lies within the 99 % bound; with half the sigmas, 29, it does not.
+        assert_eq!(report.max_error_uncovered, 0.0);
+        let half = sigma / 2.0;
+        let tight = LoopClosure {
+            covariance: covariance_ros_from_se2(&Mat3::from_diagonal(&half.component_mul(&half))),
+            ..closure
+        };
+        judge_closures(&mut report, &truth(), &[tight]);
+        assert!(report.closures[1].nees > CHI2_3_99);
+        assert_eq!(
+            report.max_error_uncovered,
+            report.closures[1].translation_error
         );
     }
 }

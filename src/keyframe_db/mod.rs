@@ -741,7 +741,8 @@ mod tests {
     }
 
     /// The keyframe indices of each candidate round for `q` under `alignment` (accepted at the
-    /// query's own path length); the first round is what [`KeyframeDb::candidates`] returns.
+    /// query's own path length), checking that the first round is what [`KeyframeDb::candidates`]
+    /// returns.
     fn rounds_of_ids(
         db: &KeyframeDb,
         q: &KeyframeRecord,
@@ -754,10 +755,14 @@ mod tests {
             alignment: Some((alignment, q.path_distance)),
             vouched,
         };
-        db.candidate_rounds(&cq, 0, s)
+        let ids = |r: &[Candidate]| -> Vec<usize> { r.iter().map(|c| c.index).collect() };
+        let rounds: Vec<Vec<usize>> = db
+            .candidate_rounds(&cq, 0, s)
             .iter()
-            .map(|r| r.iter().map(|c| c.index).collect())
-            .collect()
+            .map(|r| ids(r))
+            .collect();
+        assert_eq!(rounds[0], ids(&db.candidates(&cq, 0, s)));
+        rounds
     }
 
     #[test]

@@ -521,7 +521,7 @@ fn judge_closures(
             }
             report.max_error.0 = report.max_error.0.max(et);
             report.max_error.1 = report.max_error.1.max(er);
-            if nees.is_nan() || nees > CHI2_3_99 {
+            if outside_bound(nees) {
                 report.max_error_uncovered = report.max_error_uncovered.max(et);
             }
             // The keyframe of the later pass is the opportunity (in a fleet, the node that registered
@@ -572,7 +572,7 @@ impl NeesSummary {
         for v in values {
             s.count += 1;
             sum += v;
-            if v.is_nan() || v > CHI2_3_99 {
+            if outside_bound(v) {
                 s.above_99 += 1;
             }
         }
@@ -588,6 +588,11 @@ impl NeesSummary {
             self.above_99 as f64 / self.count as f64
         }
     }
+}
+
+/// The covariance does not cover the error: NEES above [`CHI2_3_99`] (or undefined).
+fn outside_bound(nees: f64) -> bool {
+    nees.is_nan() || nees > CHI2_3_99
 }
 
 /// NEES of an estimated `T_match_query` against the truth, with `covariance` (ROS order, over the

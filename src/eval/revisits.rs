@@ -17,7 +17,7 @@
 //! - *Drift* (measured): the odometry's position error at the end of the first lap over the path driven.
 
 use crate::loop_closure::LoopClosure;
-use crate::math::{Iso2, Mat3, Mat6, Stamp, Vec3, iso2_from_iso3, se2_log, wrap_angle};
+use crate::math::{Iso2, Mat3, Mat6, Stamp, Vec2, Vec3, iso2_from_iso3, se2_log, wrap_angle};
 use crate::pipeline::Config;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
 use crate::registration::covariance_se2_from_ros;
@@ -226,6 +226,12 @@ pub struct JudgedClosure {
     pub rotation_error: f64,
     /// Ground-truth distance between the two keyframes, m.
     pub distance: f64,
+    /// The true pose of the query keyframe in the match keyframe's frame, `(x m, y m, yaw rad)`.
+    pub truth: [f64; 3],
+    /// The estimated position of the query keyframe minus its true one (match keyframe's frame), m:
+    /// along the line from the match keyframe to the query keyframe (positive: estimated farther
+    /// apart) and across it (positive: to the left of that line).
+    pub along_across: [f64; 2],
     /// Registration inliers.
     pub inliers: u32,
     /// Overlap score.
@@ -540,6 +546,8 @@ fn judge_closures(
             translation_error: et,
             rotation_error: er,
             distance: t.translation.vector.norm(),
+            truth: [t.translation.x, t.translation.y, t.rotation.angle()],
+            along_across: along_across(&t, &est),
             inliers: c.inliers,
             score: c.score,
             nees,
@@ -548,6 +556,15 @@ fn judge_closures(
         });
     }
     closed
+}
+
+/// `est`'s translation minus `truth`'s, along and across the direction of `truth`'s translation, m
+/// (zero when the two keyframes coincide).
+fn along_across(truth: &Iso2, est: &Iso2) -> [f64; 2] {
+    let t = truth.translation.vector;
+    let d = est.translation.vector - t;
+    let u = t.try_normalize(1e-9).unwrap_or_else(Vec2::zeros);
+    [d.dot(&u), u.perp(&d)]
 }
 
 /// The chi-square(3) 99 % quantile: a correct 3-DOF covariance leaves 1 % of NEES values above it.
@@ -739,6 +756,16 @@ mod tests {
     /// A closure off its truth by a known `delta` (`T_est = T_true Exp(-delta)`) is judged with that
     /// error, its published standard deviations and the NEES they give.
     #[test]
+    fn the_error_is_split_along_and_across_the_line_between_the_keyframes() {
+        let truth = Iso2::new(Vec2::new(0.0, 4.0), 0.3);
+        let est = Iso2::new(Vec2::new(0.3, 4.5), 0.0);
+        let [along, across] = along_across(&truth, &est);
+        assert!((along - 0.5).abs() < 1e-12, "0.5 m farther apart: {along}");
+        assert!((across + 0.3).abs() < 1e-12, "0.3 m to the right: {across}");
+        assert_eq!(along_across(&Iso2::identity(), &est), [0.0, 0.0]);
+    }
+
+    #[test]
     fn a_closure_is_judged_with_its_error_and_sigmas() {
         let kf = |x: f64, pass: usize| KfTruth {
             pose: Iso2::new(Vec2::new(x, 0.0), 0.0),
@@ -789,6 +816,11 @@ mod tests {
             assert!((c.error[k] - delta[k]).abs() < 1e-9, "{:?}", c.error);
             assert!((c.sigma[k] - sigma[k]).abs() < 1e-9, "{:?}", c.sigma);
         }
+        assert_eq!(c.truth, [3.0, 0.0, 0.0]);
+        let off = est.translation.vector - Vec2::new(3.0, 0.0);
+        assert!(
+            (c.along_across[0] - off.x).abs() < 1e-12 && (c.along_across[1] - off.y).abs() < 1e-12
+        );
         let want_nees = (0..3).map(|k| (delta[k] / sigma[k]).powi(2)).sum::<f64>();
         assert!(
             (c.nees - want_nees).abs() < 1e-6,

@@ -26,7 +26,7 @@ pub struct RevisitArgs {
     /// AWR1843-class radar), `imaging` (one forward 4D imaging radar).
     #[arg(long, value_delimiter = ',', default_value = "carla,nuscenes")]
     pub radars: Vec<String>,
-    /// Noise models: `gaussian`, `gamma`, `student-t`.
+    /// Noise models: `gaussian`, `gamma`, `student-t`, `none` (no measurement noise, for geometry experiments).
     #[arg(long, value_delimiter = ',', default_value = "gaussian")]
     pub noise: Vec<String>,
     /// Odometry drift, percent of distance (the yaw-rate bias is 0.1 deg/s per percent).
@@ -74,6 +74,10 @@ pub struct RevisitArgs {
     /// shapes are nearer a Gaussian (skewness 2 / sqrt(shape)); the scale stays the same.
     #[arg(long, value_name = "K", default_value_t = DEFAULT_GAMMA_SHAPE)]
     pub gamma_shape: f64,
+    /// Factors on the noise model's range, azimuth and radial-velocity scales, each above 0 (e.g.
+    /// `1,0.01,0.01`: the range noise alone). The pipeline is told the scaled standard deviations.
+    #[arg(long, value_name = "R,AZ,V", value_delimiter = ',', default_values_t = [1.0, 1.0, 1.0])]
+    pub noise_factors: Vec<f64>,
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
@@ -99,8 +103,9 @@ pub(super) fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
         "gaussian" => Ok(NoiseModel::Gaussian),
         "gamma" => Ok(NoiseModel::Gamma),
         "student-t" | "student_t" => Ok(NoiseModel::StudentT),
+        "none" => Ok(NoiseModel::None),
         _ => Err(CliError::Usage(format!(
-            "--noise: unknown noise model `{s}` (gaussian, gamma, student-t)"
+            "--noise: unknown noise model `{s}` (gaussian, gamma, student-t, none)"
         ))),
     }
 }
@@ -190,6 +195,15 @@ fn scenarios_in(
             args.gamma_shape
         )));
     }
+    let noise_factors: [f64; 3] = match args.noise_factors[..] {
+        [r, a, v] if [r, a, v].iter().all(|f| f.is_finite() && *f > 0.0) => [r, a, v],
+        _ => {
+            return Err(CliError::Usage(format!(
+                "--noise-factors: {:?} is not three factors above 0",
+                args.noise_factors
+            )));
+        }
+    };
     for r in &args.radars {
         let radars = parse_preset(r)?;
         for n in &args.noise {
@@ -228,6 +242,7 @@ fn scenarios_in(
                         multipath: args.multipath,
                         wheel_slip: args.wheel_slip,
                         gamma_shape: args.gamma_shape,
+                        noise_factors,
                     });
                 }
             }

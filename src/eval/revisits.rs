@@ -67,6 +67,8 @@ pub struct RevisitScenario {
     /// Shape of the Gamma noise (`NoiseConfig::gamma_shape`; the simulator's default 1 is the most
     /// skewed it models); used with [`NoiseModel::Gamma`] only.
     pub gamma_shape: f64,
+    /// Factors on the noise model's range, azimuth and radial-velocity scales (1: the model's own).
+    pub noise_factors: [f64; 3],
 }
 
 /// An extrinsic calibration error: each radar's extrinsic as the pipeline is told it is off from the
@@ -117,6 +119,7 @@ impl RevisitScenario {
             multipath: 0.0,
             wheel_slip: 0.0,
             gamma_shape: DEFAULT_GAMMA_SHAPE,
+            noise_factors: [1.0; 3],
         }
     }
 
@@ -127,6 +130,16 @@ impl RevisitScenario {
         c.world = self.world.world();
         c.noise.model = self.noise;
         c.noise.gamma_shape = self.gamma_shape;
+        let [fr, fa, fv] = self.noise_factors;
+        for scales in [
+            &mut c.noise.gaussian,
+            &mut c.noise.gamma,
+            &mut c.noise.student_t,
+        ] {
+            scales.range *= fr;
+            scales.azimuth *= fa;
+            scales.velocity *= fv;
+        }
         c.odometry.scale_error = self.drift;
         c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
         c.odometry.slip_rate = self.wheel_slip;
@@ -188,13 +201,19 @@ impl RevisitScenario {
         } else {
             String::new()
         };
+        let factors = if self.noise_factors == [1.0; 3] {
+            String::new()
+        } else {
+            let [r, a, v] = self.noise_factors;
+            format!(" x{r},{a},{v}")
+        };
         let passes = match (self.fleet, self.reverse) {
             (0 | 1, false) => "same".to_string(),
             (0 | 1, true) => "reverse".to_string(),
             (n, _) => format!("fleet of {n}"),
         };
         format!(
-            "{world}{} {}{shape} {}% {passes}{calibration}{clock}{multipath}{slip}",
+            "{world}{} {}{shape}{factors} {}% {passes}{calibration}{clock}{multipath}{slip}",
             self.radars.name(),
             self.noise.name(),
             fmt_pct(self.drift),
@@ -726,18 +745,27 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::{Vec2, iso3_from_iso2, se2_exp};
+    use crate::math::{iso3_from_iso2, se2_exp};
     use crate::registration::covariance_ros_from_se2;
+    use crate::sim::noise::NoiseConfig;
 
-    /// `--gamma-shape` reaches the simulated noise (skewness 2 / sqrt(shape)) and the scenario's
-    /// label; the default shape leaves the label as it was.
+    /// `--gamma-shape` and `--noise-factors` reach the simulated noise (skewness 2 / sqrt(shape), the
+    /// scales times the factors) and the scenario's label; the defaults leave the label as it was.
     #[test]
-    fn a_gamma_shape_reaches_the_simulated_noise_and_the_label() {
+    fn a_gamma_shape_and_noise_factors_reach_the_simulated_noise_and_the_label() {
         use rand::SeedableRng;
         let mut scenario = RevisitScenario::new(RadarPreset::Carla, NoiseModel::Gamma, 0.01, false);
         assert_eq!(scenario.label(), "carla gamma 1% same");
         scenario.gamma_shape = 100.0;
         assert_eq!(scenario.label(), "carla gamma shape 100 1% same");
+        scenario.noise_factors = [1.0, 0.5, 2.0];
+        assert_eq!(scenario.label(), "carla gamma shape 100 x1,0.5,2 1% same");
+        let scaled = scenario.sim_config().noise.std_devs();
+        let own = NoiseConfig::default().gamma;
+        assert_eq!(scaled.range, own.range);
+        assert_eq!(scaled.azimuth, 0.5 * own.azimuth);
+        assert_eq!(scaled.velocity, 2.0 * own.velocity);
+        scenario.noise_factors = [1.0; 3];
         let noise = scenario.sim_config().noise;
         let sampler = crate::sim::noise::NoiseSampler::new(&noise).expect("valid");
         let mut rng = rand::rngs::StdRng::seed_from_u64(3);
@@ -753,8 +781,8 @@ mod tests {
         );
     }
 
-    /// A closure off its truth by a known `delta` (`T_est = T_true Exp(-delta)`) is judged with that
-    /// error, its published standard deviations and the NEES they give.
+    /// An estimate 0.5 m farther from the match keyframe and 0.3 m to the right of the line between
+    /// the two keyframes is split into those two figures.
     #[test]
     fn the_error_is_split_along_and_across_the_line_between_the_keyframes() {
         let truth = Iso2::new(Vec2::new(0.0, 4.0), 0.3);
@@ -765,6 +793,8 @@ mod tests {
         assert_eq!(along_across(&Iso2::identity(), &est), [0.0, 0.0]);
     }
 
+    /// A closure off its truth by a known `delta` (`T_est = T_true Exp(-delta)`) is judged with that
+    /// error, its published standard deviations and the NEES they give.
     #[test]
     fn a_closure_is_judged_with_its_error_and_sigmas() {
         let kf = |x: f64, pass: usize| KfTruth {

@@ -752,3 +752,92 @@ fn the_common_offset_along_the_rays_holds_reverse_passes_to_the_known_transforms
         compare_configs(["no rays", "offset off"], &fitted, &unfitted, rayless, 1.0);
     assert_eq!(m_rayless, m_unfitted);
 }
+
+/// Reflectors along a straight street: facades at y = +-12 m every 0.5 m and 140 small objects (poles,
+/// car corners) between them, over x in [-50, 300] m.
+fn straight_street(rng: &mut StdRng) -> Vec<Vec2> {
+    let mut pts = Vec::new();
+    for k in 0..=700 {
+        for side in [12.0, -12.0] {
+            pts.push(Vec2::new(
+                -50.0 + 0.5 * k as f64 + rng.random_range(-0.1..0.1),
+                side,
+            ));
+        }
+    }
+    for _ in 0..140 {
+        let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let c = Vec2::new(
+            rng.random_range(-50.0..300.0),
+            side * rng.random_range(5.0..10.5),
+        );
+        for k in 0..4 {
+            pts.push(c + Vec2::new(0.4 * k as f64, 0.0));
+        }
+    }
+    pts
+}
+
+/// The street as a submap at `origin` (heading 0) sees it: every reflector within 250 m three times,
+/// each at its range plus N(0, `sigma_range`^2) along its ray and 0.025 deg of azimuth noise, with the
+/// radar covariance of that measurement and its ray, thinned at random to 4000 points.
+fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2, sigma_range: f64) -> PointSet2 {
+    use dc_loc::radar::RadarNoise;
+    use dc_loc::radar::doppler::polar_covariance;
+    let noise = RadarNoise {
+        sigma_range: 0.25,
+        sigma_velocity: 0.1,
+        sigma_azimuth: 0.025f64.to_radians(),
+    };
+    let mut seen = Vec::new();
+    for p in street {
+        let d = p - origin;
+        let (r, phi) = (d.norm(), d.y.atan2(d.x));
+        if !(0.5..250.0).contains(&r) {
+            continue;
+        }
+        for _ in 0..3 {
+            let r_hat = r + sigma_range * gaussian2(rng, &Mat2::identity()).x;
+            let phi_hat = phi + noise.sigma_azimuth * gaussian2(rng, &Mat2::identity()).x;
+            let ray = Vec2::new(phi_hat.cos(), phi_hat.sin());
+            let cov = polar_covariance(r_hat, 0.0, phi_hat, 0.0, &noise);
+            seen.push((ray * r_hat, cov.fixed_view::<2, 2>(0, 0).into_owned(), ray));
+        }
+    }
+    let mut set = PointSet2::default();
+    for _ in 0..4000.min(seen.len()) {
+        let (p, cov, ray) = seen.swap_remove(rng.random_range(0..seen.len()));
+        set.points.push(p);
+        set.covs.push(cov);
+        set.rays.push(ray);
+    }
+    set
+}
+
+/// Two submaps 150 m apart along a straight street, registered from returns 100 m and more away:
+/// against the known transform, range noise neither shortens nor lengthens the estimate (mean error
+/// along the street within 0.05 % of the distance over 12 streets, where a range scale error of 0.3 %
+/// in the submaps moves it by 0.3 %). The closures between keyframes this far apart in the simulator
+/// are 0.25-0.33 % too short (docs/experiments.md, "Covariance"): that shortening does not come from
+/// the registration of such a pair.
+#[test]
+fn range_noise_does_not_shorten_a_long_baseline_registration() {
+    let mut rng = StdRng::seed_from_u64(41);
+    let d = 150.0;
+    let mut along = Vec::new();
+    for _ in 0..12 {
+        let street = straight_street(&mut rng);
+        let target = street_submap(&mut rng, &street, Vec2::zeros(), 0.25);
+        let source = street_submap(&mut rng, &street, Vec2::new(d, 0.0), 0.25);
+        let r = register(&source, &target, &RegistrationConfig::default()).expect("registers");
+        let t = r.t_target_source.translation.vector;
+        assert!((t - Vec2::new(d, 0.0)).norm() < 0.5, "{t:?}");
+        along.push(t.x - d);
+    }
+    let mean = along.iter().sum::<f64>() / along.len() as f64;
+    println!(
+        "along-street error over {} streets: mean {mean:+.4} m",
+        along.len()
+    );
+    assert!(mean.abs() < 0.0005 * d, "mean {mean:+.4} m: {along:?}");
+}

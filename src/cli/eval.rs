@@ -70,7 +70,7 @@ pub struct EvalArgs {
         requires = "set"
     )]
     pub radars: Vec<String>,
-    /// With `--set`: noise models, `gaussian`, `gamma`, `student-t`.
+    /// With `--set`: noise models, `gaussian`, `gamma`, `student-t`, `none` (no measurement noise).
     #[arg(
         long,
         value_delimiter = ',',

@@ -779,9 +779,9 @@ fn straight_street(rng: &mut StdRng) -> Vec<Vec2> {
 }
 
 /// The street as a submap at `origin` (heading 0) sees it: every reflector within 250 m three times,
-/// each at its range plus N(0, `sigma_range`^2) along its ray and 0.025 deg of azimuth noise, with the
+/// each with 0.25 m of Gaussian range noise along its ray and 0.025 deg of azimuth noise, with the
 /// radar covariance of that measurement and its ray, thinned at random to 4000 points.
-fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2, sigma_range: f64) -> PointSet2 {
+fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2) -> PointSet2 {
     use dc_loc::radar::RadarNoise;
     use dc_loc::radar::doppler::polar_covariance;
     let noise = RadarNoise {
@@ -789,6 +789,10 @@ fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2, sigma_range: f
         sigma_velocity: 0.1,
         sigma_azimuth: 0.025f64.to_radians(),
     };
+    let polar = Mat2::from_diagonal(&Vec2::new(
+        noise.sigma_range.powi(2),
+        noise.sigma_azimuth.powi(2),
+    ));
     let mut seen = Vec::new();
     for p in street {
         let d = p - origin;
@@ -797,8 +801,8 @@ fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2, sigma_range: f
             continue;
         }
         for _ in 0..3 {
-            let r_hat = r + sigma_range * gaussian2(rng, &Mat2::identity()).x;
-            let phi_hat = phi + noise.sigma_azimuth * gaussian2(rng, &Mat2::identity()).x;
+            let n = gaussian2(rng, &polar);
+            let (r_hat, phi_hat) = (r + n.x, phi + n.y);
             let ray = Vec2::new(phi_hat.cos(), phi_hat.sin());
             let cov = polar_covariance(r_hat, 0.0, phi_hat, 0.0, &noise);
             seen.push((ray * r_hat, cov.fixed_view::<2, 2>(0, 0).into_owned(), ray));
@@ -827,8 +831,8 @@ fn range_noise_does_not_shorten_a_long_baseline_registration() {
     let mut along = Vec::new();
     for _ in 0..12 {
         let street = straight_street(&mut rng);
-        let target = street_submap(&mut rng, &street, Vec2::zeros(), 0.25);
-        let source = street_submap(&mut rng, &street, Vec2::new(d, 0.0), 0.25);
+        let target = street_submap(&mut rng, &street, Vec2::zeros());
+        let source = street_submap(&mut rng, &street, Vec2::new(d, 0.0));
         let r = register(&source, &target, &RegistrationConfig::default()).expect("registers");
         let t = r.t_target_source.translation.vector;
         assert!((t - Vec2::new(d, 0.0)).norm() < 0.5, "{t:?}");

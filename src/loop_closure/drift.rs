@@ -3,7 +3,7 @@
 
 use super::{Alignment, LoopConfig};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, Mat6, se2_log};
+use crate::math::{Iso2, Mat3, Mat6, Vec3, se2_adjoint, se2_log};
 use crate::registration::covariance_se2_from_ros;
 
 /// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
@@ -41,6 +41,26 @@ pub fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
         (DRIFT_BOUND_BASE + lc.drift_rate * gap).min(lc.search_radius_max) / 3.0,
         (0.05 + lc.drift_yaw_rate * gap).min(std::f64::consts::PI) / 3.0,
     )
+}
+
+/// Covariance over `(x, y, yaw)` that the odometry's heading drift within the two submaps adds to the
+/// closure `t_match_query`, with `arms` = `[query, match]` the mean path length, m, of each submap's
+/// scans behind its keyframe.
+///
+/// A submap places its scans with the odometry: a heading drift of `k` rad per metre turns a scan
+/// `l` metres behind the keyframe by `k l`, and its returns with it, about the keyframe when they lie
+/// far away. To first order the submap is turned by `k` times its arm. Both submaps drift at the same
+/// rate, so the registration finds `T' = Exp(k l_m e_yaw) T Exp(-k l_q e_yaw)`, and as for a clock
+/// offset ([`super::calibration::clock_covariance`]) `delta = k (l_q e_yaw - l_m Ad_{T^-1} e_yaw)`:
+/// nothing between keyframes at one pose with equal arms, and across the line between two keyframes
+/// `D` metres apart the match's turn times `D`. The rate's standard deviation is `drift_yaw_rate` read
+/// as [`drift_sigmas`] reads it, a third of the bound.
+pub fn heading_drift_covariance(t_match_query: &Iso2, arms: [f64; 2], lc: &LoopConfig) -> Mat3 {
+    let [lq, lm] = arms;
+    let e_yaw = Vec3::z();
+    let j = e_yaw * lq - se2_adjoint(&t_match_query.inverse()) * e_yaw * lm;
+    let k = lc.drift_yaw_rate / 3.0;
+    j * j.transpose() * (k * k)
 }
 
 /// Standard deviations (m, rad) of an accepted alignment's prediction `path_gap` metres of path after the
@@ -108,6 +128,49 @@ pub fn inconsistency(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::{Vec2, se2_exp};
+
+    /// The first-order error against the exact one: each submap turned by the drift rate times its
+    /// arm, the registration's answer `Exp(k l_m e_yaw) T Exp(-k l_q e_yaw)`, its error
+    /// `Log(T'^-1 T)`; the covariance is that error's outer product at the rate's standard deviation.
+    #[test]
+    fn heading_drift_error_is_the_turned_submaps_error() {
+        let lc = LoopConfig::default();
+        let k = lc.drift_yaw_rate / 3.0;
+        let arms = [7.0, 4.0];
+        for t in [
+            Iso2::new(Vec2::new(150.0, 2.0), 0.05),
+            Iso2::new(Vec2::new(-3.0, 12.0), std::f64::consts::PI - 0.1),
+            Iso2::new(Vec2::new(0.5, 0.0), 0.0),
+        ] {
+            let turn = |l: f64| se2_exp(&Vec3::new(0.0, 0.0, k * l));
+            let seen = turn(arms[1]) * t * turn(arms[0]).inverse();
+            let exact = se2_log(&(seen.inverse() * t));
+            let c = heading_drift_covariance(&t, arms, &lc);
+            let expected = exact * exact.transpose();
+            assert!(
+                (c - expected).norm() < 1e-3 * expected.norm(),
+                "{c} vs {expected}"
+            );
+        }
+    }
+
+    /// Keyframes at one pose with equal arms take nothing; 150 m apart along the street, the match's
+    /// turn moves the query across the street by its arm times the rate times the distance, and not
+    /// along it.
+    #[test]
+    fn heading_drift_widens_across_the_line_between_the_keyframes() {
+        let lc = LoopConfig::default();
+        let k = lc.drift_yaw_rate / 3.0;
+        let at_one_pose = heading_drift_covariance(&Iso2::identity(), [6.0, 6.0], &lc);
+        assert!(at_one_pose.norm() < 1e-15);
+        let far = heading_drift_covariance(&Iso2::new(Vec2::new(150.0, 0.0), 0.0), [6.0, 6.0], &lc);
+        assert!((far[(1, 1)].sqrt() - k * 6.0 * 150.0).abs() < 1e-9, "{far}");
+        assert!(
+            far[(0, 0)].abs() < 1e-12 && far[(2, 2)].abs() < 1e-12,
+            "{far}"
+        );
+    }
 
     /// The alignment's prediction tightens the drift model near the closure that gave it, and both
     /// grow with the path.

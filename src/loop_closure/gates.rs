@@ -11,7 +11,9 @@
 use std::collections::BTreeMap;
 
 use super::calibration::{add_planar, calibration_covariance, clock_covariance};
-use super::drift::{Prior, inconsistency, predict, translation_std, vouches};
+use super::drift::{
+    Prior, heading_drift_covariance, inconsistency, predict, translation_std, vouches,
+};
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason, Standing};
 use crate::keyframe_db::KeyframeRecord;
 use crate::math::{Iso2, iso3_from_iso2, se2_log};
@@ -56,6 +58,8 @@ pub struct Pair<'a> {
     pub target: &'a PreparedSubmap,
     /// The odometry's speeds at the query and the candidate, m/s (0 where unknown).
     pub speeds: [f64; 2],
+    /// Mean path length of each submap's scans behind its keyframe, query and candidate, m.
+    pub arms: [f64; 2],
 }
 
 /// A closure that passed the gates before the prediction and slide tests.
@@ -184,7 +188,8 @@ fn judged(r: &RegistrationResult) -> RegistrationResult {
 /// `loop.clock_std`).
 fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure {
     let calibration = calibration_covariance(&r.t_target_source, lc.extrinsic_std)
-        + clock_covariance(&r.t_target_source, p.speeds, lc.clock_std);
+        + clock_covariance(&r.t_target_source, p.speeds, lc.clock_std)
+        + heading_drift_covariance(&r.t_target_source, p.arms, lc);
     LoopClosure {
         query_id: p.query.id,
         match_id: p.cand.id,
@@ -547,6 +552,7 @@ mod tests {
                 source: &self.map,
                 target: &self.map,
                 speeds: [0.0, 0.0],
+                arms: [0.0, 0.0],
             }
         }
         fn gate(&self, r: RegistrationResult) -> Result<Gated, Refusal> {

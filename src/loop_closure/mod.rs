@@ -154,6 +154,8 @@ pub struct LoopCloser {
     rc: RegistrationConfig,
     session: u32,
     state: Session,
+    /// Time from the oldest to the newest scan of the last submap, s.
+    submap_span: f64,
 }
 
 impl LoopCloser {
@@ -169,7 +171,28 @@ impl LoopCloser {
             rc,
             session,
             state: Session::new(session),
+            submap_span: 0.0,
         }
+    }
+
+    /// The time the newest keyframe's submap spans, from its oldest to its newest scan, s: every
+    /// submap stacks the same number of scans of the same radars, so a keyframe's scans lie on
+    /// average half of it times the keyframe's speed behind the keyframe.
+    pub fn note_submap_span(&mut self, seconds: f64) {
+        if seconds.is_finite() && seconds >= 0.0 {
+            self.submap_span = seconds;
+        }
+    }
+
+    /// The speeds and arms of a pair of keyframes ([`Pair::speeds`], [`Pair::arms`]).
+    fn motion(
+        &self,
+        db: &KeyframeDb,
+        query: &KeyframeRecord,
+        cand: &KeyframeRecord,
+    ) -> ([f64; 2], [f64; 2]) {
+        let speeds = speeds(db, query, cand);
+        (speeds, speeds.map(|v| 0.5 * v * self.submap_span))
     }
 
     /// The state of acceptance.
@@ -243,12 +266,14 @@ impl LoopCloser {
             .map(|(_, source)| register_prepared(source, &target, &cfg))
             .collect();
         for ((query, source), res) in pairs.into_iter().zip(results) {
+            let (speeds, arms) = self.motion(db, &query, &arrived);
             let pair = Pair {
                 query: &query,
                 cand: &arrived,
                 source: &source,
                 target: &target,
-                speeds: speeds(db, &query, &arrived),
+                speeds,
+                arms,
             };
             let passed = match gate(&self.gates(), &pair, res) {
                 Ok(gated) => vec![(gated, target.clone())],
@@ -380,12 +405,14 @@ impl LoopCloser {
         let mut passed = Vec::new();
         for ((id, target), res) in targets.into_iter().zip(results) {
             let Some(cand) = db.get(id) else { continue };
+            let (speeds, arms) = self.motion(db, query, cand);
             let pair = Pair {
                 query,
                 cand,
                 source: prepared,
                 target: &target,
-                speeds: speeds(db, query, cand),
+                speeds,
+                arms,
             };
             let verdict = gate(&g, &pair, res).and_then(|gated| {
                 if later {

@@ -256,6 +256,10 @@ impl Pipeline {
             return;
         }
         self.note_speed_scale(submap.speed_scale);
+        if let (Some(first), Some(last)) = (submap.scans.first(), submap.scans.last()) {
+            self.loops
+                .note_submap_span(last.stamp.secs_since(first.stamp));
+        }
         let id = self.next_id;
         let path = self.ingest.path_distance();
         let rec = KeyframeRecord::from_submap(

@@ -349,8 +349,8 @@ pub(super) fn probe_bias(ctx: &PairContext<'_>, best: RegistrationDetail) -> Reg
 /// The winner fitted once more with a common offset of the returns along their rays
 /// ([`offset::fit_offset`], `registration.dense.range_offset_std`), when the dense stage ran and both
 /// submaps' rays are known: at its dense pairs, the pose takes the joint step where the pair shows an
-/// offset at the 5 % level, and the offset's uncertainty widens the covariance along the direction it
-/// moves the pose. A fit that fails leaves the winner as it was.
+/// offset at the 5 % level, and the offset's prior widens the covariance along the direction it moves
+/// the pose (a consider parameter, [`offset`]). A fit that fails leaves the winner as it was.
 pub(super) fn fit_offset(ctx: &PairContext<'_>, best: RegistrationDetail) -> RegistrationDetail {
     let PairContext { sets, cfg, .. } = *ctx;
     let (src, tgt) = (sets.src, sets.tgt);
@@ -391,7 +391,7 @@ pub(super) fn fit_offset(ctx: &PairContext<'_>, best: RegistrationDetail) -> Reg
     if f.significant() {
         best.result.t_target_source = t * se2_exp(&f.step);
     }
-    widen(best, f.covariance())
+    widen(best, f.covariance(cfg.dense.range_offset_std))
 }
 
 /// `best` with `c` over `(x, y, yaw)` added to its covariance, in both of its forms.

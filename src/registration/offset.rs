@@ -21,9 +21,17 @@
 //! ```
 //!
 //! (`g` the gradients at the current pose). Eliminating `Delta` gives `delta`'s variance
-//! `1 / (c - b^T A^-1 b)`, and the pose's marginal covariance grows by `s s^T var(delta)` with
-//! `s = -A^-1 b`, the pose's sensitivity to `delta` (the Schur complement of the joint information):
-//! the pose fitted with `delta` held at zero lies `-s delta` from the one fitted with it.
+//! `1 / (c - b^T A^-1 b)` and `s = -A^-1 b`, the pose's sensitivity to `delta` (the Schur complement
+//! of the joint information): the pose fitted with `delta` held at zero lies `-s delta` from the one
+//! fitted with it.
+//!
+//! The returns of one pair are not offset alike: a pole's near face lies its radius before its
+//! centre, a parked car's strongest return is its corner nearest the radar (the rear one seen from
+//! behind, the front one seen from ahead), a wall seen from the street lies where it is. The pairs
+//! estimate the average of these offsets, precisely, while the pose is pulled by how they differ
+//! from reflector to reflector, which that average does not show. So the offset enters the
+//! covariance as a consider parameter: the pose's covariance grows by `s s^T prior_std^2`, the
+//! prior's share along the sensitivity, whatever the pairs made of the average.
 
 use super::lm::LmConfig;
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
@@ -52,9 +60,10 @@ impl OffsetFit {
         self.offset.abs() > Z_95 * self.variance.sqrt()
     }
 
-    /// What the offset's uncertainty adds to the pose covariance.
-    pub fn covariance(&self) -> Mat3 {
-        self.sensitivity * self.sensitivity.transpose() * self.variance
+    /// What an offset of standard deviation `prior_std` adds to the pose covariance along the
+    /// sensitivity (a consider parameter, see the module doc).
+    pub fn covariance(&self, prior_std: f64) -> Mat3 {
+        self.sensitivity * self.sensitivity.transpose() * (prior_std * prior_std)
     }
 }
 
@@ -241,6 +250,6 @@ mod tests {
         assert!(f.offset.abs() < 1e-12);
         assert!((f.variance - 0.0625).abs() < 1e-12);
         assert!(!f.significant());
-        assert!(f.covariance().norm() < 1e-20);
+        assert!(f.covariance(0.25).norm() < 1e-20);
     }
 }

@@ -93,7 +93,7 @@ pub struct DenseConfig {
     /// Prior standard deviation of a common offset of the returns along their rays, m (default
     /// 0.25, the ARS408's range noise; 0 = not estimated). The winner's pose is fitted once more with
     /// the offset (an object's near face, a skewed range noise) at its dense pairs; where the pair
-    /// shows one at the 5 % level the pose takes the joint fit, and the offset's uncertainty widens the
+    /// shows one at the 5 % level the pose takes the joint fit, and the offset's prior widens the
     /// covariance along the direction it moves the pose (docs/algorithm.md, "The covariance
     /// reported"). Two passes that saw the scene along the same rays cannot tell it, and are left as
     /// they were.

@@ -822,8 +822,9 @@ fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2) -> PointSet2 {
 /// against the known transform, range noise neither shortens nor lengthens the estimate (mean error
 /// along the street within 0.05 % of the distance over 12 streets, where a range scale error of 0.3 %
 /// in the submaps moves it by 0.3 %). The closures between keyframes this far apart in the simulator
-/// are 0.25-0.33 % too short (docs/experiments.md, "Covariance"): that shortening does not come from
-/// the registration of such a pair.
+/// are 0.25-0.33 % too short (docs/experiments.md, "Covariance"): that shortening comes from which
+/// point of a reflector each keyframe sees (a parked car's nearest corner, a pole's near face), which
+/// these submaps share, not from the range noise.
 #[test]
 fn range_noise_does_not_shorten_a_long_baseline_registration() {
     let mut rng = StdRng::seed_from_u64(41);

@@ -3,7 +3,7 @@
 //! lap in the same direction. Every published closure must be within 2 m of the truth (no false loop
 //! closure), and the recall bars hold. Also the command line of `dc_loc revisits`.
 
-use dc_loc::eval::revisits::{RevisitScenario, evaluate_scenario};
+use dc_loc::eval::revisits::{CHI2_3_99, RevisitScenario, evaluate_scenario};
 use dc_loc::sim::{NoiseModel, RadarPreset, WorldFamily};
 use std::process::Command;
 
@@ -85,6 +85,29 @@ fn one_forward_radar_agreeing_closures_are_where_the_prediction_leads() {
     assert!(r.same.opportunities > 300, "{:?}", r.same);
     assert_no_false_closure(&r);
     assert!(r.same.recall() >= 0.9, "{:?}", r.same);
+}
+
+/// Five radars, Gamma noise, 3 % drift, the second lap the same way: closures between keyframes more
+/// than 60 m apart are registered from returns 100-200 m away, which the two keyframes see from the two
+/// ends of the street between them, and their errors grow with the distance (up to about 1 m). The
+/// covariance covers them with the heading drift within the submaps (`loop.drift_yaw_rate`) and the
+/// returns' offsets along their rays (`registration.dense.range_offset_std`): at most 3 of them lie
+/// above the chi-square(3) 99 % bound (measured: 1 of 35; 35 of 37 without the two shares).
+#[test]
+fn long_baseline_closures_are_covered_by_their_covariance() {
+    let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gamma, 0.03, false);
+    let r = evaluate_scenario(&scenario, |_| {}).expect("scenario runs");
+    assert_no_false_closure(&r);
+    let far: Vec<_> = r.closures.iter().filter(|c| c.distance > 60.0).collect();
+    let above: Vec<_> = far.iter().filter(|c| c.nees > CHI2_3_99).collect();
+    eprintln!(
+        "{}: {} closures beyond 60 m, {} above the bound",
+        r.scenario,
+        far.len(),
+        above.len()
+    );
+    assert!(far.len() >= 20, "{} beyond 60 m", far.len());
+    assert!(above.len() <= 3, "{above:?}");
 }
 
 /// Five radars at 5 % drift (5.9 % measured, beyond the drift model), Student-t noise: weak matches

@@ -21,6 +21,8 @@ pub struct LoopConfig {
     /// 5 % of distance).
     pub drift_rate: f64,
     /// Odometry drift model, heading: rad per metre of path (default 5e-4, about 2.9 deg per 100 m).
+    /// A third of it is the heading drift a published closure's covariance allows within each of its
+    /// two submaps (docs/algorithm.md, "The covariance reported").
     pub drift_yaw_rate: f64,
     /// Largest search radius, m (default 300).
     pub search_radius_max: f64,

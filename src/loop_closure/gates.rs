@@ -185,9 +185,9 @@ fn judged(r: &RegistrationResult) -> RegistrationResult {
 }
 
 /// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`,
-/// `loop.clock_std`).
+/// `loop.clock_std`) and the heading drift's within its two submaps (`loop.drift_yaw_rate`).
 fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure {
-    let calibration = calibration_covariance(&r.t_target_source, lc.extrinsic_std)
+    let shares = calibration_covariance(&r.t_target_source, lc.extrinsic_std)
         + clock_covariance(&r.t_target_source, p.speeds, lc.clock_std)
         + heading_drift_covariance(&r.t_target_source, p.arms, lc);
     LoopClosure {
@@ -198,7 +198,7 @@ fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure
         query_odom_pose: p.query.odom_pose_iso3(),
         match_odom_pose: p.cand.odom_pose_iso3(),
         t_match_query: iso3_from_iso2(&r.t_target_source),
-        covariance: add_planar(&r.covariance, &calibration),
+        covariance: add_planar(&r.covariance, &shares),
         inliers: r.inliers as u32,
         score: r.overlap,
         match_session: p.cand.session,

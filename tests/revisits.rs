@@ -111,11 +111,13 @@ fn long_baseline_closures_are_covered_by_their_covariance() {
 }
 
 /// Five radars at 5 % drift (5.9 % measured, beyond the drift model), Student-t noise: weak matches
-/// of a street 147 m away confirm each other; `loop.confirmation_overlap` wants one strong match
-/// among them. The session confirms itself within the first lap, and by the second lap the
+/// of a street 147 m away used to confirm each other; `loop.confirmation_overlap` wants one strong
+/// match among them. With the offset along the rays held at its prior in the covariance the gates
+/// already refuse those matches, so the drive publishes no false closure with or without the rule
+/// (measured: 447 of 447 closed either way); the rule stays as the guard where the covariance does
+/// not catch them. The session confirms itself within the first lap, and by the second lap the
 /// yaw-rate bias has turned that alignment as far as odometry: with no fresh alignment to vouch, the
-/// second lap's closures are held for confirmation beyond the drift model and the lap closes
-/// (measured: 98.4 %).
+/// second lap's closures are held for confirmation beyond the drift model and the lap closes.
 #[test]
 fn weak_matches_alone_do_not_confirm_a_session() {
     let scenario = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.05, false);
@@ -123,13 +125,10 @@ fn weak_matches_alone_do_not_confirm_a_session() {
     let without = evaluate_scenario(&scenario, |c| c.r#loop.confirmation_overlap = 0.0)
         .expect("scenario runs");
     eprintln!("with {:?}; without {:?}", with.same, without.same);
-    assert_no_false_closure(&with);
-    assert!(with.same.recall() >= 0.9, "{:?}", with.same);
-    assert!(
-        without.closures.iter().any(|c| c.translation_error > 100.0),
-        "{:?}",
-        without.same
-    );
+    for r in [&with, &without] {
+        assert_no_false_closure(r);
+        assert!(r.same.recall() >= 0.9, "{:?}", r.same);
+    }
 }
 
 /// One forward radar at 3 % drift on the dev city's seed 2: the yaw-rate bias (0.3 deg/s) puts

@@ -31,10 +31,17 @@ pub fn calibration_covariance(t_match_query: &Iso2, extrinsic_std: [f64; 2]) -> 
 /// e_x)`: nothing between keyframes at one pose and one speed, the speed difference along the
 /// heading, the speed sum for a closure driven the other way.
 pub fn clock_covariance(t_match_query: &Iso2, speeds: [f64; 2], clock_std: f64) -> Mat3 {
-    let [vq, vm] = speeds;
-    let e_x = Vec3::x();
-    let j = e_x * vq - se2_adjoint(&t_match_query.inverse()) * e_x * vm;
-    j * j.transpose() * (clock_std * clock_std)
+    moved_frames_covariance(t_match_query, Vec3::x(), speeds, clock_std)
+}
+
+/// Covariance over `(x, y, yaw)` when the query's submap lies in its body frame moved by `a_q e` and
+/// the match's by `a_m e` (`amounts` = `[a_q, a_m]`, `e` a body-frame motion), both scaled by one
+/// unknown of standard deviation `std`: the registration finds `Exp(a_m e) T Exp(-a_q e)`, to first
+/// order `delta = a_q e - a_m Ad_{T^-1} e`, whose outer product times `std^2` is returned.
+pub fn moved_frames_covariance(t_match_query: &Iso2, e: Vec3, amounts: [f64; 2], std: f64) -> Mat3 {
+    let [aq, am] = amounts;
+    let j = e * aq - se2_adjoint(&t_match_query.inverse()) * e * am;
+    j * j.transpose() * (std * std)
 }
 
 /// `cov6` (ROS order) with the planar covariance `c` over `(x, y, yaw)` added to its x, y and yaw rows

@@ -1,9 +1,10 @@
 //! The odometry drift model the gates test closures against: how far a prediction from odometry, or
 //! from an accepted alignment, may be off after some metres of path.
 
+use super::calibration::moved_frames_covariance;
 use super::{Alignment, LoopConfig};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, Mat3, Mat6, Vec3, se2_adjoint, se2_log};
+use crate::math::{Iso2, Mat3, Mat6, Vec3, se2_log};
 use crate::registration::covariance_se2_from_ros;
 
 /// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
@@ -56,11 +57,7 @@ pub fn drift_sigmas(path_gap: f64, lc: &LoopConfig) -> (f64, f64) {
 /// `D` metres apart the match's turn times `D`. The rate's standard deviation is `drift_yaw_rate` read
 /// as [`drift_sigmas`] reads it, a third of the bound.
 pub fn heading_drift_covariance(t_match_query: &Iso2, arms: [f64; 2], lc: &LoopConfig) -> Mat3 {
-    let [lq, lm] = arms;
-    let e_yaw = Vec3::z();
-    let j = e_yaw * lq - se2_adjoint(&t_match_query.inverse()) * e_yaw * lm;
-    let k = lc.drift_yaw_rate / 3.0;
-    j * j.transpose() * (k * k)
+    moved_frames_covariance(t_match_query, Vec3::z(), arms, lc.drift_yaw_rate / 3.0)
 }
 
 /// Standard deviations (m, rad) of an accepted alignment's prediction `path_gap` metres of path after the

@@ -139,7 +139,8 @@ pub struct PipelineStats {
     /// Scans without a valid detection, counted before the duplicate check (fed on all the same: an
     /// empty scene is possible).
     pub empty_scans: u64,
-    /// Scans whose Doppler ego-motion fit failed.
+    /// Scans whose Doppler ego-motion fit failed, or ended farther from the odometry's velocity and
+    /// the radar's previous fit than the body can change speed (`ego_motion.prior_tolerance`).
     pub doppler_fit_failures: u64,
     /// Per radar index: scans whose Doppler velocity disagreed with the odometry's.
     pub doppler_disagreements: BTreeMap<usize, u64>,

@@ -36,7 +36,8 @@ pub struct EgoMotionConfig {
     /// When an odometry velocity is given as prior, hypotheses farther than this from it are discarded, m/s
     /// (default 3.0). Protects against a large moving object outvoting the static world. The submap
     /// builder adds a second prior, the odometry's direction at the radar's previous Doppler speed,
-    /// so that wheels that slip do not pull the fit off the static world.
+    /// so that wheels that slip do not pull the fit off the static world; a fit farther than this
+    /// from the odometry must lie within what hard braking sheds since that previous fit.
     pub prior_tolerance: f64,
     /// Seed of the RANSAC sampler; fits are deterministic (default 7).
     pub seed: u64,

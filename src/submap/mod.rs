@@ -412,7 +412,7 @@ pub struct ScanReport {
     pub invalid: usize,
     /// Detections dropped as outside `submap.height_band`.
     pub out_of_band: usize,
-    /// The Doppler ego-motion fit succeeded.
+    /// The Doppler ego-motion fit succeeded and ended near one of its priors.
     pub doppler_fit: bool,
     /// The radar velocity fitted from the Doppler alone against the odometry's prediction, when the
     /// radar moved fast enough to tell ([`crate::radar::consistency`]).
@@ -486,7 +486,10 @@ impl SubmapBuilder {
             model.t_body_radar.rotation.inverse() * v_at_radar
         });
         let priors = self.priors(scan.radar, scan.stamp, prior_radar);
-        let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, &priors, &self.ego).ok();
+        let velocities: Vec<Vec3> = priors.iter().map(|p| p.0).collect();
+        let fit = fit_radar_velocity(&scan.detections, FitDims::Auto, &velocities, &self.ego)
+            .ok()
+            .filter(|f| within_a_prior(&f.v_radar, &priors));
         report.doppler_fit = fit.is_some();
         // The Doppler alone, against the odometry: a check of the radar's configuration.
         report.doppler_check = prior_radar
@@ -523,28 +526,35 @@ impl SubmapBuilder {
         Some(report)
     }
 
-    /// The velocities a scan's Doppler fit may lie near (radar frame): the odometry's, and, when
-    /// this radar's previous fit is recent, the odometry's direction at the speed that fit measured.
-    /// Wheels that spin or slide read up to a third more speed at once, beyond the prior's
-    /// tolerance at highway speeds, while the body's true speed changes by no more than the
-    /// tolerance within the time hard braking (8 m/s^2) takes to shed it.
-    fn priors(&self, radar: usize, stamp: Stamp, odometry: Option<Vec3>) -> Vec<Vec3> {
+    /// The velocities a scan's Doppler fit may lie near (radar frame), each with how far the fit
+    /// may end from it: the odometry's, within `prior_tolerance`; and, when this radar's previous fit
+    /// is recent, the odometry's direction at the speed that fit measured, within what hard braking
+    /// (8 m/s^2) sheds in the time between the two scans plus `inlier_threshold` for the fits'
+    /// noise. Wheels that spin or slide read up to a third more speed at once, beyond the
+    /// prior's tolerance at highway speeds, while the body's true speed changes by no more than
+    /// that. The bound on the second matters where moving objects surround the body: a fit that
+    /// locks onto a stream of traffic a few m/s slower than the body is within `prior_tolerance` of
+    /// the previous fit, and each such fit would let the next one slide further.
+    fn priors(&self, radar: usize, stamp: Stamp, odometry: Option<Vec3>) -> Vec<(Vec3, f64)> {
         let Some(odometry) = odometry else {
             return Vec::new();
         };
+        let mut priors = vec![(odometry, self.ego.prior_tolerance)];
         let recent = self.ego.prior_tolerance / HARD_BRAKING;
         let previous = self
             .scans
             .iter()
             .filter(|s| s.radar == radar && s.stamp < stamp)
             .max_by_key(|s| s.stamp)
-            .filter(|s| stamp.secs_since(s.stamp) <= recent)
-            .and_then(|s| s.doppler_velocity);
+            .filter(|s| stamp.secs_since(s.stamp) <= recent);
         let speed = odometry.xy().norm();
-        match previous {
-            Some(v) if speed > 1e-6 => vec![odometry, odometry * (v.xy().norm() / speed)],
-            _ => vec![odometry],
+        if let Some((v, at)) = previous.and_then(|s| s.doppler_velocity.map(|v| (v, s.stamp)))
+            && speed > 1e-6
+        {
+            let bound = HARD_BRAKING * stamp.secs_since(at) + self.ego.inlier_threshold;
+            priors.push((odometry * (v.xy().norm() / speed), bound));
         }
+        priors
     }
 
     fn trim(&mut self) {
@@ -683,6 +693,11 @@ impl SubmapBuilder {
 
 /// Deceleration of hard braking, m/s^2: bounds how fast the body's true speed changes.
 const HARD_BRAKING: f64 = 8.0;
+
+/// `v` lies within the bound of one of `priors` (velocity, bound), or there are none.
+fn within_a_prior(v: &Vec3, priors: &[(Vec3, f64)]) -> bool {
+    priors.is_empty() || priors.iter().any(|(p, bound)| (v - p).norm() <= *bound)
+}
 
 /// One scan's Doppler speed over the ground, m/s, with its stamp and odometry position.
 #[derive(Debug, Clone, Copy)]

@@ -399,6 +399,37 @@ fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
     );
 }
 
+/// A radar surrounded by traffic that moves a little slower scan after scan: each fit lies within
+/// the prior's tolerance of the previous one, but the body cannot slow down that fast. The fits
+/// end where they leave both the odometry's tolerance and what hard braking allows since the
+/// previous fit; the chain does not carry them to the traffic's speed.
+#[test]
+fn a_fit_does_not_slide_away_from_the_static_world_faster_than_the_body_brakes() {
+    let radar = RadarModel {
+        t_body_radar: Iso3::identity(),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    };
+    let mut builder = SubmapBuilder::new(
+        SubmapConfig::default(),
+        EgoMotionConfig::default(),
+        vec![radar],
+    );
+    let odometry = Some((Vec3::new(10.0, 0.0, 0.0), 0.0));
+    let fitted: Vec<bool> = [9.0, 7.5, 6.0, 4.5, 3.0]
+        .iter()
+        .enumerate()
+        .map(|(k, &seen)| {
+            let scan = static_scan(0.077 * k as f64, seen);
+            builder
+                .add_scan(&scan, Iso3::identity(), odometry)
+                .unwrap()
+                .doppler_fit
+        })
+        .collect();
+    assert_eq!(fitted, [true, true, false, false, false]);
+}
+
 #[test]
 fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
     let radars = vec![

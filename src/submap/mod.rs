@@ -548,10 +548,11 @@ impl SubmapBuilder {
             .max_by_key(|s| s.stamp)
             .filter(|s| stamp.secs_since(s.stamp) <= recent);
         let speed = odometry.xy().norm();
-        if let Some((v, at)) = previous.and_then(|s| s.doppler_velocity.map(|v| (v, s.stamp)))
+        if let Some(s) = previous
+            && let Some(v) = s.doppler_velocity
             && speed > 1e-6
         {
-            let bound = HARD_BRAKING * stamp.secs_since(at) + self.ego.inlier_threshold;
+            let bound = HARD_BRAKING * stamp.secs_since(s.stamp) + self.ego.inlier_threshold;
             priors.push((odometry * (v.xy().norm() / speed), bound));
         }
         priors

@@ -34,7 +34,9 @@ failed. Time is wall time (``time.perf_counter``) of one method on one pair: bui
 features or covariances and registering; reading the export is not timed, and each peer first registers
 the first pair once untimed, so that one-time start-up costs fall on no pair. DC-Loc's time comes from
 the export run and likewise covers preparing both submaps and registering on one thread: the time
-ratios are fair when both runs had the same, otherwise idle, machine.
+ratios are fair when both runs had the same, otherwise idle, machine. A last line splits DC-Loc's time
+into preparing the submaps and registering them, since the node prepares each keyframe once and
+registers it against several.
 """
 
 from __future__ import annotations
@@ -124,6 +126,8 @@ class Outcome:
     translation: float | None
     rotation: float | None
     seconds: float
+    # DC-Loc only: the share of ``seconds`` spent preparing the two submaps (None when not exported).
+    prepare_seconds: float | None = None
 
 
 @dataclass
@@ -182,9 +186,13 @@ def dcloc_outcome(record: Any, where: str) -> Outcome:
     """DC-Loc's errors and time on a pair; no estimate (or no error) is a failure."""
     try:
         seconds = float(record["seconds"])
+        prepare = record.get("prepare_seconds")
+        prepare = None if prepare is None else float(prepare)
         if record.get("estimate") is None or record.get("translation_error") is None:
-            return Outcome(None, None, seconds)
-        return Outcome(float(record["translation_error"]), float(record["rotation_error"]), seconds)
+            return Outcome(None, None, seconds, prepare)
+        return Outcome(
+            float(record["translation_error"]), float(record["rotation_error"]), seconds, prepare
+        )
     except (AttributeError, TypeError, KeyError, ValueError):
         raise BadInput(f"{where}: 'dcloc' needs 'seconds', and errors with its estimate") from None
 
@@ -483,6 +491,26 @@ def table(results: dict[str, Summary]) -> str:
     return "\n".join(rows)
 
 
+def dcloc_stages(pairs: list[Pair]) -> dict[str, float] | None:
+    """DC-Loc's mean time per pair split into preparing both submaps and registering them, ms; None
+    when the export does not say."""
+    prepare = [p.dcloc.prepare_seconds for p in pairs]
+    if any(x is None for x in prepare):
+        return None
+    ms_prepare = 1e3 * float(np.mean(prepare))
+    ms_total = 1e3 * float(np.mean([p.dcloc.seconds for p in pairs]))
+    return {"prepare_ms_mean": ms_prepare, "register_ms_mean": ms_total - ms_prepare}
+
+
+def stages_line(stages: dict[str, float], results: dict[str, Summary]) -> str:
+    line = (f"DC-Loc's time per pair: {stages['prepare_ms_mean']:.2f} ms preparing both submaps "
+            f"(the node prepares each keyframe once), {stages['register_ms_mean']:.2f} ms registering them")
+    if "icp" in results:
+        r = ratio(stages["register_ms_mean"], results["icp"].ms_mean)
+        line += f"; registering alone / {LABELS['icp']} = {r:.2f}"
+    return line + "."
+
+
 def criteria_line(c: dict[str, dict[str, Any]]) -> str:
     texts = {
         "translation": "mean translation error inside the threshold DC-Loc / best peer ({peer}) = "
@@ -509,8 +537,11 @@ FIGURES = ("mean", "median", "max", "rotation_mean", "inside_mean", "inside_medi
            "failures", "ms_mean", "ms_median", "share")
 
 
-def json_report(export: Export, n: int, s: Settings, results: dict[str, Summary], c: dict[str, Any]) -> str:
+def json_report(export: Export, n: int, s: Settings, results: dict[str, Summary], c: dict[str, Any],
+                stages: dict[str, float] | None) -> str:
     methods = {k: {f: clean(getattr(v, f)) for f in FIGURES} for k, v in results.items()}
+    if stages:
+        methods["dcloc"].update(stages)
     body = {
         "pairs": n, "outlier_threshold": export.threshold, "source": export.meta.get("source"),
         "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in s.__dict__.items()},
@@ -584,8 +615,11 @@ def main(argv: list[str] | None = None) -> int:
     print(table(results))
     print()
     print(criteria_line(c))
+    stages = dcloc_stages(pairs)
+    if stages:
+        print(stages_line(stages, results))
     if args.json:
-        args.json.write_text(json_report(export, len(pairs), s, results, c))
+        args.json.write_text(json_report(export, len(pairs), s, results, c, stages))
     return 0
 
 

@@ -4,7 +4,8 @@
 //! float32 in the submap's anchor body frame, one submap after another. `DIR/pairs.jsonl` has a line a
 //! pair: where its query and target submaps lie in the points file (`offset` and `count` in points),
 //! the true `T_target_query` as `[x, y, yaw]`, and DC-Loc's own estimate, errors and single-threaded
-//! time on that pair. `DIR/meta.json` says how many pairs there are and what produced them.
+//! time on that pair (`seconds`), of which `prepare_seconds` went into preparing the two submaps.
+//! `DIR/meta.json` says how many pairs there are and what produced them.
 //!
 //! DC-Loc's time covers preparing both submaps and registering them on one thread, as a peer that
 //! computes its features and registers is timed.
@@ -12,26 +13,26 @@
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
-use std::time::Instant;
 
-use super::{EvalConfig, EvalKeyframe, Method, Pair, PairResult, dcloc, ground_truth, score};
+use super::{
+    EvalConfig, EvalKeyframe, Method, Pair, PairResult, StageSeconds, ground_truth, score,
+    timed_stages,
+};
 use crate::math::Iso2;
 use crate::registration::RegistrationConfig;
 
 /// Name of the points file in the export directory.
 pub const POINTS_FILE: &str = "points.f32";
 
-/// DC-Loc on one pair, timed on the calling thread.
+/// DC-Loc on one pair, its two stages timed on the calling thread.
 pub fn timed_dcloc(
     kfs: &[EvalKeyframe],
     pair: &Pair,
     registration: &RegistrationConfig,
-) -> (PairResult, f64) {
+) -> (PairResult, StageSeconds) {
     let (q, t) = (&kfs[pair.query], &kfs[pair.target]);
     let (s, g) = (q.submap.point_set(true), t.submap.point_set(true));
-    let t0 = Instant::now();
-    let res = dcloc(&s, &g, registration);
-    let seconds = t0.elapsed().as_secs_f64();
+    let (res, seconds) = timed_stages(&s, &g, registration);
     (score(pair, Method::DCLOC, kfs, res), seconds)
 }
 
@@ -113,11 +114,12 @@ fn se2_array(t: &Iso2) -> [f64; 3] {
     [t.translation.x, t.translation.y, t.rotation.angle()]
 }
 
-fn dcloc_json(r: &PairResult, seconds: f64) -> serde_json::Value {
+fn dcloc_json(r: &PairResult, seconds: StageSeconds) -> serde_json::Value {
     let finite = |x: f64| x.is_finite().then_some(x);
     serde_json::json!({
         "estimate": r.estimate.as_ref().map(se2_array),
-        "seconds": seconds,
+        "seconds": seconds.prepare + seconds.register,
+        "prepare_seconds": seconds.prepare,
         "translation_error": finite(r.translation_error),
         "rotation_error": finite(r.rotation_error),
         "failure": r.failure,

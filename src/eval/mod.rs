@@ -554,9 +554,38 @@ fn dcloc(
     target: &PointSet2,
     cfg: &RegistrationConfig,
 ) -> Result<(RegistrationResult, Option<Mat3>), String> {
-    let s = PreparedSubmap::new(source.clone(), cfg).map_err(|e| e.to_string())?;
-    let t = PreparedSubmap::new(target.clone(), cfg).map_err(|e| e.to_string())?;
-    register_detailed(&s, &t, cfg)
+    timed_stages(source, target, cfg).0
+}
+
+/// DC-Loc on one pair as [`dcloc`], with the wall time of its two stages on the calling thread:
+/// preparing both submaps (descriptors, neighbour grids; the node does this once a keyframe) and
+/// registering the prepared pair, s.
+fn timed_stages(
+    source: &PointSet2,
+    target: &PointSet2,
+    cfg: &RegistrationConfig,
+) -> (
+    Result<(RegistrationResult, Option<Mat3>), String>,
+    StageSeconds,
+) {
+    let t0 = std::time::Instant::now();
+    let prepared = PreparedSubmap::new(source.clone(), cfg)
+        .and_then(|s| Ok((s, PreparedSubmap::new(target.clone(), cfg)?)));
+    let prepare = t0.elapsed().as_secs_f64();
+    let t1 = std::time::Instant::now();
+    let res = prepared
+        .and_then(|(s, t)| register_detailed(&s, &t, cfg))
         .map(|d| (d.result, Some(d.covariance_se2)))
-        .map_err(|e| e.to_string())
+        .map_err(|e| e.to_string());
+    let register = t1.elapsed().as_secs_f64();
+    (res, StageSeconds { prepare, register })
+}
+
+/// Wall time of DC-Loc's two stages on one pair, s ([`timed_stages`]).
+#[derive(Debug, Clone, Copy)]
+pub struct StageSeconds {
+    /// Preparing both submaps.
+    pub prepare: f64,
+    /// Registering the prepared pair.
+    pub register: f64,
 }

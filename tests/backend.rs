@@ -32,7 +32,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use dc_loc::eval::revisits::closure_nees;
+use dc_loc::eval::judge::closure_nees;
 use dc_loc::math::{Iso2, Mat6, Stamp, Vec2};
 use dc_loc::output::{ClosureRecord, PoseRecord};
 use dc_loc::sim::{SimConfig, SimDrive, simulate};

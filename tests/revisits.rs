@@ -3,7 +3,8 @@
 //! lap in the same direction. Every published closure must be within 2 m of the truth (no false loop
 //! closure), and the recall bars hold. Also the command line of `dc_loc revisits`.
 
-use dc_loc::eval::revisits::{CHI2_3_99, RevisitScenario, evaluate_scenario};
+use dc_loc::eval::judge::CHI2_3_99;
+use dc_loc::eval::revisits::{RevisitScenario, evaluate_scenario};
 use dc_loc::sim::{NoiseModel, RadarPreset, WorldFamily};
 use std::process::Command;
 
@@ -495,7 +496,7 @@ fn held_out(k: usize, radars: RadarPreset, reverse: bool) -> RevisitScenario {
 }
 
 /// Every published closure lies within 2 m of the ground truth.
-fn assert_no_false_closure(r: &dc_loc::eval::revisits::RevisitReport) {
+fn assert_no_false_closure(r: &dc_loc::eval::judge::RevisitReport) {
     let wrong: Vec<_> = r
         .closures
         .iter()

@@ -9,8 +9,9 @@
 use super::CliError;
 use super::eval::{EvalArgs, eval_config, export, methods};
 use super::revisits::{parse_noise, parse_preset, protocol_set, with_overrides};
+use crate::eval::judge::CHI2_3_99;
 use crate::eval::report::stats;
-use crate::eval::revisits::{CHI2_3_99, RevisitScenario};
+use crate::eval::revisits::RevisitScenario;
 use crate::eval::{Collector, EvalConfig, EvalKeyframe, PairResult, evaluate, make_pairs};
 use crate::pipeline::Config;
 use crate::sim::inputs::{ScanEncoding, SimInputs};

@@ -10,9 +10,9 @@ use std::path::PathBuf;
 use rayon::prelude::*;
 
 use super::CliError;
+use crate::eval::judge::{RevisitReport, format_revisit_table};
 use crate::eval::revisits::{
-    CalibrationError, DEFAULT_GAMMA_SHAPE, RevisitReport, RevisitScenario, evaluate_scenario,
-    format_revisit_table,
+    CalibrationError, DEFAULT_GAMMA_SHAPE, RevisitScenario, evaluate_scenario,
 };
 use crate::params::{ParamSet, apply, flatten_config};
 use crate::pipeline::Config;

@@ -6,14 +6,14 @@
 //! the others have finished and takes their keyframes first, as a late joiner gets them from the
 //! topic's history.
 //!
-//! Judged as [`super::revisits`] judges laps, with robots for laps: an opportunity is a keyframe of a
+//! Judged as [`super::judge`] judges laps, with robots for laps: an opportunity is a keyframe of a
 //! robot with an earlier robot's keyframe within 5 m in the same direction (or across the street in the
 //! other direction); a closure is correct within 2 m of the ground truth, both robots' poses in the
 //! world's one map frame. Keyframes are named across the fleet by robot and id ([`fleet_key`]).
 
 use std::collections::BTreeMap;
 
-use super::revisits::{
+use super::judge::{
     Collected, RevisitReport, judge, keyframe_truth, measured_drift, reverse_radius,
 };
 use crate::fleet::wire::{self, DEFAULT_WIRE_POINTS};

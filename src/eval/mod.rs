@@ -18,6 +18,7 @@
 pub mod drives;
 pub mod export;
 pub mod fleet;
+pub mod judge;
 pub mod report;
 pub mod revisits;
 
@@ -581,7 +582,7 @@ fn timed_stages(
     (res, StageSeconds { prepare, register })
 }
 
-/// Wall time of DC-Loc's two stages on one pair, s ([`timed_stages`]).
+/// Wall time of DC-Loc's two stages on one pair, s.
 #[derive(Debug, Clone, Copy)]
 pub struct StageSeconds {
     /// Preparing both submaps.

@@ -217,14 +217,11 @@ pub fn compute_descriptors_with_grid(
         AngularStatistic::None => 0,
         _ => cfg.angular_bins.min(DESCRIPTOR_DIM - nr),
     };
-    let inv_width = (nr as f64 / cfg.radius) as f32;
-    let sector_scale = (na as f64 / std::f64::consts::TAU) as f32;
     let mut out = Vec::with_capacity(keypoints.len());
     // Scratch reused for every point: no allocation per point once the buffers have grown.
     let mut radial = [0.0f64; DESCRIPTOR_DIM];
     let mut angular = [0.0f64; DESCRIPTOR_DIM];
-    let (mut dx, mut dy, mut rho) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut zr, mut zi) = (Vec::new(), Vec::new());
+    let mut n = Neighbours::default();
     for &idx in keypoints {
         let Some(p) = points.get(idx as usize) else {
             out.push([0.0; DESCRIPTOR_DIM]);
@@ -232,93 +229,139 @@ pub fn compute_descriptors_with_grid(
         };
         radial[..nr].fill(0.0);
         angular[..na].fill(0.0);
-        // 1. Gather the neighbours' offsets (the point itself and exact duplicates, at distance 0,
-        //    are not neighbours).
-        dx.clear();
-        dy.clear();
-        rho.clear();
-        grid.within(p, cfg.radius, |_, squared, offset| {
+        n.gather(grid, p, cfg.radius, na > 0);
+        radial_rings(&n.rho, &mut radial[..nr], cfg.radius);
+        match cfg.angular {
+            AngularStatistic::Spectrum if na > 0 => n.bearing_spectrum(&mut angular[..na]),
+            AngularStatistic::Sectors if na > 0 => n.fullest_sector_first(&mut angular[..na]),
+            _ => {}
+        }
+        out.push(finish(
+            &radial[..nr],
+            &angular[..na],
+            n.rho.len() as f64,
+            cfg,
+        ));
+    }
+    out
+}
+
+/// One keypoint's neighbours within the descriptor radius, as offsets in f32 (the scratch of
+/// [`compute_descriptors_with_grid`], reused from keypoint to keypoint).
+#[derive(Default)]
+struct Neighbours {
+    /// Offsets from the keypoint, then unit bearings once gathered with `bearings`.
+    dx: Vec<f32>,
+    dy: Vec<f32>,
+    /// Distances.
+    rho: Vec<f32>,
+    /// Scratch for the bearing spectrum's powers.
+    zr: Vec<f32>,
+    zi: Vec<f32>,
+}
+
+impl Neighbours {
+    /// Gathers the grid's points within `radius` of `p` (the point itself and exact duplicates, at
+    /// distance 0, are not neighbours), their distances, and with `bearings` their unit directions
+    /// in place of their offsets. Tight loops over the gathered values, which the compiler can
+    /// vectorise.
+    #[inline]
+    fn gather(&mut self, grid: &PointGrid, p: &Vec2, radius: f64, bearings: bool) {
+        self.dx.clear();
+        self.dy.clear();
+        self.rho.clear();
+        grid.within(p, radius, |_, squared, offset| {
             if squared > 0.0 {
-                dx.push(offset.x as f32);
-                dy.push(offset.y as f32);
-                rho.push(squared as f32);
+                self.dx.push(offset.x as f32);
+                self.dy.push(offset.y as f32);
+                self.rho.push(squared as f32);
             }
         });
-        let count = rho.len() as f64;
-        // 2. Statistics over the gathered offsets, in tight loops the compiler can vectorise
-        //    (`rho` holds squared distances until here).
-        for r in rho.iter_mut() {
+        // `rho` holds squared distances until here.
+        for r in self.rho.iter_mut() {
             *r = r.sqrt();
         }
-        if na > 0 {
-            for ((x, y), r) in dx.iter_mut().zip(dy.iter_mut()).zip(&rho) {
+        if bearings {
+            for ((x, y), r) in self.dx.iter_mut().zip(self.dy.iter_mut()).zip(&self.rho) {
                 *x /= r;
                 *y /= r;
             }
         }
-        // Radial ring, soft assignment between the two nearest ring centres: neighbour q adds the
-        // hat function max(0, 1 - |f_q - b|) to ring b, f_q its position in ring units (clamped
-        // to the first and last ring centres), i.e. 1 - w to ring floor(f_q) and w to the next,
-        // w = f_q - floor(f_q). One scatter per neighbour (a pass per ring costs the ring count).
-        let last = (nr - 1) as f32;
-        for r in &rho {
-            let f = (*r * inv_width - 0.5).clamp(0.0, last);
-            // f >= 0: truncation is the floor.
-            let b0 = (f as usize).min(nr - 1);
-            let w = (f - b0 as f32) as f64;
-            radial[b0] += 1.0 - w;
-            if b0 + 1 < nr {
-                radial[b0 + 1] += w;
-            }
-        }
-        match cfg.angular {
-            AngularStatistic::Spectrum if na > 0 => {
-                // sum_q exp(i k phi_q), k = 1..na, by repeated complex multiplication.
-                zr.clear();
-                zr.extend_from_slice(&dx);
-                zi.clear();
-                zi.extend_from_slice(&dy);
-                for (k, a) in angular.iter_mut().enumerate().take(na) {
-                    let (sr, si) = (sum_lanes(&zr), sum_lanes(&zi));
-                    *a = (sr * sr + si * si).sqrt();
-                    if k + 1 < na {
-                        for ((r, i), (ux, uy)) in
-                            zr.iter_mut().zip(zi.iter_mut()).zip(dx.iter().zip(&dy))
-                        {
-                            let nr_ = *r * ux - *i * uy;
-                            *i = *r * uy + *i * ux;
-                            *r = nr_;
-                        }
-                    }
-                }
-            }
-            AngularStatistic::Sectors if na > 0 => {
-                for (x, y) in dx.iter().zip(&dy) {
-                    let phi = y.atan2(*x).rem_euclid(std::f32::consts::TAU);
-                    // Soft assignment between the two nearest sector centres (cyclic).
-                    let f = phi * sector_scale - 0.5;
-                    let f = if f < 0.0 { f + na as f32 } else { f };
-                    let i0 = (f as usize).min(na - 1);
-                    let w1 = (f - i0 as f32).clamp(0.0, 1.0) as f64;
-                    angular[i0] += 1.0 - w1;
-                    angular[(i0 + 1) % na] += w1;
-                }
-            }
-            _ => {}
-        }
-        if cfg.angular == AngularStatistic::Sectors && na > 0 {
-            let (mut best, mut best_v) = (0usize, f64::NEG_INFINITY);
-            for (k, &v) in angular[..na].iter().enumerate() {
-                if v > best_v {
-                    best = k;
-                    best_v = v;
-                }
-            }
-            angular[..na].rotate_left(best);
-        }
-        out.push(finish(&radial[..nr], &angular[..na], count, cfg));
     }
-    out
+
+    /// `|sum_q exp(i k phi_q)|` into `angular[k - 1]`, `k = 1..=angular.len()`, by repeated complex
+    /// multiplication of the unit bearings.
+    #[inline]
+    fn bearing_spectrum(&mut self, angular: &mut [f64]) {
+        let na = angular.len();
+        self.zr.clear();
+        self.zr.extend_from_slice(&self.dx);
+        self.zi.clear();
+        self.zi.extend_from_slice(&self.dy);
+        for (k, a) in angular.iter_mut().enumerate() {
+            let (sr, si) = (sum_lanes(&self.zr), sum_lanes(&self.zi));
+            *a = (sr * sr + si * si).sqrt();
+            if k + 1 < na {
+                for ((r, i), (ux, uy)) in self
+                    .zr
+                    .iter_mut()
+                    .zip(self.zi.iter_mut())
+                    .zip(self.dx.iter().zip(&self.dy))
+                {
+                    let nr_ = *r * ux - *i * uy;
+                    *i = *r * uy + *i * ux;
+                    *r = nr_;
+                }
+            }
+        }
+    }
+
+    /// Neighbour counts in `angular.len()` equal sectors of bearing, soft-assigned between the two
+    /// nearest sector centres (cyclic), then rotated so that the fullest sector comes first.
+    #[inline]
+    fn fullest_sector_first(&self, angular: &mut [f64]) {
+        let na = angular.len();
+        let sector_scale = (na as f64 / std::f64::consts::TAU) as f32;
+        for (x, y) in self.dx.iter().zip(&self.dy) {
+            let phi = y.atan2(*x).rem_euclid(std::f32::consts::TAU);
+            let f = phi * sector_scale - 0.5;
+            let f = if f < 0.0 { f + na as f32 } else { f };
+            let i0 = (f as usize).min(na - 1);
+            let w1 = (f - i0 as f32).clamp(0.0, 1.0) as f64;
+            angular[i0] += 1.0 - w1;
+            angular[(i0 + 1) % na] += w1;
+        }
+        let (mut best, mut best_v) = (0usize, f64::NEG_INFINITY);
+        for (k, &v) in angular.iter().enumerate() {
+            if v > best_v {
+                best = k;
+                best_v = v;
+            }
+        }
+        angular.rotate_left(best);
+    }
+}
+
+/// The radial histogram of the distances `rho` into the `radial.len()` equal rings over `[0,
+/// radius]`, soft-assigned between the two nearest ring centres: a neighbour adds the hat function
+/// `max(0, 1 - |f_q - b|)` to ring `b`, `f_q` its position in ring units (clamped to the first and
+/// last ring centres), i.e. `1 - w` to ring `floor(f_q)` and `w` to the next, `w = f_q - floor(f_q)`.
+/// One scatter per neighbour (a pass per ring costs the ring count).
+#[inline]
+fn radial_rings(rho: &[f32], radial: &mut [f64], radius: f64) {
+    let nr = radial.len();
+    let inv_width = (nr as f64 / radius) as f32;
+    let last = (nr - 1) as f32;
+    for r in rho {
+        let f = (*r * inv_width - 0.5).clamp(0.0, last);
+        // f >= 0: truncation is the floor.
+        let b0 = (f as usize).min(nr - 1);
+        let w = (f - b0 as f32) as f64;
+        radial[b0] += 1.0 - w;
+        if b0 + 1 < nr {
+            radial[b0 + 1] += w;
+        }
+    }
 }
 
 /// Sum in f64 of eight interleaved f32 partial sums (vectorisable, unlike a sequential fold).

@@ -204,35 +204,13 @@ impl Session {
         let pending = self.held.entry(session).or_default();
         // Old unconfirmed hypotheses expire before they may confirm anything.
         pending.retain(|h| query.path - h.alignment.path <= lc.confirmation_horizon);
-        let agree: Vec<usize> = (0..pending.len())
-            .filter(|&k| {
-                let h = &pending[k];
-                h.closure.query_id != c.query_id
-                    && alignment_distance(
-                        &h.alignment.t,
-                        &alignment.t,
-                        &query.t_odom_body,
-                        query.path - h.alignment.path,
-                        lc,
-                    ) <= CONFIRM_CHI2
-            })
-            .collect();
-        let span = agree
-            .iter()
-            .map(|&k| (query.path - pending[k].alignment.path).abs())
-            .fold(0.0, f64::max);
-        let strong = c.score >= lc.confirmation_overlap
-            || agree
-                .iter()
-                .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
+        let agree = agreeing(pending, query, &c, &alignment, lc);
         let needed = agree
             .iter()
             .map(|&k| pending[k].needed)
             .fold(need.closures, usize::max);
         let heading = query.t_odom_body.rotation.angle();
-        let turned = !(need.turn || agree.iter().any(|&k| pending[k].turn))
-            || turn_spanned(heading, agree.iter().map(|&k| pending[k].heading));
-        if !(agree.len() + 1 >= needed && span >= lc.confirmation_span && strong && turned) {
+        if !confirmed(pending, &agree, query, &c, need, needed, lc) {
             log::debug!(
                 "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
                 c.query_id,
@@ -266,11 +244,18 @@ impl Session {
             "closures to session {session} confirmed by {} agreeing matches",
             publish.len()
         );
-        // The keyframes before the confirmation that got nothing are searched again (not even at
-        // the end of a bag when `backfill_per_keyframe` is 0).
+        self.queue_unclosed(query.id, &publish, lc);
+        self.chain = Some((session, alignment));
+        Some(publish)
+    }
+
+    /// Queues the keyframes before a confirmation that got nothing to be searched again, newest
+    /// first (not even at the end of a bag when `backfill_per_keyframe` is 0); `query` and the
+    /// confirmed closures' query keyframes are done.
+    fn queue_unclosed(&mut self, query: u64, publish: &[LoopClosure], lc: &LoopConfig) {
         let unclosed = std::mem::take(&mut self.unclosed);
         self.backfill = if lc.backfill_per_keyframe > 0 {
-            let done = |id: u64| id == query.id || publish.iter().any(|p| p.query_id == id);
+            let done = |id: u64| id == query || publish.iter().any(|p| p.query_id == id);
             unclosed
                 .iter()
                 .rev()
@@ -280,8 +265,6 @@ impl Session {
         } else {
             VecDeque::new()
         };
-        self.chain = Some((session, alignment));
-        Some(publish)
     }
 
     /// `c` was published: its query keyframe has a closure.
@@ -343,6 +326,56 @@ impl Session {
             };
         }
     }
+}
+
+/// The held closures (indices into `pending`) from other query keyframes whose alignments agree with
+/// `alignment`, `c`'s, within [`CONFIRM_CHI2`] and the drift between them.
+fn agreeing(
+    pending: &[Held],
+    query: &QueryPlace,
+    c: &LoopClosure,
+    alignment: &Alignment,
+    lc: &LoopConfig,
+) -> Vec<usize> {
+    (0..pending.len())
+        .filter(|&k| {
+            let h = &pending[k];
+            h.closure.query_id != c.query_id
+                && alignment_distance(
+                    &h.alignment.t,
+                    &alignment.t,
+                    &query.t_odom_body,
+                    query.path - h.alignment.path,
+                    lc,
+                ) <= CONFIRM_CHI2
+        })
+        .collect()
+}
+
+/// Whether `c` with the held closures `agree` confirms: `needed` closures in all, their query
+/// keyframes spanning `confirmation_span` of path, one of them strong (`confirmation_overlap`), and
+/// across a turn when `need` or one of them asks for it.
+fn confirmed(
+    pending: &[Held],
+    agree: &[usize],
+    query: &QueryPlace,
+    c: &LoopClosure,
+    need: Need,
+    needed: usize,
+    lc: &LoopConfig,
+) -> bool {
+    let span = agree
+        .iter()
+        .map(|&k| (query.path - pending[k].alignment.path).abs())
+        .fold(0.0, f64::max);
+    let strong = c.score >= lc.confirmation_overlap
+        || agree
+            .iter()
+            .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
+    let heading = query.t_odom_body.rotation.angle();
+    let turned = !(need.turn || agree.iter().any(|&k| pending[k].turn))
+        || turn_spanned(heading, agree.iter().map(|&k| pending[k].heading));
+    agree.len() + 1 >= needed && span >= lc.confirmation_span && strong && turned
 }
 
 #[cfg(test)]

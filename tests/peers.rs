@@ -4,7 +4,7 @@
 //!
 //! Asserted, over the pairs each method brings inside the 2 m outlier threshold: DC-Loc's mean
 //! translation error is at most 0.7 times the best peer's, and its share of pairs inside the threshold
-//! is at least the best peer's; DC-Loc's time splits into preparing the submaps and registering them.
+//! is at least the best peer's; the export timed both of DC-Loc's stages (preparing, registering).
 //! Times are printed, not asserted (speed lives in benchmarks).
 
 mod common;
@@ -76,13 +76,12 @@ fn dcloc_is_more_accurate_than_its_peers_on_the_same_pairs() {
     );
     let inliers = &r["criteria"]["inliers"];
     assert_eq!(inliers["pass"].as_bool(), Some(true), "{inliers}");
-    // DC-Loc's time splits into preparing the two submaps and registering them.
+    // The export times both of DC-Loc's stages (`peers.py` takes registering as the total less
+    // preparing, so only their presence and sign tell anything).
     let dc = &r["methods"]["dcloc"];
     let stage = |k: &str| dc[k].as_f64().unwrap_or_else(|| panic!("{k}: {dc}"));
-    let (prepare, register) = (stage("prepare_ms_mean"), stage("register_ms_mean"));
-    assert!(prepare > 0.0 && register > 0.0, "{dc}");
     assert!(
-        (prepare + register - stage("ms_mean")).abs() <= 1e-6 * stage("ms_mean"),
+        stage("prepare_ms_mean") > 0.0 && stage("register_ms_mean") > 0.0,
         "{dc}"
     );
 }

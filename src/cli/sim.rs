@@ -39,6 +39,8 @@ pub enum WorldArg {
     Arterial,
     /// Streets lined by the same parked cars on every lap.
     Parking,
+    /// Four lanes between guard rails, little else.
+    Highway,
 }
 
 /// Noise models of `--noise`.
@@ -140,6 +142,7 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
             WorldArg::Industrial => WorldFamily::Industrial,
             WorldArg::Arterial => WorldFamily::Arterial,
             WorldArg::Parking => WorldFamily::Parking,
+            WorldArg::Highway => WorldFamily::Highway,
         }
         .world();
     }

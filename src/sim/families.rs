@@ -23,16 +23,20 @@ pub enum WorldFamily {
     Arterial,
     /// Streets lined by parked cars that stay on every lap, long facades with few gaps.
     Parking,
+    /// A four-lane road between guard rails whose posts repeat every 2 m, with sparse tree rows and
+    /// halls 45 m and more away: little but the rails along most of the road.
+    Highway,
 }
 
 impl WorldFamily {
     /// Every family, in table order.
-    pub const ALL: [WorldFamily; 5] = [
+    pub const ALL: [WorldFamily; 6] = [
         WorldFamily::City,
         WorldFamily::Suburb,
         WorldFamily::Industrial,
         WorldFamily::Arterial,
         WorldFamily::Parking,
+        WorldFamily::Highway,
     ];
 
     /// The family's name on the command line.
@@ -43,6 +47,7 @@ impl WorldFamily {
             WorldFamily::Industrial => "industrial",
             WorldFamily::Arterial => "arterial",
             WorldFamily::Parking => "parking",
+            WorldFamily::Highway => "highway",
         }
     }
 
@@ -60,6 +65,7 @@ impl WorldFamily {
             WorldFamily::Industrial => industrial(&mut w),
             WorldFamily::Arterial => arterial(&mut w),
             WorldFamily::Parking => parking(&mut w),
+            WorldFamily::Highway => highway(&mut w),
         }
         w
     }
@@ -118,6 +124,27 @@ fn parking(w: &mut WorldConfig) {
         p.occupancy,
     ) = (5.5, 0.85, 0.1, 0.9);
     w.furniture.tree_row_probability = 0.1;
+}
+
+fn highway(w: &mut WorldConfig) {
+    let s = &mut w.street;
+    (s.lane_width, s.lanes_per_direction) = (3.75, 2);
+    (s.parking_offset, s.pole_offset, s.sidewalk_offset) = (8.5, 9.0, 16.0);
+    (s.building_line, s.side_street_building_line) = (45.0, 30.0);
+    let f = &mut w.facades;
+    (f.length, f.gap_probability, f.gap) = ([20.0, 80.0], 0.85, [40.0, 150.0]);
+    (f.setback_probability, f.setback, f.density) = (0.5, [0.0, 20.0], 0.3);
+    w.side_streets.spacing = [400.0, 900.0];
+    let u = &mut w.furniture;
+    (u.pole_spacing, u.pole_missing_probability, u.pole_rcs) = (2.0, 0.02, -5.0);
+    (
+        u.tree_row_probability,
+        u.garden_probability,
+        u.vegetation_density,
+    ) = (0.3, 0.0, 0.1);
+    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.0, 0.0);
+    w.parking.occupancy = 0.0;
+    (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (25.0, 0.0);
 }
 
 /// One world of the held-out protocol: a family and a seed.

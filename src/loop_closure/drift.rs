@@ -2,9 +2,9 @@
 //! from an accepted alignment, may be off after some metres of path.
 
 use super::calibration::moved_frames_covariance;
-use super::{Alignment, LoopConfig};
+use super::{Alignment, LoopClosure, LoopConfig};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, Mat3, Mat6, Vec3, se2_log};
+use crate::math::{Iso2, Mat3, Mat6, Vec3, iso2_from_iso3, se2_adjoint, se2_log};
 use crate::registration::covariance_se2_from_ros;
 
 /// The `T_match_query` an alignment of the query's odometry frame into the match's session frame
@@ -84,6 +84,55 @@ pub fn alignment_distance(a: &Iso2, b: &Iso2, at: &Iso2, path_gap: f64, lc: &Loo
     (e.x * e.x + e.y * e.y) / (st * st) + e.z * e.z / (sr * sr)
 }
 
+/// Squared Mahalanobis distance between closure `a` and its prediction from closure `b`, two
+/// closures of this session's keyframes to one other pass: `b` carried to `a`'s keyframes through the
+/// odometry between their query keyframes (`path_gap` metres of path) and between their match
+/// keyframes, under both closures' covariances plus the drift over those two stretches; `None` when
+/// that sum is singular.
+///
+/// With `T_true = T Exp(delta)` for each closure and each stretch of odometry, the prediction
+/// `P = M_ab T_b Q_ba` (`M_ab` from `a`'s match keyframe to `b`'s, `Q_ba` from `b`'s query keyframe to
+/// `a`'s) moves by `Ad((T_b Q_ba)^-1) e_M + Ad(Q_ba^-1) delta_b + e_Q`, in `a`'s query frame as
+/// `delta_a`. The drift over `g` metres is the drift model's rates read as [`drift_sigmas`] reads
+/// them, a third of the bound, without its base: two keyframes a few metres apart on one odometry are
+/// known relative to each other to the drift over that stretch, not to the drift since the start.
+/// The closure does not carry its match keyframe's path length: the match stretch is the longer of
+/// `path_gap` and the straight line between the two match keyframes.
+pub fn closure_disagreement(
+    a: &LoopClosure,
+    b: &LoopClosure,
+    path_gap: f64,
+    lc: &LoopConfig,
+) -> Option<f64> {
+    let (ta, tb) = (
+        iso2_from_iso3(&a.t_match_query),
+        iso2_from_iso3(&b.t_match_query),
+    );
+    let q_ba = iso2_from_iso3(&b.query_odom_pose).inverse() * iso2_from_iso3(&a.query_odom_pose);
+    let m_ab = iso2_from_iso3(&a.match_odom_pose).inverse() * iso2_from_iso3(&b.match_odom_pose);
+    let predicted = m_ab * tb * q_ba;
+    let e = se2_log(&(predicted.inverse() * ta));
+    let match_gap = path_gap.abs().max(m_ab.translation.vector.norm());
+    let carry_b = se2_adjoint(&q_ba.inverse());
+    let carry_m = se2_adjoint(&(tb * q_ba).inverse());
+    let cov = covariance_se2_from_ros(&a.covariance)
+        + carry_b * covariance_se2_from_ros(&b.covariance) * carry_b.transpose()
+        + stretch_drift(path_gap, lc)
+        + carry_m * stretch_drift(match_gap, lc) * carry_m.transpose();
+    let inv = cov.try_inverse()?;
+    Some(e.dot(&(inv * e)))
+}
+
+/// Covariance over `(x, y, yaw)` of the odometry's relative pose over `gap` metres of path: the drift
+/// model's rates read as three standard deviations, the heading's drift turning the path behind it
+/// (half the rate times the squared distance) added to the translation's.
+fn stretch_drift(gap: f64, lc: &LoopConfig) -> Mat3 {
+    let g = gap.abs();
+    let st = (lc.drift_rate * g + 0.5 * lc.drift_yaw_rate * g * g) / 3.0;
+    let sr = lc.drift_yaw_rate * g / 3.0;
+    Mat3::from_diagonal(&Vec3::new(st * st, st * st, sr * sr))
+}
+
 /// What a closure is tested against: the session's accepted alignment, or (for a candidate of this
 /// session) odometry itself.
 #[derive(Debug, Clone, Copy)]
@@ -125,7 +174,89 @@ pub fn inconsistency(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::{Vec2, se2_exp};
+    use crate::math::{Stamp, Vec2, iso3_from_iso2, se2_exp};
+    use crate::registration::covariance_ros_from_se2;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A closure from the query odometry pose `q`, the match odometry pose `m` and the registration's
+    /// `t`, with the planar covariance `cov`.
+    fn closure(q: &Iso2, m: &Iso2, t: &Iso2, cov: &Mat3) -> LoopClosure {
+        LoopClosure {
+            query_id: 1,
+            match_id: 0,
+            query_stamp: Stamp(0),
+            match_stamp: Stamp(0),
+            query_odom_pose: iso3_from_iso2(q),
+            match_odom_pose: iso3_from_iso2(m),
+            t_match_query: iso3_from_iso2(t),
+            covariance: covariance_ros_from_se2(cov),
+            inliers: 50,
+            score: 0.9,
+            match_session: 0,
+            query_robot: 0,
+            match_origin: None,
+        }
+    }
+
+    /// A draw of `N(0, diag(s^2))`.
+    fn draw(rng: &mut rand::rngs::StdRng, s: [f64; 3]) -> Vec3 {
+        Vec3::from_fn(|i, _| {
+            let z: f64 = StandardNormal.sample(rng);
+            s[i] * z
+        })
+    }
+
+    /// Two closures of one street, 12 m apart along the query's path, to a pass driven the other
+    /// way with a drifted odometry frame. Each closure's registration and each stretch of odometry
+    /// between the two is perturbed by a draw of its stated covariance: the squared distance
+    /// averages 3 (chi-square with 3 degrees of freedom), so the propagation through the adjoints is
+    /// what the draws make. A closure slid by 2 m along the street with 5 cm sigmas is far outside;
+    /// one off by 5 cm is not.
+    #[test]
+    fn closure_disagreement_is_chi_square_for_draws_of_the_stated_covariances() {
+        let lc = LoopConfig::default();
+        let alignment = Iso2::new(Vec2::new(40.0, -15.0), 2.9);
+        let qa = Iso2::new(Vec2::new(212.0, 31.0), 0.4);
+        let qb = qa * Iso2::new(Vec2::new(-12.0, 0.3), -0.02);
+        // The match keyframes: on the other carriageway of the same street, the other way.
+        let ma = alignment * qa * Iso2::new(Vec2::new(3.0, 7.5), std::f64::consts::PI - 0.03);
+        let mb = alignment * qb * Iso2::new(Vec2::new(-2.0, 7.0), std::f64::consts::PI + 0.02);
+        let truth = |q: &Iso2, m: &Iso2| m.inverse() * alignment * q;
+        let (sa, sb) = ([0.05, 0.08, 0.002], [0.12, 0.04, 0.003]);
+        let cov =
+            |s: [f64; 3]| Mat3::from_diagonal(&Vec3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2]));
+        let drift = |g: f64| {
+            let d = stretch_drift(g, &lc);
+            [d[(0, 0)].sqrt(), d[(1, 1)].sqrt(), d[(2, 2)].sqrt()]
+        };
+        // The match stretch as the closure sees it: the straight line between the match keyframes.
+        let match_gap = (ma.inverse() * mb).translation.vector.norm();
+        assert!(match_gap > 12.0);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let n = 4000;
+        let mut sum = 0.0;
+        for _ in 0..n {
+            // The odometry between the query keyframes and between the match keyframes drifts.
+            let qa_seen = qa * se2_exp(&draw(&mut rng, drift(12.0)));
+            let mb_seen = mb * se2_exp(&draw(&mut rng, drift(match_gap)));
+            let ta = truth(&qa, &ma) * se2_exp(&draw(&mut rng, sa));
+            let tb = truth(&qb, &mb) * se2_exp(&draw(&mut rng, sb));
+            let a = closure(&qa_seen, &ma, &ta, &cov(sa));
+            let b = closure(&qb, &mb_seen, &tb, &cov(sb));
+            sum += closure_disagreement(&a, &b, 12.0, &lc).expect("regular");
+        }
+        let mean = sum / n as f64;
+        assert!((mean - 3.0).abs() < 0.25, "mean squared distance {mean}");
+        let tight = [0.05, 0.05, 0.001];
+        let b = closure(&qb, &mb, &truth(&qb, &mb), &cov(tight));
+        for (off, inside) in [(2.0, false), (0.05, true)] {
+            let slid = truth(&qa, &ma) * Iso2::new(Vec2::new(off, 0.0), 0.0);
+            let a = closure(&qa, &ma, &slid, &cov(tight));
+            let d = closure_disagreement(&a, &b, 12.0, &lc).expect("regular");
+            assert_eq!(d <= 16.27, inside, "{off} m off: {d}");
+        }
+    }
 
     /// The first-order error against the exact one: each submap turned by the drift rate times its
     /// arm, the registration's answer `Exp(k l_m e_yaw) T Exp(-k l_q e_yaw)`, its error

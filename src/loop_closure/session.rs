@@ -204,7 +204,7 @@ impl Session {
         let pending = self.held.entry(session).or_default();
         // Old unconfirmed hypotheses expire before they may confirm anything.
         pending.retain(|h| query.path - h.alignment.path <= lc.confirmation_horizon);
-        let agree = agreeing(pending, query, &c, &alignment, lc);
+        let agree = agreeing(pending, query, (&c, need.turn), &alignment, lc);
         let needed = agree
             .iter()
             .map(|&k| pending[k].needed)
@@ -330,15 +330,18 @@ impl Session {
 
 /// The held closures (indices into `pending`) from other query keyframes that agree with `c`: their
 /// alignments within [`CONFIRM_CHI2`] of `alignment`, `c`'s, at the generous accuracy of
-/// [`alignment_distance`] plus the drift between them, and each closure within [`CONFIRM_CHI2`] of
-/// its prediction from `c` under the two closures' own covariances ([`closure_disagreement`]). The
-/// first tells one street from another; the second keeps out a closure slid along the street by
-/// the period of its posts, which fits as well as the true alignment and lies metres away where its
-/// covariance says centimetres.
+/// [`alignment_distance`] plus the drift between them, and, unless `c` or the held closure lies
+/// beyond the drift model (`beyond`, [`Held::turn`]), each closure within [`CONFIRM_CHI2`] of its
+/// prediction from `c` under the two closures' own covariances and the drift model
+/// ([`closure_disagreement`]). The first tells one street from another; the second keeps out a
+/// closure slid along the street by the period of its posts, which fits as well as the true
+/// alignment and lies metres away where its covariance says centimetres. Beyond the drift model the
+/// odometry between the two keyframes is not known to the model's accuracy, and only the first
+/// applies.
 fn agreeing(
     pending: &[Held],
     query: &QueryPlace,
-    c: &LoopClosure,
+    (c, beyond): (&LoopClosure, bool),
     alignment: &Alignment,
     lc: &LoopConfig,
 ) -> Vec<usize> {
@@ -346,10 +349,16 @@ fn agreeing(
         .filter(|&k| {
             let h = &pending[k];
             let gap = query.path - h.alignment.path;
+            let consistent = || {
+                beyond
+                    || h.turn
+                    || closure_disagreement(&h.closure, c, gap, lc)
+                        .is_none_or(|d| d <= CONFIRM_CHI2)
+            };
             h.closure.query_id != c.query_id
                 && alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc)
                     <= CONFIRM_CHI2
-                && closure_disagreement(&h.closure, c, gap, lc).is_none_or(|d| d <= CONFIRM_CHI2)
+                && consistent()
         })
         .collect()
 }

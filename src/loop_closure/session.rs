@@ -506,6 +506,37 @@ mod tests {
         assert!(closure_disagreement(&slid, &c, 10.0, &lc).expect("regular") > CONFIRM_CHI2);
     }
 
+    /// Beyond the drift model the odometry between two keyframes is not known to the model's
+    /// accuracy: the slid closure of the test above agrees there on its alignment alone.
+    #[test]
+    fn beyond_the_drift_model_closures_agree_on_their_alignments_alone() {
+        let lc = LoopConfig::default();
+        let (slid, a_slid) = street_closure(10, 100.0, 2.0, 0.05);
+        let (c, a) = street_closure(11, 110.0, 0.0, 0.05);
+        let held = |turn: bool| Held {
+            closure: slid.clone(),
+            alignment: Alignment {
+                t: a_slid,
+                path: 100.0,
+            },
+            needed: 4,
+            heading: 0.0,
+            turn,
+        };
+        let query = QueryPlace {
+            id: 11,
+            path: 110.0,
+            t_odom_body: Iso2::new(Vec2::new(110.0, 0.0), 0.0),
+        };
+        let alignment = Alignment { t: a, path: 110.0 };
+        let agree = |turn: bool, beyond: bool| {
+            agreeing(&[held(turn)], &query, (&c, beyond), &alignment, &lc).len()
+        };
+        assert_eq!(agree(false, false), 0);
+        assert_eq!(agree(true, false), 1);
+        assert_eq!(agree(false, true), 1);
+    }
+
     #[test]
     fn a_first_closure_is_held_until_another_keyframe_agrees() {
         let lc = LoopConfig::default();

@@ -204,7 +204,7 @@ impl Session {
         let pending = self.held.entry(session).or_default();
         // Old unconfirmed hypotheses expire before they may confirm anything.
         pending.retain(|h| query.path - h.alignment.path <= lc.confirmation_horizon);
-        let agree = agreeing(pending, query, (&c, need.turn), &alignment, lc);
+        let agree = agreeing(pending, query, &c, need.turn, &alignment, lc);
         let needed = agree
             .iter()
             .map(|&k| pending[k].needed)
@@ -341,7 +341,8 @@ impl Session {
 fn agreeing(
     pending: &[Held],
     query: &QueryPlace,
-    (c, beyond): (&LoopClosure, bool),
+    c: &LoopClosure,
+    beyond: bool,
     alignment: &Alignment,
     lc: &LoopConfig,
 ) -> Vec<usize> {
@@ -393,7 +394,8 @@ fn confirmed(
 mod tests {
     use super::Standing::{BeyondDrift, Unconfirmed, Vouched};
     use super::*;
-    use crate::math::{Iso3, Mat6, Stamp, Vec2};
+    use crate::math::{Iso3, Mat3, Mat6, Stamp, Vec2, Vec3, iso3_from_iso2};
+    use crate::registration::covariance_ros_from_se2;
 
     fn closure(query_id: u64, match_id: u64, score: f64) -> LoopClosure {
         LoopClosure {
@@ -457,16 +459,16 @@ mod tests {
         let matched = true_alignment() * query * Iso2::new(Vec2::new(0.0, 3.5), 0.0);
         let t =
             matched.inverse() * true_alignment() * query * Iso2::new(Vec2::new(slide, 0.0), 0.0);
-        let planar = crate::math::Mat3::from_diagonal(&crate::math::Vec3::new(
+        let planar = Mat3::from_diagonal(&Vec3::new(
             sigma * sigma,
             sigma * sigma,
             (sigma / 50.0).powi(2),
         ));
         let mut c = closure(q, q + 100, 0.9);
-        c.query_odom_pose = crate::math::iso3_from_iso2(&query);
-        c.match_odom_pose = crate::math::iso3_from_iso2(&matched);
-        c.t_match_query = crate::math::iso3_from_iso2(&t);
-        c.covariance = crate::registration::covariance_ros_from_se2(&planar);
+        c.query_odom_pose = iso3_from_iso2(&query);
+        c.match_odom_pose = iso3_from_iso2(&matched);
+        c.t_match_query = iso3_from_iso2(&t);
+        c.covariance = covariance_ros_from_se2(&planar);
         (c, matched * t * query.inverse())
     }
 
@@ -530,7 +532,7 @@ mod tests {
         };
         let alignment = Alignment { t: a, path: 110.0 };
         let agree = |turn: bool, beyond: bool| {
-            agreeing(&[held(turn)], &query, (&c, beyond), &alignment, &lc).len()
+            agreeing(&[held(turn)], &query, &c, beyond, &alignment, &lc).len()
         };
         assert_eq!(agree(false, false), 0);
         assert_eq!(agree(true, false), 1);

@@ -174,7 +174,10 @@ impl Session {
             lc.foreign_confirmations
         };
         let vouched = standing == Standing::Vouched && self.alignments.contains_key(&session);
-        let publish = if vouched || needed <= 1 {
+        let publish = if vouched {
+            self.refute_held(query, session, &alignment, lc);
+            vec![c]
+        } else if needed <= 1 {
             vec![c]
         } else {
             let need = Need {
@@ -188,6 +191,40 @@ impl Session {
         };
         self.alignments.insert(session, alignment);
         publish
+    }
+
+    /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
+    /// closures to that session whose alignments it contradicts ([`alignment_distance`] beyond
+    /// [`CONFIRM_CHI2`]) are dropped. Each of them contradicted the accepted alignment when it was
+    /// held, and a newer closure has borne that alignment out since; left waiting, two such
+    /// closures on either side of a stretch the alignment keeps vouching for would confirm each
+    /// other and replace it (a road slid along itself by its repeating posts agrees with itself
+    /// over the drift between them). A false accepted alignment is still replaced once it stops
+    /// vouching for new closures: the contradicting closures after that confirm each other.
+    fn refute_held(
+        &mut self,
+        query: &QueryPlace,
+        session: u32,
+        alignment: &Alignment,
+        lc: &LoopConfig,
+    ) {
+        let Some(pending) = self.held.get_mut(&session) else {
+            return;
+        };
+        pending.retain(|h| {
+            let gap = query.path - h.alignment.path;
+            let d2 =
+                alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc);
+            if d2 > CONFIRM_CHI2 {
+                log::debug!(
+                    "held closure {} -> {} dropped: closure {} on the accepted alignment contradicts it (squared distance {d2:.1})",
+                    h.closure.query_id,
+                    h.closure.match_id,
+                    query.id
+                );
+            }
+            d2 <= CONFIRM_CHI2
+        });
     }
 
     /// Holds `c` or, when enough closures to `session` agree (held ones and `c`, as many as the most
@@ -705,6 +742,34 @@ mod tests {
         assert_eq!(s.alignments()[&0].t, a, "held, not yet taken");
         let published = offer(&mut s, (24, 240.0), (13, 0.7), b, &lc);
         assert_eq!(published.len(), 2);
+        assert_eq!(s.alignments()[&0].t, b);
+    }
+
+    /// A held contradiction that a newer closure on the accepted alignment bears out against is
+    /// dropped: the next contradicting closure does not confirm it and waits for one of its own. Once
+    /// the accepted alignment stops vouching for new closures, the contradictions after it confirm
+    /// each other and replace it.
+    #[test]
+    fn a_contradiction_refuted_by_a_newer_vouched_closure_confirms_nothing() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let b = Iso2::new(Vec2::new(9.0, 4.0), -0.02);
+        let mut s = Session::default();
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
+        assert!(offer(&mut s, (20, 200.0), (9, 0.7), b, &lc).is_empty());
+        let vouched = s.accept(&place(22, 220.0), closure(22, 11, 0.7), 0, a, Vouched, &lc);
+        assert_eq!(vouched.len(), 1, "published on the alignment's word");
+        assert!(
+            offer(&mut s, (24, 240.0), (13, 0.7), b, &lc).is_empty(),
+            "the held contradiction was refuted by keyframe 22"
+        );
+        assert_eq!(s.alignments()[&0].t, a);
+        let published: Vec<u64> = offer(&mut s, (28, 280.0), (17, 0.7), b, &lc)
+            .iter()
+            .map(|c| c.query_id)
+            .collect();
+        assert_eq!(published, [24, 28]);
         assert_eq!(s.alignments()[&0].t, b);
     }
 

@@ -25,7 +25,7 @@ pub use session::{Alignment, QueryPlace, Session, Standing};
 use rayon::prelude::*;
 
 use crate::keyframe_db::{Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
-use crate::math::{Iso2, Iso3, Mat6, Stamp, iso2_from_iso3};
+use crate::math::{Iso3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
 use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
 
@@ -213,7 +213,7 @@ impl LoopCloser {
         self.state
             .note_keyframe(query.id, query.path_distance, horizon);
         if let Some((c, standing)) = self.best_closure(db, query, prepared, out) {
-            let Some((session, a)) = closure_alignment(db, query, &c) else {
+            let Some((session, alignment)) = closure_alignment(db, query, &c) else {
                 return;
             };
             let place = QueryPlace {
@@ -221,7 +221,9 @@ impl LoopCloser {
                 path: query.path_distance,
                 t_odom_body: query.t_odom_body,
             };
-            let publish = self.state.accept(&place, c, session, a, standing, &self.lc);
+            let publish = self
+                .state
+                .accept(&place, c, session, alignment, standing, &self.lc);
             self.publish(publish, out);
         }
     }
@@ -336,9 +338,8 @@ impl LoopCloser {
             let Some((c, Standing::Vouched)) = found else {
                 continue;
             };
-            if let Some((s, a)) = closure_alignment(db, &rec, &c) {
-                let path = rec.path_distance;
-                self.state.extend_chain(s, Alignment { t: a, path });
+            if let Some((s, alignment)) = closure_alignment(db, &rec, &c) {
+                self.state.extend_chain(s, alignment);
             }
             self.publish(vec![c], out);
         }
@@ -509,8 +510,13 @@ fn closure_alignment(
     db: &KeyframeDb,
     query: &KeyframeRecord,
     c: &LoopClosure,
-) -> Option<(u32, Iso2)> {
+) -> Option<(u32, Alignment)> {
     let m = db.get(c.match_id)?;
-    let a = m.t_odom_body * iso2_from_iso3(&c.t_match_query) * query.t_odom_body.inverse();
-    Some((m.session, a))
+    let t = m.t_odom_body * iso2_from_iso3(&c.t_match_query) * query.t_odom_body.inverse();
+    let alignment = Alignment {
+        t,
+        path: query.path_distance,
+        match_path: m.path_distance,
+    };
+    Some((m.session, alignment))
 }

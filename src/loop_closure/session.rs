@@ -20,13 +20,15 @@ const CONFIRM_CHI2: f64 = 16.27;
 const BEYOND_DRIFT_TURN: f64 = std::f64::consts::FRAC_PI_4;
 
 /// An accepted alignment of this session's odometry frame into an earlier session's frame, and the
-/// path length (m of this session's odometry) at which the closure that gave it was found.
+/// path lengths of the two keyframes the closure that gave it joined.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Alignment {
     /// This session's odometry frame in the other session's frame.
     pub t: Iso2,
-    /// Path length at which it was found, m.
+    /// Path length at which it was found (its query keyframe's), m of this session's odometry.
     pub path: f64,
+    /// Path length of its match keyframe, m of the other session's odometry.
+    pub match_path: f64,
 }
 
 /// What a closure that passed the gates needs before it is published.
@@ -146,8 +148,8 @@ impl Session {
         self.alignments.values().any(|a| vouches(path - a.path, lc))
     }
 
-    /// Takes a closure that passed the gates, with the alignment `a` of this session into
-    /// `session` it implies: published at once when a fresh accepted alignment vouches for it
+    /// Takes a closure that passed the gates, with the alignment of this session into `session` it
+    /// implies (found at `query.path`): published at once when a fresh accepted alignment vouches for it
     /// ([`Standing::Vouched`]) or one closure confirms a session; else held until closures from
     /// other query keyframes agree with it (`loop.confirmations`, `foreign_confirmations`,
     /// `confirmation_span`, `confirmation_overlap`, `confirmation_horizon`). Returns what to publish
@@ -159,14 +161,10 @@ impl Session {
         query: &QueryPlace,
         c: LoopClosure,
         session: u32,
-        a: Iso2,
+        alignment: Alignment,
         standing: Standing,
         lc: &LoopConfig,
     ) -> Vec<LoopClosure> {
-        let alignment = Alignment {
-            t: a,
-            path: query.path,
-        };
         let beyond = standing == Standing::BeyondDrift;
         let needed = if session == self.own && !beyond {
             lc.confirmations
@@ -195,7 +193,9 @@ impl Session {
 
     /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
     /// closures to that session whose alignments it contradicts ([`alignment_distance`] beyond
-    /// [`CONFIRM_CHI2`]) are dropped. Each of them contradicted the accepted alignment when it was
+    /// [`CONFIRM_CHI2`], with the drift over the path between the two query keyframes and between
+    /// the two match keyframes: two true closures onto two passes of one place, a lap apart, imply
+    /// alignments that differ by the drift over that lap) are dropped. Each of them contradicted the accepted alignment when it was
     /// held, and a newer closure has borne that alignment out since; left waiting, two such
     /// closures on either side of a stretch the alignment keeps vouching for would confirm each
     /// other and replace it (a road slid along itself by its repeating posts agrees with itself
@@ -212,7 +212,8 @@ impl Session {
             return;
         };
         pending.retain(|h| {
-            let gap = query.path - h.alignment.path;
+            let gap = (query.path - h.alignment.path).abs()
+                + (alignment.match_path - h.alignment.match_path).abs();
             let d2 =
                 alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc);
             if d2 > CONFIRM_CHI2 {
@@ -452,6 +453,15 @@ mod tests {
         }
     }
 
+    /// The alignment `t` found at `path` metres, its match keyframe as far along the earlier pass.
+    fn aligned(t: Iso2, path: f64) -> Alignment {
+        Alignment {
+            t,
+            path,
+            match_path: path,
+        }
+    }
+
     fn place(id: u64, path: f64) -> QueryPlace {
         QueryPlace {
             id,
@@ -469,7 +479,14 @@ mod tests {
         a: Iso2,
         lc: &LoopConfig,
     ) -> Vec<LoopClosure> {
-        s.accept(&place(q, path), closure(q, m, score), 0, a, Unconfirmed, lc)
+        s.accept(
+            &place(q, path),
+            closure(q, m, score),
+            0,
+            aligned(a, path),
+            Unconfirmed,
+            lc,
+        )
     }
 
     /// The alignment to session 0 that every true closure of these tests implies.
@@ -527,7 +544,7 @@ mod tests {
                 path,
                 t_odom_body: Iso2::new(Vec2::new(path, 0.0), 0.0),
             };
-            s.accept(&place, c, 0, a, Unconfirmed, &lc)
+            s.accept(&place, c, 0, aligned(a, path), Unconfirmed, &lc)
         };
         assert!(offer_at(8, 0.0).is_empty());
         assert!(
@@ -554,10 +571,7 @@ mod tests {
         let (c, a) = street_closure(11, 110.0, 0.0, 0.05);
         let held = |turn: bool| Held {
             closure: slid.clone(),
-            alignment: Alignment {
-                t: a_slid,
-                path: 100.0,
-            },
+            alignment: aligned(a_slid, 100.0),
             needed: 4,
             heading: 0.0,
             turn,
@@ -567,7 +581,7 @@ mod tests {
             path: 110.0,
             t_odom_body: Iso2::new(Vec2::new(110.0, 0.0), 0.0),
         };
-        let alignment = Alignment { t: a, path: 110.0 };
+        let alignment = aligned(a, 110.0);
         let agree = |turn: bool, beyond: bool| {
             agreeing(&[held(turn)], &query, &c, beyond, &alignment, &lc).len()
         };
@@ -628,7 +642,7 @@ mod tests {
             &place(10, 100.0),
             closure(10, 0, 0.7),
             1,
-            a,
+            aligned(a, 100.0),
             Unconfirmed,
             &lc,
         );
@@ -636,7 +650,7 @@ mod tests {
             &place(14, 140.0),
             closure(14, 4, 0.7),
             1,
-            a,
+            aligned(a, 140.0),
             Unconfirmed,
             &lc,
         );
@@ -651,7 +665,14 @@ mod tests {
         let lc = LoopConfig::default();
         let a = true_alignment();
         let beyond = |s: &mut Session, q: QueryPlace, m: u64| {
-            s.accept(&q, closure(q.id, m, 0.7), 0, a, BeyondDrift, &lc)
+            s.accept(
+                &q,
+                closure(q.id, m, 0.7),
+                0,
+                aligned(a, q.path),
+                BeyondDrift,
+                &lc,
+            )
         };
         let mut s = Session::new(0);
         assert!(beyond(&mut s, place(10, 100.0), 0).is_empty());
@@ -714,13 +735,27 @@ mod tests {
         let mut s = Session::default();
         offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
-        let one = s.accept(&place(15, 150.0), closure(15, 5, 0.4), 0, a, Vouched, &lc);
+        let one = s.accept(
+            &place(15, 150.0),
+            closure(15, 5, 0.4),
+            0,
+            aligned(a, 150.0),
+            Vouched,
+            &lc,
+        );
         assert_eq!(one.len(), 1);
         assert_eq!(s.alignments()[&0].path, 150.0);
         // Without an accepted alignment `agrees` alone publishes nothing.
         assert!(
-            s.accept(&place(16, 160.0), closure(16, 6, 0.9), 1, a, Vouched, &lc)
-                .is_empty()
+            s.accept(
+                &place(16, 160.0),
+                closure(16, 6, 0.9),
+                1,
+                aligned(a, 160.0),
+                Vouched,
+                &lc
+            )
+            .is_empty()
         );
         let single = LoopConfig {
             confirmations: 1,
@@ -748,7 +783,7 @@ mod tests {
     /// A held contradiction that a newer closure on the accepted alignment bears out against is
     /// dropped: the next contradicting closure does not confirm it and waits for one of its own. Once
     /// the accepted alignment stops vouching for new closures, the contradictions after it confirm
-    /// each other and replace it.
+    /// each other and replace it. A held closure onto another pass of the place is not dropped.
     #[test]
     fn a_contradiction_refuted_by_a_newer_vouched_closure_confirms_nothing() {
         let lc = LoopConfig::default();
@@ -758,7 +793,14 @@ mod tests {
         offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         assert!(offer(&mut s, (20, 200.0), (9, 0.7), b, &lc).is_empty());
-        let vouched = s.accept(&place(22, 220.0), closure(22, 11, 0.7), 0, a, Vouched, &lc);
+        let vouched = s.accept(
+            &place(22, 220.0),
+            closure(22, 11, 0.7),
+            0,
+            aligned(a, 220.0),
+            Vouched,
+            &lc,
+        );
         assert_eq!(vouched.len(), 1, "published on the alignment's word");
         assert!(
             offer(&mut s, (24, 240.0), (13, 0.7), b, &lc).is_empty(),
@@ -771,6 +813,45 @@ mod tests {
             .collect();
         assert_eq!(published, [24, 28]);
         assert_eq!(s.alignments()[&0].t, b);
+        // A held closure onto another pass of the place, a lap further along the earlier path, may
+        // imply an alignment metres away from the accepted one by the drift over that lap: a closure
+        // onto the nearer pass does not refute it.
+        let other_pass = |path: f64| Alignment {
+            t: b * Iso2::new(Vec2::new(8.0, 0.0), 0.05),
+            path,
+            match_path: path + 3000.0,
+        };
+        let held = s.accept(
+            &place(30, 300.0),
+            closure(30, 40, 0.7),
+            0,
+            other_pass(300.0),
+            Unconfirmed,
+            &lc,
+        );
+        assert!(held.is_empty());
+        let on_b = s.accept(
+            &place(31, 310.0),
+            closure(31, 20, 0.7),
+            0,
+            aligned(b, 310.0),
+            Vouched,
+            &lc,
+        );
+        assert_eq!(on_b.len(), 1);
+        let published: Vec<u64> = s
+            .accept(
+                &place(34, 340.0),
+                closure(34, 44, 0.7),
+                0,
+                other_pass(340.0),
+                Unconfirmed,
+                &lc,
+            )
+            .iter()
+            .map(|c| c.query_id)
+            .collect();
+        assert_eq!(published, [30, 34]);
     }
 
     #[test]
@@ -813,12 +894,9 @@ mod tests {
             s.restore(swapped);
         }
         // A search again that publishes moves the chain on, and it is kept while it vouches.
-        let walked = Alignment {
-            t: Iso2::new(Vec2::new(3.1, -2.0), 0.05),
-            path: 150.0,
-        };
+        let walked = aligned(Iso2::new(Vec2::new(3.1, -2.0), 0.05), 150.0);
         s.extend_chain(0, walked);
-        for (path, expected) in [(110.0, walked), (60.0, Alignment { t: a, path: 100.0 })] {
+        for (path, expected) in [(110.0, walked), (60.0, aligned(a, 100.0))] {
             let swapped = s.swap_in_chain(path, &lc);
             assert_eq!(s.alignments()[&0], expected, "at {path} m");
             s.restore(swapped);
@@ -837,11 +915,11 @@ mod tests {
             &place(18, 180.0),
             closure(18, 8, 0.7),
             0,
-            newer,
+            aligned(newer, 180.0),
             Vouched,
             &lc,
         );
-        let chain = Alignment { t: a, path: 90.0 };
+        let chain = aligned(a, 90.0);
         s.extend_chain(0, chain);
         let swapped = s.swap_in_chain(90.0, &lc);
         assert_eq!(s.alignments()[&0], chain);

@@ -149,13 +149,15 @@ impl Session {
     }
 
     /// Takes a closure that passed the gates, with the alignment of this session into `session` it
-    /// implies (found at `query.path`): published at once when a fresh accepted alignment vouches for it
+    /// implies: published at once when a fresh accepted alignment vouches for it
     /// ([`Standing::Vouched`]) or one closure confirms a session; else held until closures from
     /// other query keyframes agree with it (`loop.confirmations`, `foreign_confirmations`,
     /// `confirmation_span`, `confirmation_overlap`, `confirmation_horizon`). Returns what to publish
     /// now, in order; on a confirmation the keyframes that got nothing since are queued to be
     /// searched again. A closure that contradicts the accepted alignment and is confirmed replaces
-    /// it, so that one false closure that slipped through cannot block every true one after it.
+    /// it, so that one false closure that slipped through cannot block every true one after it; a
+    /// closure published on that alignment's word drops the held ones it contradicts
+    /// (`refute_held`).
     pub fn accept(
         &mut self,
         query: &QueryPlace,
@@ -192,15 +194,15 @@ impl Session {
     }
 
     /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
-    /// closures to that session whose alignments it contradicts ([`alignment_distance`] beyond
-    /// [`CONFIRM_CHI2`], with the drift over the path between the two query keyframes and between
-    /// the two match keyframes: two true closures onto two passes of one place, a lap apart, imply
-    /// alignments that differ by the drift over that lap) are dropped. Each of them contradicted the accepted alignment when it was
-    /// held, and a newer closure has borne that alignment out since; left waiting, two such
-    /// closures on either side of a stretch the alignment keeps vouching for would confirm each
-    /// other and replace it (a road slid along itself by its repeating posts agrees with itself
-    /// over the drift between them). A false accepted alignment is still replaced once it stops
-    /// vouching for new closures: the contradicting closures after that confirm each other.
+    /// closures to that session whose alignments it contradicts are dropped ([`alignment_distance`]
+    /// beyond [`CONFIRM_CHI2`], with the drift over the path between the two query keyframes and
+    /// between the two match keyframes: two true closures onto two passes of one place a lap apart
+    /// imply alignments that differ by the drift over that lap). Each contradicts an alignment that
+    /// a newer closure has borne out; left waiting, two such closures on either side of a stretch
+    /// the alignment keeps vouching for would confirm each other and replace it (a road slid along
+    /// itself by its repeating posts agrees with itself over the drift between them). A false
+    /// accepted alignment is still replaced once it stops vouching for new closures: the
+    /// contradicting closures after that confirm each other.
     fn refute_held(
         &mut self,
         query: &QueryPlace,

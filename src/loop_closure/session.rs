@@ -782,10 +782,11 @@ mod tests {
         assert_eq!(s.alignments()[&0].t, b);
     }
 
-    /// A held contradiction that a newer closure on the accepted alignment bears out against is
-    /// dropped: the next contradicting closure does not confirm it and waits for one of its own. Once
-    /// the accepted alignment stops vouching for new closures, the contradictions after it confirm
-    /// each other and replace it. A held closure onto another pass of the place is not dropped.
+    /// A held closure that contradicts the accepted alignment is dropped when a newer closure is
+    /// published on that alignment's word: the next contradicting closure does not confirm it and
+    /// waits for one of its own. Once the accepted alignment stops vouching for new closures, the
+    /// contradictions after it confirm each other and replace it. A held closure onto another pass
+    /// of the place is not dropped.
     #[test]
     fn a_contradiction_refuted_by_a_newer_vouched_closure_confirms_nothing() {
         let lc = LoopConfig::default();

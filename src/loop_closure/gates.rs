@@ -658,24 +658,10 @@ mod tests {
         // Once the session has an accepted alignment to itself fresh enough to vouch (here one whose
         // prediction does not fit the submaps), odometry and the alignment refuse it.
         let a = Iso2::new(Vec2::new(40.0, 0.0), 0.0);
-        f.alignments.insert(
-            0,
-            Alignment {
-                t: a,
-                path: 300.0,
-                match_path: 300.0,
-            },
-        );
+        f.alignments.insert(0, Alignment::along_one_pass(a, 300.0));
         assert_eq!(reason(f.gate(far())), RejectReason::Inconsistent);
         // An alignment 200 m of path back vouches for nothing: the closure waits again.
-        f.alignments.insert(
-            0,
-            Alignment {
-                t: a,
-                path: 100.0,
-                match_path: 100.0,
-            },
-        );
+        f.alignments.insert(0, Alignment::along_one_pass(a, 100.0));
         assert_eq!(f.gate(far()).expect("held").standing, Standing::BeyondDrift);
         f.alignments.clear();
         f.lc.confirm_beyond_drift = false;
@@ -687,14 +673,7 @@ mod tests {
         let mut f = fixture();
         // An accepted alignment found 20 m of path ago: the odometry is off by 1 m along x.
         let a = Iso2::new(Vec2::new(1.0, 0.0), 0.0);
-        f.alignments.insert(
-            0,
-            Alignment {
-                t: a,
-                path: 280.0,
-                match_path: 280.0,
-            },
-        );
+        f.alignments.insert(0, Alignment::along_one_pass(a, 280.0));
         let at = Iso2::new(Vec2::new(3.0, 0.0), 0.0);
         let g = f.gate(result(at, 0.05)).expect("agrees");
         assert!(g.standing == Standing::Vouched && g.slide.is_none());
@@ -709,14 +688,7 @@ mod tests {
             .expect("not the first closure, still slide-tested");
         assert!(!slide.first && slide.ratio == 1.0);
         // An alignment too old to vouch (200 m of path back) vouches for nothing.
-        f.alignments.insert(
-            0,
-            Alignment {
-                t: a,
-                path: 100.0,
-                match_path: 100.0,
-            },
-        );
+        f.alignments.insert(0, Alignment::along_one_pass(a, 100.0));
         assert_ne!(
             f.gate(result(at, 0.05)).expect("passes").standing,
             Standing::Vouched
@@ -742,14 +714,8 @@ mod tests {
             alternatives: vec![(Iso2::new(Vec2::new(10.0, 0.0), 0.0), 0.75)],
             ..ambiguous
         };
-        f.alignments.insert(
-            0,
-            Alignment {
-                t: at.inverse(),
-                path: 290.0,
-                match_path: 290.0,
-            },
-        );
+        f.alignments
+            .insert(0, Alignment::along_one_pass(at.inverse(), 290.0));
         let g = f.gate(at_identity).expect("resolved by the alignment");
         assert_eq!(g.standing, Standing::Vouched);
     }

@@ -31,6 +31,18 @@ pub struct Alignment {
     pub match_path: f64,
 }
 
+#[cfg(test)]
+impl Alignment {
+    /// The alignment `t` found at `path` metres, its match keyframe as far along the other pass.
+    pub(crate) fn along_one_pass(t: Iso2, path: f64) -> Self {
+        Alignment {
+            t,
+            path,
+            match_path: path,
+        }
+    }
+}
+
 /// What a closure that passed the gates needs before it is published.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Standing {
@@ -455,13 +467,8 @@ mod tests {
         }
     }
 
-    /// The alignment `t` found at `path` metres, its match keyframe as far along the earlier pass.
     fn aligned(t: Iso2, path: f64) -> Alignment {
-        Alignment {
-            t,
-            path,
-            match_path: path,
-        }
+        Alignment::along_one_pass(t, path)
     }
 
     fn place(id: u64, path: f64) -> QueryPlace {
@@ -481,12 +488,30 @@ mod tests {
         a: Iso2,
         lc: &LoopConfig,
     ) -> Vec<LoopClosure> {
+        take(
+            s,
+            (q, path),
+            (m, score),
+            (aligned(a, path), Unconfirmed),
+            lc,
+        )
+    }
+
+    /// Offers query keyframe `q` at `path` metres, matched to keyframe `m` with overlap `score`, as a
+    /// closure to session 0 that implies `alignment` and has `standing`.
+    fn take(
+        s: &mut Session,
+        (q, path): (u64, f64),
+        (m, score): (u64, f64),
+        (alignment, standing): (Alignment, Standing),
+        lc: &LoopConfig,
+    ) -> Vec<LoopClosure> {
         s.accept(
             &place(q, path),
             closure(q, m, score),
             0,
-            aligned(a, path),
-            Unconfirmed,
+            alignment,
+            standing,
             lc,
         )
     }
@@ -737,12 +762,11 @@ mod tests {
         let mut s = Session::default();
         offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
-        let one = s.accept(
-            &place(15, 150.0),
-            closure(15, 5, 0.4),
-            0,
-            aligned(a, 150.0),
-            Vouched,
+        let one = take(
+            &mut s,
+            (15, 150.0),
+            (5, 0.4),
+            (aligned(a, 150.0), Vouched),
             &lc,
         );
         assert_eq!(one.len(), 1);
@@ -796,12 +820,11 @@ mod tests {
         offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         assert!(offer(&mut s, (20, 200.0), (9, 0.7), b, &lc).is_empty());
-        let vouched = s.accept(
-            &place(22, 220.0),
-            closure(22, 11, 0.7),
-            0,
-            aligned(a, 220.0),
-            Vouched,
+        let vouched = take(
+            &mut s,
+            (22, 220.0),
+            (11, 0.7),
+            (aligned(a, 220.0), Vouched),
             &lc,
         );
         assert_eq!(vouched.len(), 1, "published on the alignment's word");
@@ -824,36 +847,32 @@ mod tests {
             path,
             match_path: path + 3000.0,
         };
-        let held = s.accept(
-            &place(30, 300.0),
-            closure(30, 40, 0.7),
-            0,
-            other_pass(300.0),
-            Unconfirmed,
+        let held = take(
+            &mut s,
+            (30, 300.0),
+            (40, 0.7),
+            (other_pass(300.0), Unconfirmed),
             &lc,
         );
         assert!(held.is_empty());
-        let on_b = s.accept(
-            &place(31, 310.0),
-            closure(31, 20, 0.7),
-            0,
-            aligned(b, 310.0),
-            Vouched,
+        let on_b = take(
+            &mut s,
+            (31, 310.0),
+            (20, 0.7),
+            (aligned(b, 310.0), Vouched),
             &lc,
         );
         assert_eq!(on_b.len(), 1);
-        let published: Vec<u64> = s
-            .accept(
-                &place(34, 340.0),
-                closure(34, 44, 0.7),
-                0,
-                other_pass(340.0),
-                Unconfirmed,
-                &lc,
-            )
-            .iter()
-            .map(|c| c.query_id)
-            .collect();
+        let published: Vec<u64> = take(
+            &mut s,
+            (34, 340.0),
+            (44, 0.7),
+            (other_pass(340.0), Unconfirmed),
+            &lc,
+        )
+        .iter()
+        .map(|c| c.query_id)
+        .collect();
         assert_eq!(published, [30, 34]);
     }
 
@@ -914,12 +933,11 @@ mod tests {
         offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
         offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
         let newer = Iso2::new(Vec2::new(3.5, -2.0), 0.05);
-        s.accept(
-            &place(18, 180.0),
-            closure(18, 8, 0.7),
-            0,
-            aligned(newer, 180.0),
-            Vouched,
+        take(
+            &mut s,
+            (18, 180.0),
+            (8, 0.7),
+            (aligned(newer, 180.0), Vouched),
             &lc,
         );
         let chain = aligned(a, 90.0);

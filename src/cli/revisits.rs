@@ -38,7 +38,8 @@ pub struct RevisitArgs {
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Kinds of street: `city` (the default world), `suburb`, `industrial`, `arterial`, `parking`, `highway`.
+    /// Kinds of street: `city` (the default world), `suburb`, `industrial`, `arterial`, `parking`,
+    /// `highway`, `corridor`.
     #[arg(long, value_delimiter = ',', default_value = "city")]
     pub world: Vec<String>,
     /// A protocol set instead of `--world` and `--seed`: `dev` (the worlds tuning may look at: the city

@@ -41,6 +41,8 @@ pub enum WorldArg {
     Parking,
     /// Four lanes between guard rails, little else.
     Highway,
+    /// A 1 km x 140 m loop between unbroken walls (its own road).
+    Corridor,
 }
 
 /// Noise models of `--noise`.
@@ -71,7 +73,7 @@ pub struct SimArgs {
     /// Radar set.
     #[arg(long, value_enum)]
     pub preset: Option<PresetArg>,
-    /// Kind of street: replaces the `world` section of `--config`.
+    /// Kind of street: replaces the `world` section of `--config` (and, for `corridor`, its `route`).
     #[arg(long, value_enum)]
     pub world: Option<WorldArg>,
     /// Radar measurement noise model.
@@ -136,15 +138,19 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
         cfg.radars.clear();
     }
     if let Some(w) = args.world {
-        cfg.world = match w {
+        let family = match w {
             WorldArg::City => WorldFamily::City,
             WorldArg::Suburb => WorldFamily::Suburb,
             WorldArg::Industrial => WorldFamily::Industrial,
             WorldArg::Arterial => WorldFamily::Arterial,
             WorldArg::Parking => WorldFamily::Parking,
             WorldArg::Highway => WorldFamily::Highway,
+            WorldArg::Corridor => WorldFamily::Corridor,
+        };
+        cfg.world = family.world();
+        if let Some(route) = family.route() {
+            cfg.route = route;
         }
-        .world();
     }
     if let Some(n) = args.noise {
         cfg.noise.model = match n {

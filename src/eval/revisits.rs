@@ -108,11 +108,15 @@ impl RevisitScenario {
         }
     }
 
-    /// The simulator configuration: the default city, a 72 km/h lap then a 40 km/h lap.
+    /// The simulator configuration: the scenario's world (and its road, where it has one), a 72 km/h lap
+    /// then a 40 km/h lap.
     pub fn sim_config(&self) -> SimConfig {
         let mut c = SimConfig::with_preset(self.radars);
         c.seed = self.seed;
         c.world = self.world.world();
+        if let Some(route) = self.world.route() {
+            c.route = route;
+        }
         c.noise.model = self.noise;
         c.noise.gamma_shape = self.gamma_shape;
         let [fr, fa, fv] = self.noise_factors;

@@ -1,12 +1,14 @@
 //! World families: kinds of street the simulator builds besides the default city, each a change of
-//! the [`WorldConfig`] sections, and the held-out protocol that splits families and seeds into a
+//! the [`WorldConfig`] sections (and, for one, of the road), and the held-out protocol that splits families and seeds into a
 //! `dev` set (what tuning may look at) and a `test` set (what it may not).
 //!
 //! The families differ in what the registration has to hold on to: short detached houses with gardens
 //! and trees (`suburb`), long flat walls with few corners (`industrial`), a wide road lined by guard
-//! rail posts and distant buildings, nearly featureless along the road (`arterial`), and streets lined
-//! by the same parked cars on every lap (`parking`).
+//! rail posts and distant buildings, nearly featureless along the road (`arterial`), streets lined by
+//! the same parked cars on every lap (`parking`), a road between guard rails (`highway`), and a long
+//! narrow loop between unbroken walls (`corridor`, the one family with a road of its own).
 
+use super::config::{CornerConfig, RouteConfig};
 use super::world_config::WorldConfig;
 use serde::Serialize;
 
@@ -26,17 +28,23 @@ pub enum WorldFamily {
     /// A four-lane road between guard rails whose posts repeat every 2 m, with sparse tree rows and
     /// halls 45 m and more away: little but the rails along most of the road.
     Highway,
+    /// A loop of two 1 km straights 140 m apart, each a street canyon between flat walls 10 m from
+    /// the centre line with rare gaps, side streets every 300 to 600 m and sparse street lights: the
+    /// walls fix the lateral position and the heading, almost nothing fixes the position along the
+    /// road.
+    Corridor,
 }
 
 impl WorldFamily {
     /// Every family, in table order.
-    pub const ALL: [WorldFamily; 6] = [
+    pub const ALL: [WorldFamily; 7] = [
         WorldFamily::City,
         WorldFamily::Suburb,
         WorldFamily::Industrial,
         WorldFamily::Arterial,
         WorldFamily::Parking,
         WorldFamily::Highway,
+        WorldFamily::Corridor,
     ];
 
     /// The family's name on the command line.
@@ -48,6 +56,7 @@ impl WorldFamily {
             WorldFamily::Arterial => "arterial",
             WorldFamily::Parking => "parking",
             WorldFamily::Highway => "highway",
+            WorldFamily::Corridor => "corridor",
         }
     }
 
@@ -66,8 +75,17 @@ impl WorldFamily {
             WorldFamily::Arterial => arterial(&mut w),
             WorldFamily::Parking => parking(&mut w),
             WorldFamily::Highway => highway(&mut w),
+            WorldFamily::Corridor => corridor(&mut w),
         }
         w
+    }
+
+    /// The family's own road, where it has one (the others drive the default loop).
+    pub fn route(self) -> Option<RouteConfig> {
+        match self {
+            WorldFamily::Corridor => Some(corridor_route()),
+            _ => None,
+        }
     }
 }
 
@@ -147,6 +165,46 @@ fn highway(w: &mut WorldConfig) {
     (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (25.0, 0.0);
 }
 
+fn corridor(w: &mut WorldConfig) {
+    let s = &mut w.street;
+    (s.pole_offset, s.sidewalk_offset) = (8.5, 9.0);
+    (s.building_line, s.side_street_building_line) = (10.0, 8.0);
+    let f = &mut w.facades;
+    (f.length, f.gap_probability, f.gap) = ([100.0, 250.0], 0.1, [3.0, 6.0]);
+    (f.setback_probability, f.setback, f.depth) = (0.1, [0.2, 1.0], [15.0, 30.0]);
+    f.roughness = 0.1;
+    w.side_streets.spacing = [300.0, 600.0];
+    let u = &mut w.furniture;
+    (u.pole_spacing, u.pole_missing_probability) = (50.0, 0.3);
+    (
+        u.tree_row_probability,
+        u.garden_probability,
+        u.vegetation_density,
+    ) = (0.0, 0.0, 0.0);
+    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.0, 0.0);
+    w.parking.occupancy = 0.0;
+    (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (20.0, 2.0);
+}
+
+/// A rectangle 1,000 x 140 m driven counter-clockwise, junctions at two opposite corners.
+fn corridor_route() -> RouteConfig {
+    let c = |x: f64, y: f64, junction: bool| CornerConfig {
+        x,
+        y,
+        radius: 20.0,
+        junction,
+    };
+    RouteConfig {
+        corners: vec![
+            c(0.0, 0.0, false),
+            c(1000.0, 0.0, true),
+            c(1000.0, 140.0, false),
+            c(0.0, 140.0, true),
+        ],
+        ..RouteConfig::default()
+    }
+}
+
 /// One world of the held-out protocol: a family and a seed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct ProtocolWorld {
@@ -214,6 +272,9 @@ mod tests {
             }
             assert_eq!(WorldFamily::parse(f.name()), Some(f));
             assert_eq!(w == WorldConfig::default(), f == WorldFamily::City);
+            if let Some(r) = f.route() {
+                r.validate().unwrap_or_else(|e| panic!("{}: {e}", f.name()));
+            }
         }
     }
 

@@ -295,8 +295,10 @@ pub fn ambiguity(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Result<
         return Err((
             RejectReason::Ambiguous,
             format!(
-                "another alignment has overlap {:.2} against {:.2}",
-                r.runner_up_overlap, r.overlap
+                "another alignment has overlap {:.2} against {:.2}{}",
+                r.runner_up_overlap,
+                r.overlap,
+                strongest_alternative(r)
             ),
         ));
     }
@@ -308,6 +310,24 @@ pub fn ambiguity(g: &Gates<'_>, p: &Pair<'_>, r: &RegistrationResult) -> Result<
         r.overlap
     );
     Ok(())
+}
+
+/// Where the alternative with the most overlap lies from the result, in the result's query frame
+/// (empty when the registration kept none).
+fn strongest_alternative(r: &RegistrationResult) -> String {
+    r.alternatives
+        .iter()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(t, overlap)| {
+            let d = r.t_target_source.inverse() * t;
+            format!(
+                " (the strongest alternative, overlap {overlap:.2}, lies {:.2} m, {:.2} m, {:.3} rad from it)",
+                d.translation.x,
+                d.translation.y,
+                d.rotation.angle()
+            )
+        })
+        .unwrap_or_default()
 }
 
 /// The covariance is within `loop.maximum_translation_std` and `loop.maximum_rotation_std`.

@@ -1,6 +1,6 @@
 //! World families: kinds of street the simulator builds besides the default city, each a change of
-//! the [`WorldConfig`] sections (and, for one, of the road), and the held-out protocol that splits families and seeds into a
-//! `dev` set (what tuning may look at) and a `test` set (what it may not).
+//! the [`WorldConfig`] sections (and, for one, of the road), and the held-out protocol that splits
+//! families and seeds into a `dev` set (what tuning may look at) and a `test` set (what it may not).
 //!
 //! The families differ in what the registration has to hold on to: short detached houses with gardens
 //! and trees (`suburb`), long flat walls with few corners (`industrial`), a wide road lined by guard

@@ -430,7 +430,8 @@ fn gtsam_back_end_on_drifting_odometry_is_as_good_as_with_true_closures() {
 fn held_out_drive() -> String {
     let world = dc_loc::sim::families::TEST[0];
     let mut cfg: SimConfig = yaml_serde::from_str(&drifting_drive()).unwrap();
-    (cfg.world, cfg.seed) = (world.family.world(), world.seed);
+    world.family.apply(&mut cfg);
+    cfg.seed = world.seed;
     yaml_serde::to_string(&cfg).unwrap()
 }
 

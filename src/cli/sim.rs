@@ -147,10 +147,7 @@ pub fn sim_config(args: &SimArgs) -> Result<SimConfig, CliError> {
             WorldArg::Highway => WorldFamily::Highway,
             WorldArg::Corridor => WorldFamily::Corridor,
         };
-        cfg.world = family.world();
-        if let Some(route) = family.route() {
-            cfg.route = route;
-        }
+        family.apply(&mut cfg);
     }
     if let Some(n) = args.noise {
         cfg.noise.model = match n {

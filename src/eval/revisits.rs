@@ -113,10 +113,7 @@ impl RevisitScenario {
     pub fn sim_config(&self) -> SimConfig {
         let mut c = SimConfig::with_preset(self.radars);
         c.seed = self.seed;
-        c.world = self.world.world();
-        if let Some(route) = self.world.route() {
-            c.route = route;
-        }
+        self.world.apply(&mut c);
         c.noise.model = self.noise;
         c.noise.gamma_shape = self.gamma_shape;
         let [fr, fa, fv] = self.noise_factors;

@@ -8,7 +8,8 @@
 //! the same parked cars on every lap (`parking`), a road between guard rails (`highway`), and a long
 //! narrow loop between unbroken walls (`corridor`, the one family with a road of its own).
 
-use super::config::{CornerConfig, RouteConfig};
+use super::config::{CornerConfig, RouteConfig, SimConfig};
+use super::world_config::ParkingConfig;
 use super::world_config::WorldConfig;
 use serde::Serialize;
 
@@ -87,6 +88,14 @@ impl WorldFamily {
             _ => None,
         }
     }
+
+    /// Puts the family's world into `c`, and its road where it has one (else `c` keeps its road).
+    pub fn apply(self, c: &mut SimConfig) {
+        c.world = self.world();
+        if let Some(route) = self.route() {
+            c.route = route;
+        }
+    }
 }
 
 fn suburb(w: &mut WorldConfig) {
@@ -160,8 +169,7 @@ fn highway(w: &mut WorldConfig) {
         u.garden_probability,
         u.vegetation_density,
     ) = (0.3, 0.0, 0.1);
-    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.0, 0.0);
-    w.parking.occupancy = 0.0;
+    no_parked_cars(&mut w.parking);
     (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (25.0, 0.0);
 }
 
@@ -181,9 +189,13 @@ fn corridor(w: &mut WorldConfig) {
         u.garden_probability,
         u.vegetation_density,
     ) = (0.0, 0.0, 0.0);
-    (w.parking.persistent_fraction, w.parking.changing_fraction) = (0.0, 0.0);
-    w.parking.occupancy = 0.0;
+    no_parked_cars(&mut w.parking);
     (w.traffic.vehicles_per_km, w.traffic.pedestrians_per_km) = (20.0, 2.0);
+}
+
+/// No parking slot is ever taken.
+fn no_parked_cars(p: &mut ParkingConfig) {
+    (p.persistent_fraction, p.changing_fraction, p.occupancy) = (0.0, 0.0, 0.0);
 }
 
 /// A rectangle 1,000 x 140 m driven counter-clockwise, junctions at two opposite corners.

@@ -13,6 +13,7 @@
 use std::time::Instant;
 
 use dc_loc::eval::revisits::RevisitScenario;
+use dc_loc::fleet::FleetState;
 use dc_loc::fleet::wire::{self, DEFAULT_WIRE_POINTS};
 use dc_loc::input::Input;
 use dc_loc::keyframe_db::KeyframeRecord;
@@ -34,8 +35,8 @@ fn summary(name: &str, mut ms: Vec<f64>) {
     );
 }
 
-/// A keyframe a robot made, and what its node had heard of the others' then.
-type Made = (KeyframeRecord, Vec<(i32, u64)>);
+/// A keyframe a robot made, and what its node knew of the fleet then.
+type Made = (KeyframeRecord, FleetState);
 
 /// Drives `drive` through a pipeline of robot `robot` that first receives the keyframes `history`;
 /// its keyframes and the time of each input that made one, ms.
@@ -56,8 +57,8 @@ fn drive(
         let events = p.push(&input);
         let dt = t0.elapsed().as_secs_f64() * 1e3;
         for e in events {
-            if let Event::Keyframe { record, heard, .. } = e {
-                kfs.push((record.as_ref().clone(), heard));
+            if let Event::Keyframe { record, fleet, .. } = e {
+                kfs.push((record.as_ref().clone(), fleet));
                 ms.push(dt);
             }
         }
@@ -73,7 +74,7 @@ fn main() {
     let (_, theirs, _) = drive(0, &robots[0], &[]);
     let all: Vec<_> = theirs
         .iter()
-        .map(|(r, heard)| wire::encode(0, r, heard, DEFAULT_WIRE_POINTS, "base_link"))
+        .map(|(r, fleet)| wire::encode(0, r, fleet, DEFAULT_WIRE_POINTS, "base_link"))
         .collect();
     let (history, msgs) = all.split_at(all.len() / 2);
     let (mut p, _, own_ms) = drive(1, &robots[1], history);

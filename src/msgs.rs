@@ -440,6 +440,15 @@ pub mod dc_loc {
         pub heard_robots: Vec<i32>,
         /// The newest keyframe id of each of `heard_robots` the node held when it made this one.
         pub heard_ids: Vec<u64>,
+        /// Robots of the node's accepted alignments to other robots' sessions.
+        pub aligned_robots: Vec<i32>,
+        /// Their sessions.
+        pub aligned_sessions: Vec<u32>,
+        /// Per alignment x, y (m), yaw (rad): the node's odometry frame in that session's frame.
+        pub aligned_poses: Vec<f64>,
+        /// Per alignment the path lengths of the closure's two keyframes, this robot's then the
+        /// other's, m.
+        pub aligned_paths: Vec<f64>,
         /// Planar points, x0 y0 x1 y1 ..., cm.
         pub points: Vec<i16>,
         /// Three covariance codes per point.

@@ -54,8 +54,8 @@ impl Robot<'_> {
     fn take(&mut self, events: Vec<Event>) -> Vec<Input> {
         let mut shared = Vec::new();
         for e in &events {
-            if let Event::Keyframe { record, heard, .. } = e {
-                let msg = wire::encode(self.id, record, heard, DEFAULT_WIRE_POINTS, "base_link");
+            if let Event::Keyframe { record, fleet, .. } = e {
+                let msg = wire::encode(self.id, record, fleet, DEFAULT_WIRE_POINTS, "base_link");
                 shared.push(Input::Keyframe(Box::new(msg)));
             }
         }

@@ -2,19 +2,53 @@
 //!
 //! A node publishes each keyframe it makes ([`wire::encode`], `dc_loc/msg/Keyframe`) and takes the
 //! other robots' into its own map ([`crate::pipeline::Pipeline::push`] with
-//! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own, searched by place descriptor alone: the
-//! robots share no odometry frame. A pair of keyframes of two robots is registered by one node only:
-//! the one that held the other's keyframe when it made its own (the new keyframe's search), or, when
-//! both made theirs before receiving the other's, the one whose keyframe is the newer, when the other's
-//! arrives ([`crate::keyframe_db::KeyframeDb::registers_on_arrival`],
+//! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own,
+//! searched by place descriptor alone: the robots share no odometry frame. A pair of keyframes of two
+//! robots is registered by one node only: the one that held the other's keyframe when it made its own
+//! (the new keyframe's search), or, when both made theirs before receiving the other's, the one whose
+//! keyframe is the newer, when the other's arrives
+//! ([`crate::keyframe_db::KeyframeDb::registers_on_arrival`],
 //! [`crate::loop_closure::LoopCloser::search_arrival`]). Each keyframe on the wire says what its node
 //! had received of the others' (`heard_robots`, `heard_ids`) to make this decidable on both sides.
 //!
-//! Entry points: [`SharedKeyframe`], [`wire`].
+//! Each keyframe also carries the alignments its node has accepted to the other robots' sessions
+//! ([`SharedAlignment`]). A receiver takes the one to its own session, inverted, as a prior for its
+//! closures to the sender: before it has an alignment of its own, a closure far beyond what the
+//! odometry drift along both robots' paths allows from it is refused
+//! ([`crate::loop_closure::LoopCloser::take_shared`]).
+//!
+//! Entry points: [`SharedKeyframe`], [`FleetState`], [`wire`].
 
 pub mod wire;
 
 use crate::keyframe_db::{KeyframeRecord, Origin};
+use crate::math::Iso2;
+
+/// An alignment a node accepted: its session's odometry frame in the frame of session `session` of
+/// robot `robot`, found by a closure from its keyframe at path length `path` onto that session's
+/// keyframe at `match_path`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SharedAlignment {
+    /// The other robot's `node.robot_id`.
+    pub robot: i32,
+    /// The other robot's session.
+    pub session: u32,
+    /// The sender's odometry frame in the other session's odometry frame.
+    pub t: Iso2,
+    /// Path length of the closure's query keyframe, m of the sender's odometry.
+    pub path: f64,
+    /// Path length of its match keyframe, m of the other session's odometry.
+    pub match_path: f64,
+}
+
+/// What a node knew of the fleet when it made a keyframe, sent with it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FleetState {
+    /// The newest keyframe id of each other robot it held.
+    pub heard: Vec<(i32, u64)>,
+    /// Its accepted alignments to other robots' sessions.
+    pub alignments: Vec<SharedAlignment>,
+}
 
 /// Another robot's keyframe as received: `record.id` and `record.session` are that robot's.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,8 +57,8 @@ pub struct SharedKeyframe {
     pub robot: i32,
     /// The keyframe, its place descriptor made here.
     pub record: KeyframeRecord,
-    /// The newest keyframe id of each other robot its node held when it made it.
-    pub heard: Vec<(i32, u64)>,
+    /// What its node knew of the fleet when it made it.
+    pub fleet: FleetState,
 }
 
 impl SharedKeyframe {

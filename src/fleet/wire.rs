@@ -3,9 +3,9 @@
 //! path length. The place descriptor is not sent: the receiver makes it from the points with its own
 //! `place.*` settings.
 
-use super::SharedKeyframe;
+use super::{FleetState, SharedAlignment, SharedKeyframe};
 use crate::keyframe_db::{KeyframeRecord, dequantise_point};
-use crate::math::{Stamp, iso2_from_iso3};
+use crate::math::{Iso2, Stamp, Vec2, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe;
 use crate::msgs::geometry_msgs::Pose;
 use crate::msgs::std_msgs::Header;
@@ -17,12 +17,16 @@ pub const DEFAULT_WIRE_POINTS: usize = 2000;
 /// Most points a received keyframe may carry.
 const MAX_RECEIVED_POINTS: usize = 100_000;
 
-/// The message of keyframe `rec` of robot `robot`, made while its node held the keyframes `heard`
-/// (the newest id of each other robot), with at most `max_points` points (0: all).
+/// Most alignments a received keyframe may carry.
+const MAX_RECEIVED_ALIGNMENTS: usize = 10_000;
+
+/// The message of keyframe `rec` of robot `robot`, made while its node knew `fleet` (the newest
+/// keyframe id of each other robot, its accepted alignments to their sessions), with at most
+/// `max_points` points (0: all).
 pub fn encode(
     robot: i32,
     rec: &KeyframeRecord,
-    heard: &[(i32, u64)],
+    fleet: &FleetState,
     max_points: usize,
     body_frame: &str,
 ) -> Keyframe {
@@ -42,8 +46,20 @@ pub fn encode(
         id: rec.id,
         odom_pose: Pose::from(&rec.odom_pose_iso3()),
         path_distance: rec.path_distance,
-        heard_robots: heard.iter().map(|h| h.0).collect(),
-        heard_ids: heard.iter().map(|h| h.1).collect(),
+        heard_robots: fleet.heard.iter().map(|h| h.0).collect(),
+        heard_ids: fleet.heard.iter().map(|h| h.1).collect(),
+        aligned_robots: fleet.alignments.iter().map(|a| a.robot).collect(),
+        aligned_sessions: fleet.alignments.iter().map(|a| a.session).collect(),
+        aligned_poses: fleet
+            .alignments
+            .iter()
+            .flat_map(|a| [a.t.translation.x, a.t.translation.y, a.t.rotation.angle()])
+            .collect(),
+        aligned_paths: fleet
+            .alignments
+            .iter()
+            .flat_map(|a| [a.path, a.match_path])
+            .collect(),
         points: keep.iter().flat_map(|&i| rec.points[i]).collect(),
         covariances: keep.iter().flat_map(|&i| rec.covs[i]).collect(),
         rays: if rec.rays.len() == n {
@@ -56,7 +72,8 @@ pub fn encode(
 
 /// The keyframe a message carries, its place descriptor made with `place`; why not, when the message
 /// is malformed (a bad stamp, a pose that is not finite or not a rotation, a negative path, points,
-/// covariances and rays that do not pair up, too many points).
+/// covariances and rays that do not pair up, too many points, alignments that do not pair up or are
+/// not finite).
 pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, String> {
     let t = msg.header.stamp;
     let stamp = Stamp::checked_from_sec_nanosec(t.sec, t.nanosec)
@@ -82,6 +99,7 @@ pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, Str
             msg.heard_ids.len()
         ));
     }
+    let alignments = alignments(msg)?;
     let n = msg.points.len() / 2;
     if !(msg.rays.is_empty() || msg.rays.len() == n) {
         return Err(format!("{n} points and {} rays", msg.rays.len()));
@@ -112,13 +130,60 @@ pub fn decode(msg: &Keyframe, place: &PlaceConfig) -> Result<SharedKeyframe, Str
             rays: msg.rays.clone(),
             place: PlaceDescriptor::from_points(&planar, place),
         },
-        heard: msg
-            .heard_robots
-            .iter()
-            .copied()
-            .zip(msg.heard_ids.iter().copied())
-            .collect(),
+        fleet: FleetState {
+            heard: msg
+                .heard_robots
+                .iter()
+                .copied()
+                .zip(msg.heard_ids.iter().copied())
+                .collect(),
+            alignments,
+        },
     })
+}
+
+/// The accepted alignments a message carries; why not, when their fields do not pair up (one robot,
+/// session, three pose values and two path lengths each), there are too many, or a value is not
+/// finite or a path length is negative.
+fn alignments(msg: &Keyframe) -> Result<Vec<SharedAlignment>, String> {
+    let n = msg.aligned_robots.len();
+    if msg.aligned_sessions.len() != n
+        || msg.aligned_poses.len() != 3 * n
+        || msg.aligned_paths.len() != 2 * n
+    {
+        return Err(format!(
+            "{n} aligned robots, {} sessions, {} pose values and {} path lengths do not pair up (1, 1, 3 and 2 per alignment)",
+            msg.aligned_sessions.len(),
+            msg.aligned_poses.len(),
+            msg.aligned_paths.len()
+        ));
+    }
+    if n > MAX_RECEIVED_ALIGNMENTS {
+        return Err(format!(
+            "{n} alignments, more than {MAX_RECEIVED_ALIGNMENTS}"
+        ));
+    }
+    let finite = msg.aligned_poses.iter().all(|v| v.is_finite());
+    let paths = msg.aligned_paths.iter().all(|p| p.is_finite() && *p >= 0.0);
+    if !(finite && paths) {
+        return Err("an alignment's pose is not finite or its path length is negative".into());
+    }
+    Ok((0..n)
+        .map(|k| {
+            let (x, y, yaw) = (
+                msg.aligned_poses[3 * k],
+                msg.aligned_poses[3 * k + 1],
+                msg.aligned_poses[3 * k + 2],
+            );
+            SharedAlignment {
+                robot: msg.aligned_robots[k],
+                session: msg.aligned_sessions[k],
+                t: Iso2::new(Vec2::new(x, y), yaw),
+                path: msg.aligned_paths[2 * k],
+                match_path: msg.aligned_paths[2 * k + 1],
+            }
+        })
+        .collect())
 }
 
 /// Bytes of a message on the wire (CDR with its encapsulation header, as a DDS sample carries it).
@@ -165,10 +230,27 @@ mod tests {
     #[test]
     fn a_keyframe_crosses_the_wire_whole_and_within_16_kb() {
         let rec = record(1500);
-        let msg = encode(7, &rec, &[(2, 90)], DEFAULT_WIRE_POINTS, "base_link");
+        let fleet = FleetState {
+            heard: vec![(2, 90)],
+            alignments: vec![SharedAlignment {
+                robot: 2,
+                session: 1,
+                t: Iso2::new(Vec2::new(-310.5, 42.25), -2.5),
+                path: 812.0,
+                match_path: 95.5,
+            }],
+        };
+        let msg = encode(7, &rec, &fleet, DEFAULT_WIRE_POINTS, "base_link");
         let got = decode(&msg, &PlaceConfig::default()).unwrap();
         assert_eq!(got.robot, 7);
-        assert_eq!(got.heard, vec![(2, 90)]);
+        assert_eq!(got.fleet.heard, fleet.heard);
+        let (a, b) = (got.fleet.alignments[0], fleet.alignments[0]);
+        assert_eq!(
+            (a.robot, a.session, a.path, a.match_path),
+            (2, 1, 812.0, 95.5)
+        );
+        assert!((a.t.translation.vector - b.t.translation.vector).norm() < 1e-12);
+        assert!((a.t.rotation.angle() - b.t.rotation.angle()).abs() < 1e-12);
         let r = &got.record;
         assert!(r.place == rec.place, "the same points give the same place");
         assert!(r.points == rec.points && r.covs == rec.covs && r.rays == rec.rays);
@@ -178,7 +260,7 @@ mod tests {
         assert!(pose_error.fold(0.0, f64::max) < 1e-12);
         assert!((r.t_odom_body.rotation.angle() - 0.3).abs() < 1e-9);
         let full = record(4000);
-        let msg = encode(7, &full, &[], DEFAULT_WIRE_POINTS, "base_link");
+        let msg = encode(7, &full, &fleet, DEFAULT_WIRE_POINTS, "base_link");
         assert_eq!(msg.points.len(), 2 * DEFAULT_WIRE_POINTS);
         assert_eq!(msg.rays.len(), DEFAULT_WIRE_POINTS);
         let bytes = wire_bytes(&msg);
@@ -200,7 +282,13 @@ mod tests {
     fn a_keyframe_without_rays_crosses_the_wire_without_them() {
         let mut rec = record(300);
         rec.rays.clear();
-        let msg = encode(7, &rec, &[], DEFAULT_WIRE_POINTS, "base_link");
+        let msg = encode(
+            7,
+            &rec,
+            &FleetState::default(),
+            DEFAULT_WIRE_POINTS,
+            "base_link",
+        );
         assert!(msg.rays.is_empty());
         let got = decode(&msg, &PlaceConfig::default()).unwrap();
         assert!(got.record.rays.is_empty() && got.record.points == rec.points);
@@ -208,7 +296,17 @@ mod tests {
 
     #[test]
     fn malformed_keyframes_are_refused_with_the_reason() {
-        let good = encode(1, &record(100), &[(0, 3)], 0, "base_link");
+        let fleet = FleetState {
+            heard: vec![(0, 3)],
+            alignments: vec![SharedAlignment {
+                robot: 0,
+                session: 0,
+                t: Iso2::identity(),
+                path: 10.0,
+                match_path: 20.0,
+            }],
+        };
+        let good = encode(1, &record(100), &fleet, 0, "base_link");
         let place = PlaceConfig::default();
         type Spoil = Box<dyn Fn(&mut Keyframe)>;
         let cases: Vec<(Spoil, &str)> = vec![
@@ -232,6 +330,13 @@ mod tests {
             ),
             (Box::new(|m| m.heard_ids.push(4)), "heard"),
             (Box::new(|m| m.rays.push(9)), "rays"),
+            (Box::new(|m| m.aligned_sessions.push(2)), "pair up"),
+            (
+                Box::new(|m| m.aligned_poses.pop().map_or((), drop)),
+                "pair up",
+            ),
+            (Box::new(|m| m.aligned_poses[2] = f64::INFINITY), "finite"),
+            (Box::new(|m| m.aligned_paths[1] = -5.0), "negative"),
         ];
         for (spoil, why) in cases {
             let mut m = good.clone();

@@ -86,6 +86,14 @@ impl Foreigners {
         self.sessions.get(&(o.robot, o.session)).copied()
     }
 
+    /// The robot and that robot's session of local session `local`, if it is another robot's.
+    pub fn session_origin(&self, local: u32) -> Option<(i32, u32)> {
+        self.sessions
+            .iter()
+            .find(|&(_, &l)| l == local)
+            .map(|(&k, _)| k)
+    }
+
     /// The newest keyframe id held of each robot.
     pub fn newest(&self) -> Vec<(i32, u64)> {
         self.newest.iter().map(|(r, i)| (*r, *i)).collect()

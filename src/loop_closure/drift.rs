@@ -32,6 +32,25 @@ pub fn translation_std(cov: &Mat6) -> f64 {
 /// carriageway), which is no error.
 const DRIFT_BOUND_BASE: f64 = 15.0;
 
+/// How far beyond the drift model a closure may lie from a prior that odometry drift alone separates
+/// it from and still wait for confirmation: this many times the model's bounds, i.e. the bounds read
+/// as one standard deviation instead of three. A yaw-rate bias integrated over a lap lies within it; a
+/// street matched to its point-symmetric twin across a block (half a turn and a block's width off)
+/// does not, and such twins agree with each other from every keyframe along the street.
+const BEYOND_DRIFT_REACH: f64 = 3.0;
+
+/// Whether a closure at squared Mahalanobis distance `d2` from a prediction under the drift model
+/// ([`drift_sigmas`]) lies within [`BEYOND_DRIFT_REACH`] times the bounds `loop.consistency_chi2`
+/// sets.
+pub fn within_reach(d2: f64, lc: &LoopConfig) -> bool {
+    d2 <= reach_chi2(lc)
+}
+
+/// The largest squared Mahalanobis distance [`within_reach`] allows.
+pub fn reach_chi2(lc: &LoopConfig) -> f64 {
+    BEYOND_DRIFT_REACH * BEYOND_DRIFT_REACH * lc.consistency_chi2
+}
+
 /// Standard deviations (m, rad) of the odometry drift over `path_gap` metres: the drift model's bounds
 /// ([`DRIFT_BOUND_BASE`] plus `drift_rate` per metre, 0.05 rad plus `drift_yaw_rate` per metre) read as
 /// three standard deviations, so that the default 3-dof chi-square gate accepts a closure whose
@@ -134,13 +153,63 @@ fn stretch_drift(gap: f64, lc: &LoopConfig) -> Mat3 {
 }
 
 /// What a closure is tested against: the session's accepted alignment, or (for a candidate of this
-/// session) odometry itself.
+/// session) odometry itself, or an alignment to another session under the drift along both paths.
 #[derive(Debug, Clone, Copy)]
 pub enum Prior<'a> {
     /// The accepted alignment to the candidate's session.
     Alignment(&'a Alignment),
     /// Odometry: the candidate belongs to this session.
     Odometry,
+    /// An alignment of this session's frame into the candidate's session's (this session's
+    /// accepted one, or the one the candidate's robot accepted to this session, inverted), as odometry
+    /// carries it: the drift along both sessions' paths since the closure that gave it separates its
+    /// prediction from the truth, under the drift model's bounds ([`drift_sigmas`]).
+    Anchored(&'a Alignment),
+}
+
+/// The drift model's standard deviations (m, rad) of `prior`'s prediction of a closure from `query`
+/// onto `cand`, and the alignment it predicts with.
+fn prior_sigmas(
+    prior: Prior<'_>,
+    query: &KeyframeRecord,
+    cand: &KeyframeRecord,
+    lc: &LoopConfig,
+) -> (Iso2, (f64, f64)) {
+    match prior {
+        Prior::Alignment(a) => (a.t, alignment_sigmas(query.path_distance - a.path, lc)),
+        Prior::Odometry => (
+            Iso2::identity(),
+            drift_sigmas(query.path_distance - cand.path_distance, lc),
+        ),
+        Prior::Anchored(a) => (
+            a.t,
+            anchored_sigmas(a, query.path_distance, cand.path_distance, lc),
+        ),
+    }
+}
+
+/// The drift model's standard deviations (m, rad) of alignment `a`'s prediction of a closure from
+/// this session's keyframe at `query_path` onto the other session's at `match_path`: the drift over
+/// both sessions' paths since the closure that gave it ([`Prior::Anchored`]).
+fn anchored_sigmas(a: &Alignment, query_path: f64, match_path: f64, lc: &LoopConfig) -> (f64, f64) {
+    let gap = (query_path - a.path).abs() + (match_path - a.match_path).abs();
+    drift_sigmas(gap, lc)
+}
+
+/// Squared Mahalanobis distance between a held closure `c` (its keyframes at `paths`, query then
+/// match, m) and alignment `a`'s prediction ([`Prior::Anchored`]); `None` when the covariance is
+/// singular.
+pub fn anchored_inconsistency(
+    a: &Alignment,
+    c: &LoopClosure,
+    paths: [f64; 2],
+    lc: &LoopConfig,
+) -> Option<f64> {
+    let predicted =
+        iso2_from_iso3(&c.match_odom_pose).inverse() * a.t * iso2_from_iso3(&c.query_odom_pose);
+    let t = iso2_from_iso3(&c.t_match_query);
+    let sigmas = anchored_sigmas(a, paths[0], paths[1], lc);
+    distance_to(&t, &predicted, &c.covariance, sigmas)
 }
 
 /// Squared Mahalanobis distance between a registered `T_match_query` (`t`, covariance `cov6` in ROS
@@ -154,14 +223,18 @@ pub fn inconsistency(
     cov6: &Mat6,
     lc: &LoopConfig,
 ) -> Option<f64> {
-    let (alignment, (sigma_t, sigma_r)) = match prior {
-        Prior::Alignment(a) => (a.t, alignment_sigmas(query.path_distance - a.path, lc)),
-        Prior::Odometry => (
-            Iso2::identity(),
-            drift_sigmas(query.path_distance - cand.path_distance, lc),
-        ),
-    };
-    let predicted = predict(&alignment, query, cand);
+    let (alignment, sigmas) = prior_sigmas(prior, query, cand, lc);
+    distance_to(t, &predict(&alignment, query, cand), cov6, sigmas)
+}
+
+/// Squared Mahalanobis distance between `t` and `predicted` under `cov6` (ROS order) plus the
+/// prediction's standard deviations `(sigma_t, sigma_r)` (m, rad); `None` when that is singular.
+fn distance_to(
+    t: &Iso2,
+    predicted: &Iso2,
+    cov6: &Mat6,
+    (sigma_t, sigma_r): (f64, f64),
+) -> Option<f64> {
     let e = se2_log(&(t.inverse() * predicted));
     let mut cov = covariance_se2_from_ros(cov6);
     cov[(0, 0)] += sigma_t * sigma_t;

@@ -12,7 +12,8 @@ use std::collections::BTreeMap;
 
 use super::calibration::{add_planar, calibration_covariance, clock_covariance};
 use super::drift::{
-    Prior, heading_drift_covariance, inconsistency, predict, translation_std, vouches,
+    Prior, heading_drift_covariance, inconsistency, predict, reach_chi2, translation_std, vouches,
+    within_reach,
 };
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason, Standing};
 use crate::keyframe_db::KeyframeRecord;
@@ -21,13 +22,6 @@ use crate::registration::{
     PreparedSubmap, RegistrationConfig, RegistrationError, RegistrationResult, common_view,
     overlap_near, slide_overlap,
 };
-
-/// How far beyond the drift model a session's closures to itself may lie and still wait for
-/// confirmation (`loop.confirm_beyond_drift`): this many times its bounds, i.e. the bounds read as one
-/// standard deviation instead of three. A yaw-rate bias integrated over a lap lies within it; a street
-/// matched to its point-symmetric twin across a block (half a turn and a block's width off) does not,
-/// and such twins agree with each other from every keyframe along the street.
-const BEYOND_DRIFT_REACH: f64 = 3.0;
 
 /// Why a candidate was refused, for the log and the counters.
 pub type Refusal = (RejectReason, String);
@@ -43,6 +37,8 @@ pub struct Gates<'a> {
     pub session: u32,
     /// Per earlier session, the accepted alignment of this session's odometry into it.
     pub alignments: &'a BTreeMap<u32, Alignment>,
+    /// Per other robot's session, that robot's accepted alignment to this session, inverted.
+    pub shared: &'a BTreeMap<u32, Alignment>,
 }
 
 /// The two submaps of a candidate pair.
@@ -353,7 +349,8 @@ pub fn covariance(lc: &LoopConfig, r: &RegistrationResult) -> Result<(), Refusal
 /// odometry has drifted beyond its model and no longer tells where the session is; once it is stale,
 /// a drift beyond the model (a yaw-rate bias turns the alignment as the robot drives) has moved it
 /// as far. Either way the closure waits for as many confirmations as one to another session, across
-/// a turn.
+/// a turn. A closure to another session is first tested against every alignment to it known here
+/// ([`beyond_every_alignment`]).
 pub fn consistency(
     g: &Gates<'_>,
     p: &Pair<'_>,
@@ -369,6 +366,7 @@ pub fn consistency(
     if lc.consistency_chi2 <= 0.0 {
         return Ok(consistent);
     }
+    beyond_every_alignment(g, p, r)?;
     let t = &r.t_target_source;
     let aligned = g.distance(p, r, t, true);
     if !aligned.is_some_and(|d2| d2 > lc.consistency_chi2) {
@@ -393,11 +391,48 @@ pub fn consistency(
     else {
         return Ok(Standing::Unconfirmed);
     };
-    let within_reach = d2 <= BEYOND_DRIFT_REACH * BEYOND_DRIFT_REACH * lc.consistency_chi2;
-    if lc.confirm_beyond_drift && within_reach && !g.trusted(p) {
+    if lc.confirm_beyond_drift && within_reach(d2, lc) && !g.trusted(p) {
         return Ok(Standing::BeyondDrift);
     }
     Err(contradicts_odometry(p, t, d2, aligned))
+}
+
+/// A closure to another session, tested against every alignment to it this node knows (its own
+/// accepted one, stale or fresh, and the one the other session's robot accepted to this session,
+/// inverted) as odometry carries them ([`Prior::Anchored`]): refused when it lies beyond
+/// [`within_reach`] of each. Between sessions nothing else ties the two odometry frames; without it,
+/// closures onto a look-alike street far away that agree with each other would replace a stale
+/// alignment or become the first one.
+fn beyond_every_alignment(
+    g: &Gates<'_>,
+    p: &Pair<'_>,
+    r: &RegistrationResult,
+) -> Result<(), Refusal> {
+    let s = p.cand.session;
+    if s == g.session {
+        return Ok(());
+    }
+    let t = &r.t_target_source;
+    let d2 =
+        |a: &Alignment| inconsistency(Prior::Anchored(a), p.query, p.cand, t, &r.covariance, g.lc);
+    let known = [g.alignment(s), g.shared.get(&s)];
+    let mut nearest = f64::INFINITY;
+    for a in known.into_iter().flatten() {
+        match d2(a) {
+            Some(d2) if !within_reach(d2, g.lc) => nearest = nearest.min(d2),
+            _ => return Ok(()),
+        }
+    }
+    if nearest.is_infinite() {
+        return Ok(());
+    }
+    Err((
+        RejectReason::Inconsistent,
+        format!(
+            "squared Mahalanobis distance {nearest:.1} to the nearest prediction of the alignments to session {s} known here (the drift along both paths since each was found allows {:.1})",
+            reach_chi2(g.lc)
+        ),
+    ))
 }
 
 /// The refusal of `t`, a closure within its own session at squared Mahalanobis distance `d2` from
@@ -539,6 +574,7 @@ mod tests {
         lc: LoopConfig,
         rc: RegistrationConfig,
         alignments: BTreeMap<u32, Alignment>,
+        shared: BTreeMap<u32, Alignment>,
         query: KeyframeRecord,
         cand: KeyframeRecord,
         map: PreparedSubmap,
@@ -550,6 +586,7 @@ mod tests {
             lc: LoopConfig::default(),
             rc: RegistrationConfig::default(),
             alignments: BTreeMap::new(),
+            shared: BTreeMap::new(),
             query: record(60, 0, Iso2::new(Vec2::new(2.0, 0.0), 0.0), 300.0),
             cand: record(0, 0, Iso2::identity(), 0.0),
             map: surroundings(3),
@@ -563,6 +600,7 @@ mod tests {
                 rc: &self.rc,
                 session: 0,
                 alignments: &self.alignments,
+                shared: &self.shared,
             }
         }
         fn pair(&self) -> Pair<'_> {
@@ -658,6 +696,55 @@ mod tests {
         assert_eq!(g.closure.query_id, 60);
         assert_eq!(g.closure.match_id, 0);
         assert_eq!(g.closure.score, 0.8);
+    }
+
+    /// A closure to another robot's session is refused beyond the drift from every alignment to it
+    /// known here (this node's, stale or fresh, and the one that robot's node accepted to this
+    /// session), and waits for confirmation within reach of any of them; with none, nothing refuses
+    /// it.
+    #[test]
+    fn a_closure_to_another_robot_beyond_every_known_alignment_is_refused() {
+        let mut f = fixture();
+        f.cand.session = 1;
+        // The other robot's frame: the query's origin lies at (500, -200) there, turned by 2 rad;
+        // the candidate keyframe sits there, so the true closure is the query's own pose (2, 0, 0).
+        let truth = Iso2::new(Vec2::new(500.0, -200.0), 2.0);
+        f.cand.t_odom_body = truth;
+        let at = |x: f64, yaw: f64| result(Iso2::new(Vec2::new(x, 0.0), yaw), 0.05);
+        let standing = |f: &Fixture, x: f64, yaw: f64| f.gate(at(x, yaw)).map(|g| g.standing);
+        assert_eq!(
+            standing(&f, 200.0, 0.0),
+            Ok(Standing::Unconfirmed),
+            "no prior"
+        );
+        // Shared at this session's 300 m and the candidate's 0 m: no drift between, 5 m and 0.017
+        // rad standard deviation, twelve of them within reach.
+        let shared = Alignment {
+            t: truth,
+            path: 300.0,
+            match_path: 0.0,
+        };
+        f.shared.insert(1, shared);
+        assert_eq!(standing(&f, 2.0, 0.0), Ok(Standing::Unconfirmed));
+        assert_eq!(
+            standing(&f, 40.0, 0.0),
+            Ok(Standing::Unconfirmed),
+            "within reach"
+        );
+        assert_eq!(reason(f.gate(at(200.0, 0.0))), RejectReason::Inconsistent);
+        assert_eq!(reason(f.gate(at(2.0, 0.5))), RejectReason::Inconsistent);
+        // This node's own alignment 200 m away: the slid closure agrees with it, and may wait for
+        // confirmation that replaces the shared one's word.
+        let slid = truth * Iso2::new(Vec2::new(198.0, 0.0), 0.0);
+        f.alignments.insert(1, Alignment { t: slid, ..shared });
+        assert!(f.gate(at(200.0, 0.0)).is_ok());
+        // Far from both: refused.
+        assert_eq!(reason(f.gate(at(600.0, 0.0))), RejectReason::Inconsistent);
+        // A closure to this session's own earlier keyframes is not tested against them.
+        f.cand.session = 0;
+        f.cand.t_odom_body = Iso2::identity();
+        f.cand.path_distance = 290.0;
+        assert!(f.gate(at(2.0, 0.0)).is_ok());
     }
 
     #[test]

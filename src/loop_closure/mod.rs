@@ -195,9 +195,22 @@ impl LoopCloser {
         (speeds, speeds.map(|v| 0.5 * v * self.submap_span))
     }
 
+    /// Another robot's node accepted an alignment of its session `session` (local number) to this
+    /// session; `alignment` is it inverted. Closures to `session` are tested against it until this
+    /// session has an alignment of its own ([`Session::take_shared`]).
+    pub fn take_shared(&mut self, session: u32, alignment: Alignment) {
+        self.state.take_shared(session, alignment, &self.lc);
+    }
+
     /// The state of acceptance.
     pub fn state(&self) -> &Session {
         &self.state
+    }
+
+    /// The state of acceptance, to set up a test.
+    #[cfg(test)]
+    pub(crate) fn state_mut(&mut self) -> &mut Session {
+        &mut self.state
     }
 
     /// A new keyframe of this session (not yet in `db`): its revisits searched, its closure published
@@ -480,6 +493,7 @@ impl LoopCloser {
             rc: &self.rc,
             session: self.session,
             alignments: self.state.alignments(),
+            shared: self.state.shared(),
         }
     }
 

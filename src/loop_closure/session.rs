@@ -5,7 +5,9 @@
 
 use std::collections::{BTreeMap, VecDeque};
 
-use super::drift::{alignment_distance, closure_disagreement, vouches};
+use super::drift::{
+    alignment_distance, anchored_inconsistency, closure_disagreement, vouches, within_reach,
+};
 use super::{LoopClosure, LoopConfig};
 use crate::math::Iso2;
 
@@ -29,6 +31,14 @@ pub struct Alignment {
     pub path: f64,
     /// Path length of its match keyframe, m of the other session's odometry.
     pub match_path: f64,
+}
+
+#[cfg(test)]
+impl Session {
+    /// Sets the accepted alignment to `session`, as a confirmation would.
+    pub(crate) fn set_alignment(&mut self, session: u32, a: Alignment) {
+        self.alignments.insert(session, a);
+    }
 }
 
 #[cfg(test)]
@@ -110,6 +120,9 @@ pub struct Session {
     own: u32,
     /// Per earlier session: the latest accepted alignment.
     alignments: BTreeMap<u32, Alignment>,
+    /// Per other robot's session: the latest alignment that robot's node accepted to this session,
+    /// inverted (this session's frame in that one's).
+    shared: BTreeMap<u32, Alignment>,
     /// Per session without an alignment yet: closures waiting for confirmation.
     held: BTreeMap<u32, Vec<Held>>,
     /// This session's keyframes of the last `loop.backfill_horizon` metres without a published
@@ -137,6 +150,54 @@ impl Session {
     /// The accepted alignments, by session.
     pub fn alignments(&self) -> &BTreeMap<u32, Alignment> {
         &self.alignments
+    }
+
+    /// The other robots' accepted alignments to this session, inverted, by their sessions.
+    pub fn shared(&self) -> &BTreeMap<u32, Alignment> {
+        &self.shared
+    }
+
+    /// Another robot's node accepted `alignment` (inverted: this session's frame in that robot's
+    /// session `session`): kept as a prior for closures to `session`, and the closures to it held
+    /// for confirmation that lie beyond [`within_reach`] of it and of this session's own alignment to
+    /// `session` are dropped, as the gates would refuse them now ([`super::drift::Prior::Anchored`]).
+    pub fn take_shared(&mut self, session: u32, alignment: Alignment, lc: &LoopConfig) {
+        if self.shared.insert(session, alignment).is_none() {
+            log::debug!(
+                "session {session}'s robot accepted an alignment to this session ({:.2} {:.2} {:.3}, at {:.0} m here, {:.0} m there)",
+                alignment.t.translation.x,
+                alignment.t.translation.y,
+                alignment.t.rotation.angle(),
+                alignment.path,
+                alignment.match_path
+            );
+        }
+        if lc.consistency_chi2 <= 0.0 {
+            return;
+        }
+        let known: Vec<Alignment> = [self.alignments.get(&session), Some(&alignment)]
+            .into_iter()
+            .flatten()
+            .copied()
+            .collect();
+        let Some(pending) = self.held.get_mut(&session) else {
+            return;
+        };
+        pending.retain(|h| {
+            let paths = [h.alignment.path, h.alignment.match_path];
+            let d2 = |a: &Alignment| anchored_inconsistency(a, &h.closure, paths, lc);
+            let keep = known
+                .iter()
+                .any(|a| d2(a).is_none_or(|d2| within_reach(d2, lc)));
+            if !keep {
+                log::debug!(
+                    "held closure {} -> {} dropped: it lies beyond the drift from every alignment to session {session} known here",
+                    h.closure.query_id,
+                    h.closure.match_id
+                );
+            }
+            keep
+        });
     }
 
     /// A new keyframe of this session at `path`: it has no closure yet (keyframes farther back than
@@ -551,6 +612,48 @@ mod tests {
         c.t_match_query = iso3_from_iso2(&t);
         c.covariance = covariance_ros_from_se2(&planar);
         (c, matched * t * query.inverse())
+    }
+
+    /// A closure to another robot's session held for confirmation is dropped once that robot's node
+    /// shares an alignment to this session that it lies far beyond (the street matched 300 m along
+    /// itself); a closure within the drift of it stays held, and the shared alignment is kept for the
+    /// gates.
+    #[test]
+    fn a_shared_alignment_drops_the_held_closures_far_beyond_it() {
+        let lc = LoopConfig::default();
+        let mut s = Session::new(1);
+        let mut hold = |q: u64, slide: f64| {
+            let path = 10.0 * q as f64;
+            let (c, a) = street_closure(q, path, slide, 0.05);
+            let held = s.accept(&place(q, path), c, 0, aligned(a, path), Unconfirmed, &lc);
+            assert!(held.is_empty());
+            a
+        };
+        let true_one = hold(10, 0.0);
+        let slid = hold(20, 300.0);
+        let mut s2 = s.clone();
+        assert_eq!(
+            s.search_prior(0).map(|p| p.t),
+            Some(slid),
+            "the newest held"
+        );
+        // Found by the other robot at this session's 150 m and its own 150 m: the drift over the 100
+        // m between (a 6.7 m standard deviation) allows neither 300 m nor a few metres less.
+        s.take_shared(0, aligned(true_alignment(), 150.0), &lc);
+        assert_eq!(s.shared()[&0].t, true_alignment());
+        assert_eq!(
+            s.search_prior(0).map(|p| p.t),
+            Some(true_one),
+            "the slid one is gone"
+        );
+        // The slid one is kept while this session's own alignment to session 0 agrees with it.
+        s2.set_alignment(0, aligned(slid, 200.0));
+        s2.take_shared(0, aligned(true_alignment(), 150.0), &lc);
+        assert_eq!(
+            s2.held[&0].len(),
+            2,
+            "both held closures lie within reach of one"
+        );
     }
 
     /// Along a road whose guard rail posts repeat every 2 m a closure slid by a post period fits as

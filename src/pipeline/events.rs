@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
+use crate::fleet::FleetState;
 use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::{LoopClosure, RejectReason};
 use crate::math::{Iso3, Stamp};
@@ -83,8 +84,8 @@ pub enum Event {
         submap: Arc<Submap>,
         /// The compact copy, as the map keeps it and the fleet receives it.
         record: Arc<KeyframeRecord>,
-        /// The newest keyframe id of each other robot held when it was made.
-        heard: Vec<(i32, u64)>,
+        /// What was known of the fleet when it was made, sent with it.
+        fleet: FleetState,
     },
     /// A loop closure passed every gate.
     Closure(Box<LoopClosure>),

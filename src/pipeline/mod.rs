@@ -22,10 +22,10 @@ pub use events::{DropReason, Event, PipelineStats, RobotCounts};
 
 use std::sync::Arc;
 
-use crate::fleet::wire;
+use crate::fleet::{FleetState, SharedAlignment, SharedKeyframe, wire};
 use crate::input::{Input, InputLimits};
 use crate::keyframe_db::{ForeignRefusal, KeyframeDb, KeyframeRecord};
-use crate::loop_closure::{Decision, Decisions, LoopCloser};
+use crate::loop_closure::{Alignment, Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
 use crate::radar::RadarScan;
@@ -292,7 +292,7 @@ impl Pipeline {
             points: submap.len(),
             submap: Arc::new(submap),
             record: Arc::new(rec.clone()),
-            heard: self.db.foreign().newest(),
+            fleet: self.fleet_state(),
         });
         let mut decisions = Decisions::default();
         if self.cfg.r#loop.enabled {
@@ -303,6 +303,28 @@ impl Pipeline {
         let n = self.cfg.r#loop.backfill_per_keyframe;
         self.loops.backfill(&mut self.db, n, &mut decisions);
         self.report(decisions, out);
+    }
+
+    /// What this node knows of the fleet: the newest keyframe of each other robot it holds and its
+    /// accepted alignments to other robots' sessions.
+    fn fleet_state(&self) -> FleetState {
+        let foreign = self.db.foreign();
+        let alignments = self.loops.state().alignments().iter();
+        FleetState {
+            heard: foreign.newest(),
+            alignments: alignments
+                .filter_map(|(&local, a)| {
+                    let (robot, session) = foreign.session_origin(local)?;
+                    Some(SharedAlignment {
+                        robot,
+                        session,
+                        t: a.t,
+                        path: a.path,
+                        match_path: a.match_path,
+                    })
+                })
+                .collect(),
+        }
     }
 
     /// Another robot's keyframe: decoded (its place descriptor made with `place.*`; a malformed one
@@ -341,13 +363,15 @@ impl Pipeline {
             self.cfg.map.max_keyframes_per_robot,
             self.cfg.map.max_keyframes,
         );
-        match self.db.insert_foreign(
+        let added = self.db.insert_foreign(
             k.record.clone(),
             k.origin(),
-            k.heard.clone(),
+            k.fleet.heard.clone(),
             max_robot,
             max_all,
-        ) {
+        );
+        take_shared_alignment(&mut self.loops, &self.db, (self.robot, self.session), &k);
+        match added {
             Ok(id) => {
                 counts.added += 1;
                 self.next_id = self.next_id.max(self.db.next_id());
@@ -447,6 +471,29 @@ impl Pipeline {
                 }
             }
         }
+    }
+}
+
+/// The sender's accepted alignment to this node's robot and session (`own`), if `k` carries one:
+/// inverted, it is this session's odometry frame in the sender's session's frame, the prior the gates
+/// test closures to that session against until this node accepts an alignment of its own.
+fn take_shared_alignment(
+    loops: &mut LoopCloser,
+    db: &KeyframeDb,
+    own: (i32, u32),
+    k: &SharedKeyframe,
+) {
+    let Some(local) = db.foreign().session(&k.origin()) else {
+        return;
+    };
+    let mine = |a: &&SharedAlignment| (a.robot, a.session) == own;
+    if let Some(a) = k.fleet.alignments.iter().find(mine) {
+        let inverted = Alignment {
+            t: a.t.inverse(),
+            path: a.match_path,
+            match_path: a.path,
+        };
+        loops.take_shared(local, inverted);
     }
 }
 

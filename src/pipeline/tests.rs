@@ -72,6 +72,94 @@ fn a_second_scan_with_the_same_stamp_is_dropped_and_empty_scans_are_counted() {
     assert_eq!(p.stats().dropped[&DropReason::DuplicateStamp], 1);
 }
 
+/// Keyframe `id` of session `session` of robot `robot` on the wire, its node knowing `fleet`: fifty
+/// points on a slanted line, at the origin of that robot's odometry, `id` metres along its path.
+fn foreign_keyframe(
+    robot: i32,
+    session: u32,
+    id: u64,
+    place: &crate::place::PlaceConfig,
+    fleet: &FleetState,
+) -> Input {
+    let pts: Vec<crate::math::Vec2> = (0..50)
+        .map(|i| crate::math::Vec2::new(5.0 + i as f64, (i % 7) as f64))
+        .collect();
+    let record = KeyframeRecord {
+        id,
+        session,
+        stamp: Stamp::from_secs_f64(10.0 + id as f64),
+        t_odom_body: crate::math::Iso2::identity(),
+        odom_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        path_distance: id as f64,
+        points: pts
+            .iter()
+            .filter_map(|&q| crate::keyframe_db::quantise_point(q))
+            .collect(),
+        covs: vec![[40, 40, 0]; 50],
+        rays: Vec::new(),
+        place: crate::place::PlaceDescriptor::from_points(&pts, place),
+    };
+    Input::Keyframe(Box::new(wire::encode(
+        robot,
+        &record,
+        fleet,
+        0,
+        "base_link",
+    )))
+}
+
+/// A received keyframe's alignment to this robot's session becomes, inverted, the prior for closures
+/// to the sender's session (by its local number); alignments to other robots or sessions are not
+/// this node's. A node shares its own accepted alignments with its keyframes by the other robot's id
+/// and session.
+#[test]
+fn another_robots_alignment_to_this_session_is_taken_inverted() {
+    let mut p = Pipeline::new(Config::default()).expect("config");
+    p.set_robot(1);
+    let place = p.config().place.clone();
+    let t = crate::math::Iso2::new(crate::math::Vec2::new(120.0, -40.0), 2.0);
+    let shared = |robot: i32, session: u32| SharedAlignment {
+        robot,
+        session,
+        t,
+        path: 300.0,
+        match_path: 80.0,
+    };
+    let fleet = FleetState {
+        heard: vec![(1, 0)],
+        alignments: vec![shared(7, 0), shared(1, 3), shared(1, 0)],
+    };
+    p.push(&foreign_keyframe(5, 2, 4, &place, &fleet));
+    let local = p
+        .db()
+        .foreign()
+        .session(&crate::keyframe_db::Origin {
+            robot: 5,
+            session: 2,
+            id: 4,
+        })
+        .expect("the sender's session has a local number");
+    let got = p.loops.state().shared();
+    assert_eq!(got.len(), 1, "{got:?}");
+    let a = got[&local];
+    assert_eq!((a.path, a.match_path), (80.0, 300.0));
+    let back = a.t * t;
+    assert!(back.translation.vector.norm() < 1e-9 && back.rotation.angle().abs() < 1e-12);
+    let own = crate::loop_closure::Alignment {
+        t,
+        path: 50.0,
+        match_path: 60.0,
+    };
+    p.loops.state_mut().set_alignment(local, own);
+    let state = p.fleet_state();
+    assert_eq!(state.alignments.len(), 1);
+    let sent = state.alignments[0];
+    assert_eq!(
+        (sent.robot, sent.session, sent.path, sent.match_path),
+        (5, 2, 50.0, 60.0)
+    );
+}
+
 /// Another robot's keyframe: added once, refused beyond its robot's budget and when it carries this
 /// robot's id from another session, each counted under the robot; this robot's own echo is ignored.
 #[test]
@@ -82,25 +170,7 @@ fn other_robots_keyframes_are_counted_by_robot() {
     p.set_robot(1);
     let place = p.config().place.clone();
     let keyframe = |robot: i32, session: u32, id: u64| {
-        let pts: Vec<crate::math::Vec2> = (0..50)
-            .map(|i| crate::math::Vec2::new(5.0 + i as f64, (i % 7) as f64))
-            .collect();
-        let record = KeyframeRecord {
-            id,
-            session,
-            stamp: Stamp::from_secs_f64(10.0 + id as f64),
-            t_odom_body: crate::math::Iso2::identity(),
-            odom_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-            path_distance: id as f64,
-            points: pts
-                .iter()
-                .filter_map(|&q| crate::keyframe_db::quantise_point(q))
-                .collect(),
-            covs: vec![[40, 40, 0]; 50],
-            rays: Vec::new(),
-            place: crate::place::PlaceDescriptor::from_points(&pts, &place),
-        };
-        Input::Keyframe(Box::new(wire::encode(robot, &record, &[], 0, "base_link")))
+        foreign_keyframe(robot, session, id, &place, &FleetState::default())
     };
     for id in 0..3 {
         p.push(&keyframe(5, 0, id));
@@ -116,7 +186,13 @@ fn other_robots_keyframes_are_counted_by_robot() {
     assert_eq!(p.stats().dropped[&DropReason::KeyframeOverBudget], 1);
     assert_eq!(p.db().len(), 2);
     assert_eq!(p.stats().robots[&1].refused, 1);
-    let mut bad = wire::encode(5, &p.db().get(0).unwrap().clone(), &[], 0, "base_link");
+    let mut bad = wire::encode(
+        5,
+        &p.db().get(0).unwrap().clone(),
+        &FleetState::default(),
+        0,
+        "base_link",
+    );
     bad.covariances.pop();
     assert!(dropped(
         &p.push(&Input::Keyframe(Box::new(bad))),

@@ -17,7 +17,7 @@ use super::map_store::MapSaver;
 use super::merge::StampMerger;
 use super::services::{SaveRequest, TriggerResponse, relocalized};
 use super::shared::{Shared, Work, receive_time};
-use crate::fleet::wire;
+use crate::fleet::{FleetState, wire};
 use crate::input::Input;
 use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::LoopClosure;
@@ -354,11 +354,11 @@ impl Worker {
                     id,
                     t_odom_body,
                     record,
-                    heard,
+                    fleet,
                     ..
                 } => {
                     self.markers.keyframe(id, &t_odom_body);
-                    self.share_keyframe(&record, &heard);
+                    self.share_keyframe(&record, &fleet);
                     changed = true;
                 }
                 Event::Closure(c) => {
@@ -441,11 +441,11 @@ impl Worker {
     }
 
     /// A new keyframe to the fleet (`node.fleet`).
-    fn share_keyframe(&self, record: &KeyframeRecord, heard: &[(i32, u64)]) {
+    fn share_keyframe(&self, record: &KeyframeRecord, fleet: &FleetState) {
         let Some(p) = &self.out.keyframes else { return };
         let robot = self.pipeline.robot();
         let points = self.settings.fleet.points;
-        let msg = wire::encode(robot, record, heard, points, &self.body_frame);
+        let msg = wire::encode(robot, record, fleet, points, &self.body_frame);
         if let Err(e) = p.publish(msg) {
             log::warn!("keyframe {}: publish to the fleet failed: {e:?}", record.id);
         }

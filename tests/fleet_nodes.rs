@@ -17,7 +17,8 @@
 //! keyframe with an older keyframe of another robot within 5 m, headings within 90 degrees; closed when it
 //! is the newer keyframe of a correct closure between robots), the late joiner closes onto the earlier
 //! robots, every closure names keyframes the fleet topic carried, each node publishes each of its
-//! keyframes, and every node exits 0 on SIGINT or SIGTERM. The offline evaluation of the same fleet
+//! keyframes, the alignments the nodes send with their keyframes (at least one) lie within 2 m at the
+//! keyframes of the closures that gave them, and every node exits 0 on SIGINT or SIGTERM. The offline evaluation of the same fleet
 //! (`eval::fleet::evaluate_fleet`: a pipeline per robot, keyframes through the wire format) is printed
 //! beside it.
 //! Also, examples/backend_gtsam.py optimises the three robots in one pose graph (`optimise_fleet`): its
@@ -289,6 +290,11 @@ fn check_fleet_run(name: &str, concurrent: &str, late: &str, flood: bool) {
         assert!(pairs.insert(pair), "pair {pair:?} published twice");
     }
     assert_eq!(s["duplicates"].as_array().map(Vec::len), Some(0), "{s}");
+    // Every alignment a node sent with its keyframes is correct where it was found.
+    let a = &s["shared_alignments"];
+    assert!(a["count"].as_u64().unwrap() > 0, "no alignment shared: {a}");
+    assert_eq!(a["correct"], a["count"], "{a}");
+    assert_eq!(a["unmatched"].as_array().map(Vec::len), Some(0), "{a}");
     // Every closure names keyframes the fleet topic carried, with their stamps.
     assert_eq!(
         s["unknown_keyframes"].as_array().map(Vec::len),

@@ -1,7 +1,8 @@
 //! `dc_loc/msg/Keyframe`, the keyframe on the wire: the record's quantised points, covariances and
 //! rays (8 bytes a point), at most a given number of them (an even subsample), with the odometry pose and
-//! path length. The place descriptor is not sent: the receiver makes it from the points with its own
-//! `place.*` settings.
+//! path length, and what its node knew of the fleet ([`FleetState`]: the keyframes it held, its
+//! accepted alignments). The place descriptor is not sent: the receiver makes it from the points with
+//! its own `place.*` settings.
 
 use super::{FleetState, SharedAlignment, SharedKeyframe};
 use crate::keyframe_db::{KeyframeRecord, dequantise_point};

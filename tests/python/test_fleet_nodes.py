@@ -81,7 +81,9 @@ Also reported: pairs published more than once across the fleet (as an unordered 
 keyframes), inter-robot closures registered by the node whose keyframe is the older one (allowed: it held
 the other's keyframe when it made its own), closures naming a keyframe that was not seen on
 ``/dc_loc/keyframes`` (or with another stamp), closures with ``query_robot`` other than the publishing
-node's id, and the late joiner's closures onto the earlier robots.
+node's id, the late joiner's closures onto the earlier robots, and the accepted alignments the Keyframe
+messages carry, each against the ground truth at the two keyframes of the closure that gave it
+(``shared_alignments``, ``judge_shared_alignments``).
 """
 
 import argparse
@@ -111,7 +113,7 @@ FLOOD_START = 0.25  # of the concurrent replay's duration
 NODE_FLEET_HISTORY, NODE_FLEET_RATE = 1000, 10.0  # the node's defaults
 # The malformed keyframes of a flood: what src/fleet/wire.rs decode refuses (bad_keyframe).
 FLOOD_MALFORMED = ("covariances 2 a point", "quaternion of zeros", "odd point coordinates", "NaN position",
-                   "heard robots without ids", "negative path length")
+                   "heard robots without ids", "negative path length", "alignment without its paths")
 
 
 def secs(t) -> float:
@@ -287,6 +289,41 @@ def judge(closures: list[dict], keyframes: list[dict], truth: dict[int, GroundTr
     }
 
 
+def judge_shared_alignments(keyframes: list[dict], truth: dict[int, GroundTruth]) -> dict:
+    """The alignments the Keyframe messages carry (``aligned_*``), each against the ground truth at the two
+    keyframes of the closure that gave it: the sender's keyframe at the alignment's first path length and the
+    other robot's at its second, both found among the Keyframe messages by robot, session and path length.
+    An alignment T (the sender's odometry frame in the other's) says the sender's keyframe lies at
+    ``P_other^-1 T P_sender`` from the other's; the truth is ``G_other^-1 G_sender``. ``unmatched``: alignments
+    whose keyframes the topic did not carry."""
+    by_path = {}
+    for k in keyframes:
+        by_path.setdefault((k["robot"], k["session"], round(k["path"], 6)), k)
+    seen, errors, unmatched = set(), [], []
+    for k in keyframes:
+        for robot, session, x, y, yaw, path, match_path in k["aligned"]:
+            key = (k["robot"], k["session"], robot, session, x, y, yaw, path, match_path)
+            if key in seen:
+                continue
+            seen.add(key)
+            q = by_path.get((k["robot"], k["session"], round(path, 6)))
+            m = by_path.get((robot, session, round(match_path, 6)))
+            if q is None or m is None or robot not in truth:
+                unmatched.append(list(key))
+                continue
+            c, s_ = math.cos(yaw), math.sin(yaw)
+            qx, qy = x + c * q["x"] - s_ * q["y"], y + s_ * q["x"] + c * q["y"]
+            said = relative((m["x"], m["y"], m["yaw"]), (qx, qy, wrap(yaw + q["yaw"])))
+            want = relative(truth[robot].at(m["stamp"]), truth[k["robot"]].at(q["stamp"]))
+            errors.append(math.hypot(said[0] - want[0], said[1] - want[1]))
+    return {
+        "count": len(errors),
+        "correct": sum(e <= FALSE_CLOSURE_THRESHOLD for e in errors),
+        "max_error": max(errors, default=0.0),
+        "unmatched": unmatched,
+    }
+
+
 # ---- the back end over the fleet -------------------------------------------------------------------------
 
 
@@ -413,6 +450,8 @@ class Flood:
                 m.heard_robots = [0]
             elif what == "negative path length":
                 m.path_distance = -1.0
+            elif what == "alignment without its paths":
+                m.aligned_robots, m.aligned_sessions, m.aligned_poses = [0], [0], [1.0, 2.0, 0.5]
             bad.append(m)
         self.bad = bad
 
@@ -582,9 +621,12 @@ class Fleet:
                 self.foreign_keyframes[m.robot_id] = self.foreign_keyframes.get(m.robot_id, 0) + 1
                 return
             p, q = m.odom_pose.position, m.odom_pose.orientation
+            aligned = [[int(m.aligned_robots[i]), int(m.aligned_sessions[i]), *m.aligned_poses[3 * i:3 * i + 3],
+                        *m.aligned_paths[2 * i:2 * i + 2]] for i in range(len(m.aligned_robots))]
             self.keyframes.append({"robot": m.robot_id, "session": m.session, "id": m.id,
                                    "stamp": secs(m.header.stamp), "x": p.x, "y": p.y,
-                                   "yaw": yaw_of(q.x, q.y, q.z, q.w), "points": len(m.points) // 2})
+                                   "yaw": yaw_of(q.x, q.y, q.z, q.w), "points": len(m.points) // 2,
+                                   "path": m.path_distance, "aligned": aligned})
 
         self.keyframe_sub = rs.node.create_subscription(
             Keyframe, FLEET_TOPIC, on_keyframe,
@@ -824,6 +866,7 @@ def main() -> int:
     flood_closures = [c for c in fleet.closures if not in_fleet(c)]
     closures = [c for c in fleet.closures if in_fleet(c)]
     summary = judge(closures, fleet.keyframes, truth, a.late)
+    summary["shared_alignments"] = judge_shared_alignments(fleet.keyframes, truth)
     summary["exits"] = {str(k): result["robots"][str(k)]["exit"] for k in robots}
     summary["signals"] = {str(k): result["robots"][str(k)]["signal"] for k in robots}
     summary["diag_keyframes"] = {str(k): int(fleet.d(k).get("dc_loc: processing/keyframes", -1)) for k in robots}

@@ -12,7 +12,8 @@
 //!   sizes, byte order, fields config, input limits, data), through the pipeline's limit check and
 //!   decoder.
 //! - `cdr`: the input as a ROS 2 CDR message (encapsulation header included) decoded as PointCloud2,
-//!   Odometry and TFMessage, the clouds then decoded into detections, the odometry into poses.
+//!   Odometry, TFMessage and the fleet's Keyframe, the clouds then decoded into detections, the odometry
+//!   into poses, the keyframe into a record and into a pipeline of the robot its alignments name.
 //! - `bag_reader`: the input as an MCAP file read by `BagReader` (every message, a topic selection,
 //!   and the pipeline's `BagInputs`), each message decoded as its type.
 //! - `pcd`: the input as a PCD file: header, binary records, nuScenes radar points, PointCloud2.
@@ -23,6 +24,7 @@ use std::path::{Path, PathBuf};
 
 use dc_loc::bag::{BagReader, schema};
 use dc_loc::cloud::{DecodedCloud, decode_detections_into};
+use dc_loc::fleet::wire::decode as decode_keyframe;
 use dc_loc::input::{Input, InputLimits, ground_truth_sample, odometry_pose};
 use dc_loc::io::nuscenes_pcd::{
     NuscenesRadarFilter, NuscenesRadarPcd, PcdHeader, filtered_pointcloud2, nuscenes_fields_config,
@@ -30,11 +32,12 @@ use dc_loc::io::nuscenes_pcd::{
 };
 use dc_loc::io::rosbag::BagInputs;
 use dc_loc::keyframe_db::{KeyframeDb, MAP_FORMAT_VERSION};
+use dc_loc::msgs::dc_loc::Keyframe;
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::msgs::tf2_msgs::TFMessage;
-use dc_loc::pipeline::Config;
+use dc_loc::pipeline::{Config, Pipeline};
 use dc_loc::place::PlaceConfig;
 use dc_loc::radar::FieldsConfig;
 use dc_loc::sim::export::GROUND_TRUTH_TOPIC;
@@ -66,6 +69,20 @@ pub fn cdr(data: &[u8]) {
         check_odometry(&odom);
     }
     let _ = dc_loc::bag::decode::<TFMessage>(data);
+    if let Ok(keyframe) = dc_loc::bag::decode::<Keyframe>(data) {
+        receive_keyframe(keyframe);
+    }
+}
+
+/// A fleet keyframe as a node receives it: decoded, then pushed into the pipeline of the robot whose
+/// id follows the sender's (a seed's alignment names that robot, so that the pipeline takes it).
+fn receive_keyframe(keyframe: Keyframe) {
+    let _ = decode_keyframe(&keyframe, &PlaceConfig::default());
+    let Ok(mut pipeline) = Pipeline::new(Config::default()) else {
+        return;
+    };
+    pipeline.set_robot(keyframe.robot_id.wrapping_add(1));
+    pipeline.push(&Input::Keyframe(Box::new(keyframe)));
 }
 
 /// Target `bag_reader`: the input as an MCAP file, every message read and decoded.

@@ -25,6 +25,7 @@ use std::sync::Arc;
 
 use dc_loc::bag::{BagReader, BagWriter, schema};
 use dc_loc::cloud::{CloudLayout, FieldRole, LayoutField, decode_detections, encode_detections};
+use dc_loc::fleet::{FleetState, SharedAlignment};
 use dc_loc::input::InputLimits;
 use dc_loc::io::nuscenes_pcd::{NuscenesRadarPcd, nuscenes_fields_config};
 use dc_loc::keyframe_db::{
@@ -345,9 +346,17 @@ fn seeds_reach_the_deep_paths() {
         .iter()
         .filter(|(_, b)| dc_loc::bag::decode::<TFMessage>(b).is_ok())
         .count();
+    let keyframes = cdr
+        .iter()
+        .filter_map(|(_, b)| dc_loc::bag::decode::<dc_loc::msgs::dc_loc::Keyframe>(b).ok())
+        .filter(|k| {
+            dc_loc::fleet::wire::decode(k, &PlaceConfig::default())
+                .is_ok_and(|s| !s.fleet.alignments.is_empty())
+        })
+        .count();
     assert!(
-        clouds >= 2 && odoms >= 1 && tfs >= 1,
-        "cdr seeds: {clouds} clouds, {odoms} odometry, {tfs} tf"
+        clouds >= 2 && odoms >= 1 && tfs >= 1 && keyframes >= 1,
+        "cdr seeds: {clouds} clouds, {odoms} odometry, {tfs} tf, {keyframes} keyframes"
     );
 
     let mut bag_messages = Vec::new();
@@ -547,7 +556,8 @@ fn pointcloud2_seeds() -> Vec<(&'static str, Vec<u8>)> {
     ]
 }
 
-/// Seeds of `cdr`: PointCloud2 in both byte orders, the nuScenes layout, Odometry, TFMessage.
+/// Seeds of `cdr`: PointCloud2 in both byte orders, the nuScenes layout, Odometry, TFMessage, a fleet
+/// Keyframe.
 fn cdr_seeds() -> Vec<(&'static str, Vec<u8>)> {
     let cloud = radar_cloud(Stamp(1_500_000_000), 4);
     let mut big_endian = vec![0, 0, 0, 0];
@@ -571,7 +581,28 @@ fn cdr_seeds() -> Vec<(&'static str, Vec<u8>)> {
             dc_loc::bag::encode(&odometry(Stamp(3), 1.0, "odom")).unwrap(),
         ),
         ("tf.cdr", dc_loc::bag::encode(&tf(Stamp(3))).unwrap()),
+        (
+            "keyframe.cdr",
+            dc_loc::bag::encode(&fleet_keyframe()).unwrap(),
+        ),
     ]
+}
+
+/// A fleet keyframe of robot 3 with 40 points, carrying an alignment to robot 4's session 0 (the
+/// robot whose pipeline the `cdr` target pushes it into) and one to robot 7's.
+fn fleet_keyframe() -> dc_loc::msgs::dc_loc::Keyframe {
+    let aligned = |robot: i32| SharedAlignment {
+        robot,
+        session: 0,
+        t: Iso2::new(Vec2::new(-40.0, 12.5), 2.5),
+        path: 300.0,
+        match_path: 80.0,
+    };
+    let fleet = FleetState {
+        heard: vec![(4, 17)],
+        alignments: vec![aligned(4), aligned(7)],
+    };
+    dc_loc::fleet::wire::encode(3, &keyframe(5, 40), &fleet, 0, "base_link")
 }
 
 /// The messages of the seed bags: one `tf_static`, then per step odometry, ground truth and a cloud;

@@ -229,7 +229,7 @@ mod tests {
     }
 
     #[test]
-    fn a_keyframe_crosses_the_wire_whole_and_within_16_kb() {
+    fn a_keyframe_crosses_the_wire_whole_and_within_16_kb_in_a_fleet_of_four() {
         let rec = record(1500);
         let fleet = FleetState {
             heard: vec![(2, 90)],
@@ -260,8 +260,13 @@ mod tests {
         let pose_error = (0..7).map(|i| (r.odom_pose[i] - rec.odom_pose[i]).abs());
         assert!(pose_error.fold(0.0, f64::max) < 1e-12);
         assert!((r.t_odom_body.rotation.angle() - 0.3).abs() < 1e-9);
+        // A robot of a fleet of four: three others heard and aligned to.
         let full = record(4000);
-        let msg = encode(7, &full, &fleet, DEFAULT_WIRE_POINTS, "base_link");
+        let of_four = FleetState {
+            heard: vec![(2, 90); 3],
+            alignments: vec![fleet.alignments[0]; 3],
+        };
+        let msg = encode(7, &full, &of_four, DEFAULT_WIRE_POINTS, "base_link");
         assert_eq!(msg.points.len(), 2 * DEFAULT_WIRE_POINTS);
         assert_eq!(msg.rays.len(), DEFAULT_WIRE_POINTS);
         let bytes = wire_bytes(&msg);

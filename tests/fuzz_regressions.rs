@@ -31,6 +31,7 @@ use dc_loc::io::nuscenes_pcd::{NuscenesRadarPcd, nuscenes_fields_config};
 use dc_loc::keyframe_db::{
     KeyframeDb, KeyframeRecord, RecordV4, quantise_cov, quantise_point, quantise_ray, save_records,
 };
+use dc_loc::loop_closure::Alignment;
 use dc_loc::math::{Iso2, Mat2, Stamp, Vec2, Vec3};
 use dc_loc::msgs::geometry_msgs::{Quaternion, TransformStamped};
 use dc_loc::msgs::nav_msgs::Odometry;
@@ -594,9 +595,11 @@ fn fleet_keyframe() -> dc_loc::msgs::dc_loc::Keyframe {
     let aligned = |robot: i32| SharedAlignment {
         robot,
         session: 0,
-        t: Iso2::new(Vec2::new(-40.0, 12.5), 2.5),
-        path: 300.0,
-        match_path: 80.0,
+        alignment: Alignment {
+            t: Iso2::new(Vec2::new(-40.0, 12.5), 2.5),
+            path: 300.0,
+            match_path: 80.0,
+        },
     };
     let fleet = FleetState {
         heard: vec![(4, 17)],

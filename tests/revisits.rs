@@ -460,13 +460,12 @@ fn the_corridor_publishes_no_closure_slid_along_its_walls() {
 /// 3 % above the 99 % bound).
 #[test]
 fn a_fleet_closes_loops_between_robots() {
-    let mut fleet = RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::Gaussian, 0.01, false);
-    fleet.fleet = 3;
-    let r = evaluate_scenario(&fleet, |_| {}).expect("scenario runs");
-    eprintln!(
-        "same {:?}; reverse {:?}; NEES {:?}",
-        r.same, r.reverse, r.nees
-    );
+    let r = fleet_of_three(RevisitScenario::new(
+        RadarPreset::Nuscenes,
+        NoiseModel::Gaussian,
+        0.01,
+        false,
+    ));
     assert_no_false_closure(&r);
     assert!(r.same.opportunities > 300, "{:?}", r.same);
     assert!(r.same.recall() >= 0.9, "{:?}", r.same);
@@ -482,19 +481,27 @@ fn a_fleet_closes_loops_between_robots() {
 /// are refused: every closure between the robots is correct.
 #[test]
 fn a_look_alike_street_far_from_every_known_alignment_stays_out_of_a_fleet() {
-    let mut fleet = RevisitScenario {
+    let r = fleet_of_three(RevisitScenario {
         seed: 2,
         ..RevisitScenario::new(RadarPreset::Nuscenes, NoiseModel::StudentT, 0.03, false)
+    });
+    assert_no_false_closure(&r);
+    assert!(r.same.recall() >= 0.9, "{:?}", r.same);
+    assert!(r.reverse.published > 30, "{:?}", r.reverse);
+}
+
+/// `scenario` driven by a fleet of three robots (`dc_loc revisits --fleet 3`), its figures printed.
+fn fleet_of_three(scenario: RevisitScenario) -> dc_loc::eval::judge::RevisitReport {
+    let fleet = RevisitScenario {
+        fleet: 3,
+        ..scenario
     };
-    fleet.fleet = 3;
     let r = evaluate_scenario(&fleet, |_| {}).expect("scenario runs");
     eprintln!(
         "same {:?}; reverse {:?}; NEES {:?}",
         r.same, r.reverse, r.nees
     );
-    assert_no_false_closure(&r);
-    assert!(r.same.recall() >= 0.9, "{:?}", r.same);
-    assert!(r.reverse.published > 30, "{:?}", r.reverse);
+    r
 }
 
 /// Two robots driving the same way round the city at the same time, a third of the loop apart, five

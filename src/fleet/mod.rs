@@ -22,23 +22,18 @@
 pub mod wire;
 
 use crate::keyframe_db::{KeyframeRecord, Origin};
-use crate::math::Iso2;
+use crate::loop_closure::Alignment;
 
-/// An alignment a node accepted: its session's odometry frame in the frame of session `session` of
-/// robot `robot`, found by a closure from its keyframe at path length `path` onto that session's
-/// keyframe at `match_path`.
+/// An alignment a node accepted, of its session's odometry frame into session `session` of robot
+/// `robot` (its path lengths: the sender's keyframe, then that session's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SharedAlignment {
     /// The other robot's `node.robot_id`.
     pub robot: i32,
     /// The other robot's session.
     pub session: u32,
-    /// The sender's odometry frame in the other session's odometry frame.
-    pub t: Iso2,
-    /// Path length of the closure's query keyframe, m of the sender's odometry.
-    pub path: f64,
-    /// Path length of its match keyframe, m of the other session's odometry.
-    pub match_path: f64,
+    /// The alignment, as the sender's session holds it.
+    pub alignment: Alignment,
 }
 
 /// What a node knew of the fleet when it made a keyframe, sent with it.

@@ -6,6 +6,7 @@
 
 use super::{FleetState, SharedAlignment, SharedKeyframe};
 use crate::keyframe_db::{KeyframeRecord, dequantise_point};
+use crate::loop_closure::Alignment;
 use crate::math::{Iso2, Stamp, Vec2, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe;
 use crate::msgs::geometry_msgs::Pose;
@@ -54,12 +55,13 @@ pub fn encode(
         aligned_poses: fleet
             .alignments
             .iter()
-            .flat_map(|a| [a.t.translation.x, a.t.translation.y, a.t.rotation.angle()])
+            .map(|a| a.alignment.t)
+            .flat_map(|t| [t.translation.x, t.translation.y, t.rotation.angle()])
             .collect(),
         aligned_paths: fleet
             .alignments
             .iter()
-            .flat_map(|a| [a.path, a.match_path])
+            .flat_map(|a| [a.alignment.path, a.alignment.match_path])
             .collect(),
         points: keep.iter().flat_map(|&i| rec.points[i]).collect(),
         covariances: keep.iter().flat_map(|&i| rec.covs[i]).collect(),
@@ -179,9 +181,11 @@ fn alignments(msg: &Keyframe) -> Result<Vec<SharedAlignment>, String> {
             SharedAlignment {
                 robot: msg.aligned_robots[k],
                 session: msg.aligned_sessions[k],
-                t: Iso2::new(Vec2::new(x, y), yaw),
-                path: msg.aligned_paths[2 * k],
-                match_path: msg.aligned_paths[2 * k + 1],
+                alignment: Alignment {
+                    t: Iso2::new(Vec2::new(x, y), yaw),
+                    path: msg.aligned_paths[2 * k],
+                    match_path: msg.aligned_paths[2 * k + 1],
+                },
             }
         })
         .collect())
@@ -236,18 +240,21 @@ mod tests {
             alignments: vec![SharedAlignment {
                 robot: 2,
                 session: 1,
-                t: Iso2::new(Vec2::new(-310.5, 42.25), -2.5),
-                path: 812.0,
-                match_path: 95.5,
+                alignment: Alignment {
+                    t: Iso2::new(Vec2::new(-310.5, 42.25), -2.5),
+                    path: 812.0,
+                    match_path: 95.5,
+                },
             }],
         };
         let msg = encode(7, &rec, &fleet, DEFAULT_WIRE_POINTS, "base_link");
         let got = decode(&msg, &PlaceConfig::default()).unwrap();
         assert_eq!(got.robot, 7);
         assert_eq!(got.fleet.heard, fleet.heard);
-        let (a, b) = (got.fleet.alignments[0], fleet.alignments[0]);
+        let (got_a, sent) = (got.fleet.alignments[0], fleet.alignments[0]);
+        let (a, b) = (got_a.alignment, sent.alignment);
         assert_eq!(
-            (a.robot, a.session, a.path, a.match_path),
+            (got_a.robot, got_a.session, a.path, a.match_path),
             (2, 1, 812.0, 95.5)
         );
         assert!((a.t.translation.vector - b.t.translation.vector).norm() < 1e-12);
@@ -307,9 +314,11 @@ mod tests {
             alignments: vec![SharedAlignment {
                 robot: 0,
                 session: 0,
-                t: Iso2::identity(),
-                path: 10.0,
-                match_path: 20.0,
+                alignment: Alignment {
+                    t: Iso2::identity(),
+                    path: 10.0,
+                    match_path: 20.0,
+                },
             }],
         };
         let good = encode(1, &record(100), &fleet, 0, "base_link");

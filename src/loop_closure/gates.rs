@@ -415,17 +415,15 @@ fn beyond_every_alignment(
     let t = &r.t_target_source;
     let d2 =
         |a: &Alignment| inconsistency(Prior::Anchored(a), p.query, p.cand, t, &r.covariance, g.lc);
-    let known = [g.alignment(s), g.shared.get(&s)];
-    let mut nearest = f64::INFINITY;
-    for a in known.into_iter().flatten() {
-        match d2(a) {
-            Some(d2) if !within_reach(d2, g.lc) => nearest = nearest.min(d2),
-            _ => return Ok(()),
-        }
-    }
-    if nearest.is_infinite() {
+    let d2s: Vec<Option<f64>> = [g.alignment(s), g.shared.get(&s)]
+        .into_iter()
+        .flatten()
+        .map(d2)
+        .collect();
+    if d2s.is_empty() || d2s.iter().any(|d| d.is_none_or(|d| within_reach(d, g.lc))) {
         return Ok(());
     }
+    let nearest = d2s.into_iter().flatten().fold(f64::INFINITY, f64::min);
     Err((
         RejectReason::Inconsistent,
         format!(

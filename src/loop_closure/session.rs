@@ -33,6 +33,18 @@ pub struct Alignment {
     pub match_path: f64,
 }
 
+impl Alignment {
+    /// The same closure seen from the other session: that session's frame in this one's, the two
+    /// path lengths swapped.
+    pub fn inverse(&self) -> Alignment {
+        Alignment {
+            t: self.t.inverse(),
+            path: self.match_path,
+            match_path: self.path,
+        }
+    }
+}
+
 #[cfg(test)]
 impl Session {
     /// Sets the accepted alignment to `session`, as a confirmation would.

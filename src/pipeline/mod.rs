@@ -25,7 +25,7 @@ use std::sync::Arc;
 use crate::fleet::{FleetState, SharedAlignment, SharedKeyframe, wire};
 use crate::input::{Input, InputLimits};
 use crate::keyframe_db::{ForeignRefusal, KeyframeDb, KeyframeRecord};
-use crate::loop_closure::{Alignment, Decision, Decisions, LoopCloser};
+use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
 use crate::radar::RadarScan;
@@ -318,9 +318,7 @@ impl Pipeline {
                     Some(SharedAlignment {
                         robot,
                         session,
-                        t: a.t,
-                        path: a.path,
-                        match_path: a.match_path,
+                        alignment: *a,
                     })
                 })
                 .collect(),
@@ -488,12 +486,7 @@ fn take_shared_alignment(
     };
     let mine = |a: &&SharedAlignment| (a.robot, a.session) == own;
     if let Some(a) = k.fleet.alignments.iter().find(mine) {
-        let inverted = Alignment {
-            t: a.t.inverse(),
-            path: a.match_path,
-            match_path: a.path,
-        };
-        loops.take_shared(local, inverted);
+        loops.take_shared(local, a.alignment.inverse());
     }
 }
 

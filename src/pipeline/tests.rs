@@ -121,9 +121,11 @@ fn another_robots_alignment_to_this_session_is_taken_inverted() {
     let shared = |robot: i32, session: u32| SharedAlignment {
         robot,
         session,
-        t,
-        path: 300.0,
-        match_path: 80.0,
+        alignment: crate::loop_closure::Alignment {
+            t,
+            path: 300.0,
+            match_path: 80.0,
+        },
     };
     let fleet = FleetState {
         heard: vec![(1, 0)],
@@ -154,10 +156,7 @@ fn another_robots_alignment_to_this_session_is_taken_inverted() {
     let state = p.fleet_state();
     assert_eq!(state.alignments.len(), 1);
     let sent = state.alignments[0];
-    assert_eq!(
-        (sent.robot, sent.session, sent.path, sent.match_path),
-        (5, 2, 50.0, 60.0)
-    );
+    assert_eq!((sent.robot, sent.session, sent.alignment), (5, 2, own));
 }
 
 /// Another robot's keyframe: added once, refused beyond its robot's budget and when it carries this

@@ -115,6 +115,7 @@ fn main() {
                     query: &q,
                     alignment: None,
                     vouched: false,
+                    others: &[],
                 },
                 q.session,
                 &search,

@@ -490,6 +490,22 @@ fn a_look_alike_street_far_from_every_known_alignment_stays_out_of_a_fleet() {
     assert!(r.reverse.published > 30, "{:?}", r.reverse);
 }
 
+/// A fleet of three on the held-out suburb, five radars, 1 % drift: the middle robot drives the loop
+/// the other way. Once a robot has accepted an alignment to another robot's session, it searches that
+/// robot's keyframes near where the alignment puts it, as it searches its own under its own
+/// alignment; by place descriptor alone the robots closed 12.5 % of the opposite-direction
+/// opportunities and 94.7 % of the same-direction ones (measured). Every closure is correct.
+#[test]
+fn aligned_robots_search_each_others_streets_where_the_alignment_puts_them() {
+    let scenario = held_out(0, RadarPreset::Nuscenes, false);
+    assert_eq!(scenario.world, WorldFamily::Suburb);
+    let r = fleet_of_three(scenario);
+    assert_no_false_closure(&r);
+    assert!(r.same.recall() >= 0.97, "{:?}", r.same);
+    assert!(r.reverse.recall() >= 0.9, "{:?}", r.reverse);
+    assert_covariance_holds(&r);
+}
+
 /// `scenario` driven by a fleet of three robots (`dc_loc revisits --fleet 3`), its figures printed.
 fn fleet_of_three(scenario: RevisitScenario) -> dc_loc::eval::judge::RevisitReport {
     let fleet = RevisitScenario {

@@ -1,7 +1,8 @@
 //! Revisit candidates of a query keyframe ([`KeyframeDb::candidates`]): keyframes of the current session
 //! near the odometry position, within a radius that grows with the path driven since each (a drift
-//! model), keyframes near the position an accepted alignment predicts, and keyframes of any session
-//! whose place descriptor is close, whatever the odometry says.
+//! model), keyframes near the position an accepted alignment predicts (in this session's frame, or
+//! in another session's through a fresh alignment to it), and keyframes of any session whose place
+//! descriptor is close, whatever the odometry says.
 
 use super::{KeyframeDb, KeyframeRecord};
 use crate::math::{Iso2, Vec2};
@@ -40,6 +41,21 @@ pub struct CandidateQuery<'a> {
     /// The alignment is accepted and fresh enough to vouch for a closure alone
     /// (`loop.trusted_prior_std`): the position it predicts is known to within metres.
     pub vouched: bool,
+    /// Accepted alignments to other sessions (other robots', a loaded map's) fresh enough to vouch:
+    /// their keyframes near the position each predicts are candidates as this session's are near
+    /// its own prediction.
+    pub others: &'a [SessionPrior],
+}
+
+/// An accepted alignment of the query's session into another session's frame, fresh enough to vouch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SessionPrior {
+    /// The other session.
+    pub session: u32,
+    /// The query session's odometry frame in that session's frame.
+    pub t: Iso2,
+    /// Path length of the query session at which it was found, m.
+    pub path: f64,
 }
 
 /// Candidate-search settings (a view of [`crate::loop_closure::LoopConfig`]).
@@ -105,10 +121,20 @@ impl KeyframeDb {
         });
         let centre = corrected.map_or(p, |(c, _)| c);
         let mut found = search.odometry_hits(p, corrected);
-        // 2. Place descriptors, any session.
+        // 2. Other sessions' keyframes around the positions their fresh alignments predict, with
+        //    the drift since each was found.
+        let mut centres = vec![(session, centre, q.vouched)];
+        for other in q.others {
+            let c = (other.t * nalgebra::Point2::from(p)).coords;
+            let r = (s.radius + s.drift_rate * (q.query.path_distance - other.path).abs())
+                .min(s.max_radius);
+            search.around_session(other.session, c, r, &mut found);
+            centres.push((other.session, c, true));
+        }
+        // 3. Place descriptors, any session.
         search.add_place_hits(&mut found);
         let all = search.scored(merge_sources(found));
-        search.rounds(&all, centre, q.vouched)
+        search.rounds(&all, &centres)
     }
 }
 
@@ -188,6 +214,29 @@ impl Search<'_> {
             .within(&[centre.x, centre.y], r, &mut visit);
     }
 
+    /// Session `session`'s keyframes (another session's) within `r` of `centre`.
+    fn around_session(
+        &self,
+        session: u32,
+        centre: Vec2,
+        r: f64,
+        found: &mut Vec<(usize, CandidateSource)>,
+    ) {
+        let mut visit = |i: usize, _: f64| {
+            if self
+                .db
+                .records
+                .get(i)
+                .is_some_and(|rec| rec.session == session)
+            {
+                found.push((i, CandidateSource::Odometry));
+            }
+        };
+        self.db
+            .positions
+            .within(&[centre.x, centre.y], r, &mut visit);
+    }
+
     /// The eligible keyframes of any session among the `place_retrieve` nearest place descriptors.
     fn add_place_hits(&self, found: &mut Vec<(usize, CandidateSource)>) {
         for (item, _) in self
@@ -228,19 +277,30 @@ impl Search<'_> {
     }
 
     /// The candidate rounds ([`KeyframeDb::candidate_rounds`]): the first from both rankings
-    /// ([`first_round`]), and while `vouched` up to [`VOUCHED_ROUNDS`] in all, the later ones of the
-    /// next keyframes nearest to `centre`.
-    fn rounds(&self, all: &[Candidate], centre: Vec2, vouched: bool) -> Vec<Vec<Candidate>> {
-        let metric = |i: usize| (self.db.records[i].t_odom_body.translation.vector - centre).norm();
-        let mut by_position: Vec<&Candidate> = all
+    /// ([`first_round`]), and while an alignment vouches up to [`VOUCHED_ROUNDS`] in all, the later
+    /// ones of the next keyframes nearest to the positions the vouching alignments predict.
+    /// `centres` holds, per session searched by position, the predicted position in its frame and
+    /// whether an alignment vouches for it; the position ranking puts those that vouch first.
+    fn rounds(&self, all: &[Candidate], centres: &[(u32, Vec2, bool)]) -> Vec<Vec<Candidate>> {
+        let centre_of = |i: usize| {
+            let rec = &self.db.records[i];
+            centres
+                .iter()
+                .find(|c| c.0 == rec.session)
+                .map(|&(_, c, vouched)| ((rec.t_odom_body.translation.vector - c).norm(), vouched))
+        };
+        // (candidate, distance to its session's predicted position, vouched)
+        let mut by_position: Vec<(&Candidate, f64, bool)> = all
             .iter()
             .filter(|c| c.source != CandidateSource::Place)
+            .filter_map(|c| centre_of(c.index).map(|(d, v)| (c, d, v)))
             .collect();
         by_position.sort_by(|a, b| {
-            metric(a.index)
-                .total_cmp(&metric(b.index))
-                .then(a.index.cmp(&b.index))
+            b.2.cmp(&a.2)
+                .then(a.1.total_cmp(&b.1))
+                .then(a.0.index.cmp(&b.0.index))
         });
+        let vouched = by_position.first().is_some_and(|c| c.2);
         let mut by_place: Vec<&Candidate> = all.iter().collect();
         by_place.sort_by(|a, b| {
             a.place_distance
@@ -248,13 +308,14 @@ impl Search<'_> {
                 .then(a.index.cmp(&b.index))
         });
         let max_candidates = self.s.max_candidates;
-        let first = first_round(&by_position, &by_place, max_candidates, vouched);
+        let position: Vec<&Candidate> = by_position.iter().map(|c| c.0).collect();
+        let first = first_round(&position, &by_place, max_candidates, vouched);
         let mut rounds = vec![first];
         if vouched && max_candidates > 0 {
             let rest: Vec<Candidate> = by_position
                 .iter()
-                .filter(|c| !rounds[0].iter().any(|o| o.index == c.index))
-                .map(|c| **c)
+                .filter(|c| c.2 && !rounds[0].iter().any(|o| o.index == c.0.index))
+                .map(|c| *c.0)
                 .collect();
             let later = rest.chunks(max_candidates).take(VOUCHED_ROUNDS - 1);
             rounds.extend(later.map(<[Candidate]>::to_vec));

@@ -13,7 +13,7 @@ pub mod lock;
 pub mod record;
 pub mod storage;
 
-pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings};
+pub use candidates::{Candidate, CandidateQuery, CandidateSource, SearchSettings, SessionPrior};
 pub use file::{
     MAP_FORMAT_VERSION, MapError, MapFile, MapShape, MapSnapshot, RadarMount, RecordV4,
     save_records, save_records_with, save_snapshot,
@@ -595,6 +595,7 @@ mod tests {
                 query: &q,
                 alignment: None,
                 vouched: false,
+                others: &[],
             },
             3,
             &s,
@@ -705,6 +706,7 @@ mod tests {
             query: &q,
             alignment: None,
             vouched: false,
+            others: &[],
         };
         assert!(db.candidates(&cq, 0, &s).is_empty());
         s.drift_rate = 0.05;
@@ -754,6 +756,7 @@ mod tests {
             query: q,
             alignment: Some((alignment, q.path_distance)),
             vouched,
+            others: &[],
         };
         let ids = |r: &[Candidate]| -> Vec<usize> { r.iter().map(|c| c.index).collect() };
         let rounds: Vec<Vec<usize>> = db
@@ -824,5 +827,52 @@ mod tests {
                 vec![46, 54, 45, 55]
             ]
         );
+    }
+    #[test]
+    fn another_sessions_keyframes_near_where_a_fresh_alignment_to_it_puts_the_query_are_candidates()
+    {
+        let mut rng = StdRng::seed_from_u64(5);
+        // Another robot's pass (session 1) along y = 0 of its own frame.
+        let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
+        for id in 0..100 {
+            let mut r = record(id, 1, 0.0, &mut rng);
+            r.t_odom_body = Iso2::new(Vec2::new(5.0 * id as f64, 0.0), 0.0);
+            r.path_distance = 5.0 * id as f64;
+            assert!(db.insert(r));
+        }
+        // This robot (session 0) drives the other way 18.75 m beside that robot's keyframe 50; its
+        // odometry frame lies 300 m and 200 m off the other's.
+        let (q, alignment) = way_back_beside_keyframe_50(&mut rng);
+        let mut s = crate::loop_closure::LoopConfig::default().search();
+        s.place_retrieve = 0;
+        let rounds = |others: &[SessionPrior]| -> Vec<Vec<usize>> {
+            let cq = CandidateQuery {
+                query: &q,
+                alignment: None,
+                vouched: false,
+                others,
+            };
+            db.candidate_rounds(&cq, 0, &s)
+                .iter()
+                .map(|r| r.iter().map(|c| c.index).collect())
+                .collect()
+        };
+        // Without an alignment to session 1, nothing but place descriptors finds its keyframes.
+        assert_eq!(rounds(&[]), [Vec::<usize>::new()]);
+        // With one found at the query's own path length, the nearest to the position it predicts,
+        // round by round, as this session's own keyframes are under a vouching alignment.
+        let prior = SessionPrior {
+            session: 1,
+            t: alignment,
+            path: q.path_distance,
+        };
+        assert_eq!(rounds(&[prior]), [vec![50, 49, 51, 48], vec![52, 47, 53]]);
+        // Found 400 m of path back, the search radius has grown by the drift over that path.
+        let old = SessionPrior {
+            path: q.path_distance - 400.0,
+            ..prior
+        };
+        let reach = rounds(&[old]).concat().len();
+        assert!(reach > 7, "{:?}", rounds(&[old]));
     }
 }

@@ -2,8 +2,9 @@
 //! published, held until confirmed, or refused with a reason.
 //!
 //! Steps for each new keyframe ([`LoopCloser::search`]), in order: candidates from the keyframe map
-//! (around the odometry position under the drift model, around an accepted or held alignment, and
-//! by place descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
+//! (around the odometry position under the drift model, around an accepted or held alignment, around
+//! the position a fresh alignment to another session predicts in its frame, and by place
+//! descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
 //! that passes the prediction and slide tests (while an alignment vouches and none passes, the same
 //! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]);
 //! acceptance by the session ([`Session::accept`]: published, held, or confirmed with those it
@@ -24,7 +25,9 @@ pub use session::{Alignment, QueryPlace, Session, Standing};
 
 use rayon::prelude::*;
 
-use crate::keyframe_db::{Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin};
+use crate::keyframe_db::{
+    Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin, SessionPrior,
+};
 use crate::math::{Iso3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
 use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
@@ -373,11 +376,25 @@ impl LoopCloser {
             .alignments()
             .get(&self.session)
             .is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
+        let others: Vec<SessionPrior> = self
+            .state
+            .alignments()
+            .iter()
+            .filter(|&(&s, a)| {
+                s != self.session && drift::vouches(query.path_distance - a.path, &self.lc)
+            })
+            .map(|(&session, a)| SessionPrior {
+                session,
+                t: a.t,
+                path: a.path,
+            })
+            .collect();
         let rounds = db.candidate_rounds(
             &CandidateQuery {
                 query,
                 alignment,
                 vouched,
+                others: &others,
             },
             self.session,
             &self.lc.search(),

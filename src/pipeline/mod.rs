@@ -67,8 +67,9 @@ impl Pipeline {
     }
 
     /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
-    /// are revisit candidates, found by place descriptor (their odometry frame is another session's), and
-    /// new keyframes get the next ids and a new session.
+    /// are revisit candidates, found by place descriptor (their odometry frame is another session's)
+    /// and, once an accepted alignment to their session vouches, near the position it predicts; new
+    /// keyframes get the next ids and a new session.
     pub fn with_map(cfg: Config, mut db: KeyframeDb) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let session = db.last_session().map_or(0, |s| s + 1);

@@ -1,8 +1,8 @@
 //! Revisit candidates of a query keyframe ([`KeyframeDb::candidates`]): keyframes of the current session
 //! near the odometry position, within a radius that grows with the path driven since each (a drift
-//! model), keyframes near the position an accepted alignment predicts (in this session's frame, or
-//! in another session's through a fresh alignment to it), and keyframes of any session whose place
-//! descriptor is close, whatever the odometry says.
+//! model), keyframes near the position an accepted or held alignment predicts (in this session's
+//! frame, or in another session's through an alignment to it), and keyframes of any session whose
+//! place descriptor is close, whatever the odometry says.
 
 use super::{KeyframeDb, KeyframeRecord};
 use crate::math::{Iso2, Vec2};
@@ -41,13 +41,14 @@ pub struct CandidateQuery<'a> {
     /// The alignment is accepted and fresh enough to vouch for a closure alone
     /// (`loop.trusted_prior_std`): the position it predicts is known to within metres.
     pub vouched: bool,
-    /// Accepted alignments to other sessions (other robots', a loaded map's) fresh enough to vouch:
-    /// their keyframes near the position each predicts are candidates as this session's are near
-    /// its own prediction.
+    /// Alignments to other sessions (other robots', a loaded map's), accepted or held for
+    /// confirmation: their keyframes near the position each predicts are candidates as this
+    /// session's are near its own prediction.
     pub others: &'a [SessionPrior],
 }
 
-/// An accepted alignment of the query's session into another session's frame, fresh enough to vouch.
+/// An alignment of the query's session into another session's frame: the accepted one, or before
+/// there is one the newest held closure's.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SessionPrior {
     /// The other session.
@@ -56,6 +57,8 @@ pub struct SessionPrior {
     pub t: Iso2,
     /// Path length of the query session at which it was found, m.
     pub path: f64,
+    /// It is fresh enough to vouch for a closure alone (`loop.trusted_prior_std`).
+    pub vouched: bool,
 }
 
 /// Candidate-search settings (a view of [`crate::loop_closure::LoopConfig`]).
@@ -121,15 +124,15 @@ impl KeyframeDb {
         });
         let centre = corrected.map_or(p, |(c, _)| c);
         let mut found = search.odometry_hits(p, corrected);
-        // 2. Other sessions' keyframes around the positions their fresh alignments predict, with
-        //    the drift since each was found.
+        // 2. Other sessions' keyframes around the positions their alignments predict, with the
+        //    drift since each was found.
         let mut centres = vec![(session, centre, q.vouched)];
         for other in q.others {
             let c = (other.t * nalgebra::Point2::from(p)).coords;
             let r = (s.radius + s.drift_rate * (q.query.path_distance - other.path).abs())
                 .min(s.max_radius);
             search.around_session(other.session, c, r, &mut found);
-            centres.push((other.session, c, true));
+            centres.push((other.session, c, other.vouched));
         }
         // 3. Place descriptors, any session.
         search.add_place_hits(&mut found);

@@ -829,8 +829,7 @@ mod tests {
         );
     }
     #[test]
-    fn another_sessions_keyframes_near_where_a_fresh_alignment_to_it_puts_the_query_are_candidates()
-    {
+    fn another_sessions_keyframes_near_where_an_alignment_to_it_puts_the_query_are_candidates() {
         let mut rng = StdRng::seed_from_u64(5);
         // Another robot's pass (session 1) along y = 0 of its own frame.
         let mut db = KeyframeDb::new(PlaceConfig::default(), 4);
@@ -859,14 +858,23 @@ mod tests {
         };
         // Without an alignment to session 1, nothing but place descriptors finds its keyframes.
         assert_eq!(rounds(&[]), [Vec::<usize>::new()]);
-        // With one found at the query's own path length, the nearest to the position it predicts,
-        // round by round, as this session's own keyframes are under a vouching alignment.
+        // With an accepted one found at the query's own path length, the nearest to the position it
+        // predicts, round by round, as this session's own keyframes are under a vouching alignment.
         let prior = SessionPrior {
             session: 1,
             t: alignment,
             path: q.path_distance,
+            vouched: true,
         };
         assert_eq!(rounds(&[prior]), [vec![50, 49, 51, 48], vec![52, 47, 53]]);
+        // A held closure's alignment, which vouches for nothing: one round, the nearest first (the
+        // place ranking, here among the same keyframes, takes every other slot).
+        let held = SessionPrior {
+            vouched: false,
+            ..prior
+        };
+        let r = rounds(&[held]);
+        assert_eq!((r.len(), r[0].len(), r[0][0]), (1, 4, 50), "{r:?}");
         // Found 400 m of path back, the search radius has grown by the drift over that path.
         let old = SessionPrior {
             path: q.path_distance - 400.0,

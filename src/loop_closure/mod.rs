@@ -378,15 +378,13 @@ impl LoopCloser {
             .is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
         let others: Vec<SessionPrior> = self
             .state
-            .alignments()
-            .iter()
-            .filter(|&(&s, a)| {
-                s != self.session && drift::vouches(query.path_distance - a.path, &self.lc)
-            })
-            .map(|(&session, a)| SessionPrior {
+            .other_search_priors()
+            .map(|(session, a)| SessionPrior {
                 session,
                 t: a.t,
                 path: a.path,
+                vouched: self.state.alignments().contains_key(&session)
+                    && drift::vouches(query.path_distance - a.path, &self.lc),
             })
             .collect();
         let rounds = db.candidate_rounds(

@@ -228,6 +228,20 @@ impl Session {
             .or_else(|| Some(self.held.get(&session)?.last()?.alignment))
     }
 
+    /// Every other session with a [`Session::search_prior`], and that prior.
+    pub fn other_search_priors(&self) -> impl Iterator<Item = (u32, Alignment)> + '_ {
+        let sessions: std::collections::BTreeSet<u32> = self
+            .alignments
+            .keys()
+            .chain(self.held.keys())
+            .copied()
+            .filter(|&s| s != self.own)
+            .collect();
+        sessions
+            .into_iter()
+            .filter_map(|s| Some((s, self.search_prior(s)?)))
+    }
+
     /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone.
     pub fn any_vouches(&self, path: f64, lc: &LoopConfig) -> bool {
         self.alignments.values().any(|a| vouches(path - a.path, lc))

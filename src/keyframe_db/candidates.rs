@@ -150,10 +150,14 @@ struct Search<'a> {
 }
 
 impl Search<'_> {
-    /// Another session's keyframe, or one at least `min_path_gap` of path before the query.
+    /// Another session's keyframe that is this node's to register against the query, or one of this
+    /// session at least `min_path_gap` of path before the query.
     fn eligible(&self, r: &KeyframeRecord) -> bool {
-        r.session != self.session
-            || self.query.path_distance - r.path_distance >= self.s.min_path_gap
+        if r.session == self.session {
+            self.query.path_distance - r.path_distance >= self.s.min_path_gap
+        } else {
+            self.db.registers_pair(self.query, r.id as usize)
+        }
     }
 
     /// This session's keyframes around the odometry position `p` within the drift radius and, given
@@ -230,7 +234,7 @@ impl Search<'_> {
                 .db
                 .records
                 .get(i)
-                .is_some_and(|rec| rec.session == session)
+                .is_some_and(|rec| rec.session == session && self.eligible(rec))
             {
                 found.push((i, CandidateSource::Odometry));
             }

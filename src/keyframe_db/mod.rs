@@ -170,6 +170,16 @@ impl KeyframeDb {
         (own.stamp, self.owner.0) > (r.stamp, o.robot)
     }
 
+    /// Whether this node registers its keyframe `own` against keyframe `index` of another session:
+    /// always when `index` was in the map before `own` was made (ids follow the order of insertion;
+    /// the other node never held `own` when it made `index`), else as
+    /// [`KeyframeDb::registers_on_arrival`] decides. A search again of an older keyframe
+    /// ([`crate::loop_closure::LoopCloser::backfill`]) thus leaves alone the pairs the other node
+    /// registered.
+    pub fn registers_pair(&self, own: &KeyframeRecord, index: usize) -> bool {
+        (index as u64) < own.id || self.registers_on_arrival(own, index)
+    }
+
     /// Adds another robot's keyframe (`rec.id` and `rec.session` are overwritten with the next id and
     /// the local session of its robot's session) within `max_per_robot` of that robot and
     /// `max_keyframes` in all, with what its node had `heard` of the others' keyframes then; its local
@@ -545,6 +555,13 @@ mod tests {
         );
         assert_eq!(db.insert_foreign(r, o, vec![(1, 0)], 3, 100), Ok(3));
         assert!(!db.registers_on_arrival(&own, 3), "their node held ours");
+        // The same pairs, searched again later from `own`: only the first is this node's; a
+        // keyframe of theirs that was here before a newer own keyframe was made is that one's.
+        let pairs: Vec<bool> = (1..4).map(|i| db.registers_pair(&own, i)).collect();
+        assert_eq!(pairs, [true, false, false]);
+        let mut newer = record(4, 0, 0.0, &mut rng);
+        newer.stamp = Stamp::from_secs_f64(80.0);
+        assert!((1..4).all(|i| db.registers_pair(&newer, i)));
         assert_eq!(db.foreign().newest(), vec![(7, 32)]);
         let path = scratch("foreign");
         db.save(&path).unwrap();

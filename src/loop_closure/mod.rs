@@ -3,7 +3,7 @@
 //!
 //! Steps for each new keyframe ([`LoopCloser::search`]), in order: candidates from the keyframe map
 //! (around the odometry position under the drift model, around an accepted or held alignment, around
-//! the position a fresh alignment to another session predicts in its frame, and by place
+//! the position an accepted or held alignment to another session predicts in its frame, and by place
 //! descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
 //! that passes the prediction and slide tests (while an alignment vouches and none passes, the same
 //! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]);

@@ -3,8 +3,8 @@
 //! A node publishes each keyframe it makes ([`wire::encode`], `dc_loc/msg/Keyframe`) and takes the
 //! other robots' into its own map ([`crate::pipeline::Pipeline::push`] with
 //! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own,
-//! searched by place descriptor until an accepted alignment to a robot's session puts this robot in
-//! that robot's frame: the robots share no odometry frame. A pair of keyframes of two
+//! searched by place descriptor until a closure to a robot's session (held, then accepted) puts this
+//! robot in that robot's frame: the robots share no odometry frame. A pair of keyframes of two
 //! robots is registered by one node only: the one that held the other's keyframe when it made its own
 //! (the new keyframe's search), or, when both made theirs before receiving the other's, the one whose
 //! keyframe is the newer, when the other's arrives

@@ -68,7 +68,7 @@ impl Pipeline {
 
     /// A pipeline that continues a keyframe map (e.g. loaded with [`KeyframeDb::load`]): its keyframes
     /// are revisit candidates, found by place descriptor (their odometry frame is another session's)
-    /// and, once an accepted alignment to their session vouches, near the position it predicts; new
+    /// and, from the first closure onto them on, near the position its alignment predicts; new
     /// keyframes get the next ids and a new session.
     pub fn with_map(cfg: Config, mut db: KeyframeDb) -> Result<Self, ConfigError> {
         cfg.validate()?;

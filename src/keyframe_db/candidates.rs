@@ -131,7 +131,7 @@ impl KeyframeDb {
             let c = (other.t * nalgebra::Point2::from(p)).coords;
             let r = (s.radius + s.drift_rate * (q.query.path_distance - other.path).abs())
                 .min(s.max_radius);
-            search.around_session(other.session, c, r, &mut found);
+            search.around(other.session, c, r, &mut found, false);
             centres.push((other.session, c, other.vouched));
         }
         // 3. Place descriptors, any session.
@@ -173,9 +173,9 @@ impl Search<'_> {
         let (query, s) = (self.query, self.s);
         let mut found: Vec<(usize, CandidateSource)> = Vec::new();
         let outer = (s.radius + s.drift_rate * query.path_distance.max(0.0)).min(s.max_radius);
-        self.around(p, outer, &mut found, true);
+        self.around(self.session, p, outer, &mut found, true);
         if let Some((c, r)) = corrected {
-            self.around(c, r, &mut found, false);
+            self.around(self.session, c, r, &mut found, false);
         }
         let keep = (4 * s.max_candidates).max(16);
         if found.len() > keep {
@@ -190,10 +190,12 @@ impl Search<'_> {
         found
     }
 
-    /// This session's eligible keyframes within `r` of `centre`, and with `drift_radius` also within
-    /// the drift radius of the path driven since each.
+    /// Session `session`'s eligible keyframes within `r` of `centre` (in that session's frame), and
+    /// with `drift_radius` (this session only) also within the drift radius of the path driven since
+    /// each.
     fn around(
         &self,
+        session: u32,
         centre: Vec2,
         r: f64,
         found: &mut Vec<(usize, CandidateSource)>,
@@ -204,7 +206,7 @@ impl Search<'_> {
             let Some(rec) = self.db.records.get(i) else {
                 return;
             };
-            if rec.session != self.session || !self.eligible(rec) {
+            if rec.session != session || !self.eligible(rec) {
                 return;
             }
             if drift_radius {
@@ -215,29 +217,6 @@ impl Search<'_> {
                 }
             }
             found.push((i, CandidateSource::Odometry));
-        };
-        self.db
-            .positions
-            .within(&[centre.x, centre.y], r, &mut visit);
-    }
-
-    /// Session `session`'s keyframes (another session's) within `r` of `centre`.
-    fn around_session(
-        &self,
-        session: u32,
-        centre: Vec2,
-        r: f64,
-        found: &mut Vec<(usize, CandidateSource)>,
-    ) {
-        let mut visit = |i: usize, _: f64| {
-            if self
-                .db
-                .records
-                .get(i)
-                .is_some_and(|rec| rec.session == session && self.eligible(rec))
-            {
-                found.push((i, CandidateSource::Odometry));
-            }
         };
         self.db
             .positions

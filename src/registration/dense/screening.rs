@@ -106,19 +106,34 @@ pub fn fit_score(
     t: &Iso2,
     sigma: f64,
 ) -> (f64, f64) {
-    if source.is_empty() || target.is_empty() {
+    if target.is_empty() {
+        return (0.0, 0.0);
+    }
+    // Beyond 4 sigma a point adds less than exp(-8).
+    let reach = 4.0 * sigma;
+    score_by(source, weights, t, sigma, |_, q| {
+        tree.nearest_two(q, reach).map(|(_, d2, _)| d2)
+    })
+}
+
+/// [`fit_score`] with `nearest(i, q)`: the squared distance from `q`, where `t` puts source point
+/// `i`, to its nearest target point within `4 sigma` (`None` when none is).
+fn score_by(
+    source: &PointSet2,
+    weights: Option<&[f64]>,
+    t: &Iso2,
+    sigma: f64,
+    nearest: impl Fn(usize, &Vec2) -> Option<f64>,
+) -> (f64, f64) {
+    if source.is_empty() {
         return (0.0, 0.0);
     }
     let k = -0.5 / (sigma * sigma);
-    // Beyond 4 sigma a point adds less than exp(-8).
-    let reach = 4.0 * sigma;
     let weights = weights.filter(|w| w.len() == source.len());
     let (mut weighted, mut total, mut plain) = (0.0, 0.0, 0.0);
     for (i, x) in source.points.iter().enumerate() {
         let q = (t * nalgebra::Point2::from(*x)).coords;
-        let f = tree
-            .nearest_two(&q, reach)
-            .map_or(0.0, |(_, d2, _)| (k * d2).exp());
+        let f = nearest(i, &q).map_or(0.0, |d2| (k * d2).exp());
         let w = weights.map_or(1.0, |w| w[i]);
         plain += f;
         weighted += w * f;
@@ -141,17 +156,9 @@ pub fn score_peak(
     sigma: f64,
     max_offset: f64,
 ) -> Vec3 {
-    let score = |v: &Vec3| {
-        fit_score(
-            source,
-            Some(weights),
-            target,
-            tree,
-            &(t * se2_exp(v)),
-            sigma,
-        )
-        .0
-    };
+    // A micrometre over the farthest move, for the rounding of the moved points.
+    let near = Neighbourhoods::new(source, target, tree, t, 4.0 * sigma + max_offset + 1e-6);
+    let score = |v: &Vec3| near.fit_score(source, weights, &(t * se2_exp(v)), sigma);
     let (mut at, mut best) = (Vec3::zeros(), score(&Vec3::zeros()));
     let (mut step, finest) = PEAK_STEPS;
     while step >= finest {
@@ -167,6 +174,58 @@ pub fn score_peak(
         }
     }
     at
+}
+
+/// Per source point, the target points within a fixed radius of where `t` puts it: every target
+/// point that can be the nearest within [`fit_score`]'s reach at a pose that moves the point by at
+/// most the rest of the radius. [`score_peak`] evaluates the score at tens of translations of one
+/// pose; scanning these short lists instead of querying the grid each time gives the same scores to
+/// the bit (the same squared distances, the same minimum) at a fraction of the cost.
+struct Neighbourhoods {
+    /// The lists of source point `i`: `coords[start[i]..start[i + 1]]`.
+    start: Vec<usize>,
+    coords: Vec<[f64; 2]>,
+}
+
+impl Neighbourhoods {
+    /// The lists of `source` moved by `t`, with the target points of `tree` (built over `target`)
+    /// within `radius`.
+    fn new(
+        source: &PointSet2,
+        target: &PointSet2,
+        tree: &TargetTree,
+        t: &Iso2,
+        radius: f64,
+    ) -> Self {
+        let mut start = Vec::with_capacity(source.len() + 1);
+        let mut coords = Vec::new();
+        start.push(0);
+        for x in &source.points {
+            let q = (t * nalgebra::Point2::from(*x)).coords;
+            tree.within(&q, radius, |j, _, _| {
+                let y = target.points[j as usize];
+                coords.push([y.x, y.y]);
+            });
+            start.push(coords.len());
+        }
+        Neighbourhoods { start, coords }
+    }
+
+    /// The weighted [`fit_score`] of `source` (the set the lists were made for) at `t`, which must
+    /// move no point farther from where the lists were made than their radius less `4 sigma`.
+    fn fit_score(&self, source: &PointSet2, weights: &[f64], t: &Iso2, sigma: f64) -> f64 {
+        let reach = 4.0 * sigma;
+        let r2 = reach * reach;
+        let nearest = |i: usize, q: &Vec2| {
+            let mut d1 = r2;
+            for p in &self.coords[self.start[i]..self.start[i + 1]] {
+                let (dx, dy) = (p[0] - q.x, p[1] - q.y);
+                d1 = d1.min(dx * dx + dy * dy);
+            }
+            (d1 < r2).then_some(d1)
+        };
+        score_by(source, Some(weights), t, sigma, nearest).0
+    }
 }
 
 /// The first and the finest step of [`score_peak`]'s search, m: the finest is a sixth of the fit
@@ -251,6 +310,39 @@ mod tests {
             0.35,
         );
         assert_eq!(fallback, plain);
+    }
+
+    /// The neighbourhood lists give [`fit_score`]'s weighted score to the bit at every translation
+    /// within their reach, however the points fall (points on and off the target, some beyond reach).
+    #[test]
+    fn neighbourhood_lists_score_as_the_grid_does() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let mut cloud = |n: usize| -> Vec<Vec2> {
+            (0..n)
+                .map(|_| Vec2::new(rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)))
+                .collect()
+        };
+        let target = PointSet2::isotropic(cloud(300), 0.1);
+        let mut near: Vec<Vec2> = target.points[..150]
+            .iter()
+            .map(|p| p + Vec2::new(0.3, -0.2))
+            .collect();
+        near.extend(cloud(100));
+        let source = PointSet2::isotropic(near, 0.1);
+        let tree = target_tree(&target).expect("tree");
+        let w = object_weights(&source.points, 2.5);
+        let (sigma, max_offset) = (0.35, 1.0);
+        let t = Iso2::new(Vec2::new(0.1, 0.05), 0.01);
+        let lists =
+            Neighbourhoods::new(&source, &target, &tree, &t, 4.0 * sigma + max_offset + 1e-6);
+        for k in 0..200 {
+            let a = k as f64 * 0.7;
+            let v = Vec3::new(max_offset * a.cos(), max_offset * a.sin(), 0.0) * (k as f64 / 200.0);
+            let at = t * se2_exp(&v);
+            let grid = fit_score(&source, Some(&w), &target, &tree, &at, sigma).0;
+            assert_eq!(lists.fit_score(&source, &w, &at, sigma), grid, "{v}");
+        }
     }
 
     /// The fit score's peak against a known transform: twelve reflectors moved by 0.7 m along x, and a

@@ -496,9 +496,11 @@ fn a_look_alike_street_far_from_every_known_alignment_stays_out_of_a_fleet() {
 /// A fleet of three on the held-out suburb, five radars, 1 % drift: the middle robot drives the loop
 /// the other way. From a robot's first closure to another robot's session on (held for
 /// confirmation, then accepted), it searches that robot's keyframes near where the closure's
-/// alignment puts it, as it searches its own; by place descriptor alone the robots closed 12.5 % of
-/// the opposite-direction opportunities and 94.7 % of the same-direction ones (measured; 83.0 % and
-/// 99.8 % with the search). Every closure is correct, and no pair is published twice.
+/// alignment puts it, as it searches its own, and before that near where the alignment that robot's
+/// node accepted and shares puts it. By place descriptor alone the robots closed 12.5 % of the
+/// opposite-direction opportunities and 94.7 % of the same-direction ones; around their own
+/// alignments 83.0 % and 99.8 %; around the shared ones as well 91.4 % and 99.8 % (measured). Every
+/// closure is correct, and no pair is published twice.
 #[test]
 fn aligned_robots_search_each_others_streets_where_the_alignment_puts_them() {
     let scenario = held_out(0, RadarPreset::Nuscenes, false);
@@ -506,7 +508,7 @@ fn aligned_robots_search_each_others_streets_where_the_alignment_puts_them() {
     let r = fleet_of_three(scenario);
     assert_no_false_closure(&r);
     assert!(r.same.recall() >= 0.97, "{:?}", r.same);
-    assert!(r.reverse.recall() >= 0.75, "{:?}", r.reverse);
+    assert!(r.reverse.recall() >= 0.87, "{:?}", r.reverse);
     assert_covariance_holds(&r);
 }
 

@@ -48,7 +48,8 @@ pub struct CandidateQuery<'a> {
 }
 
 /// An alignment of the query's session into another session's frame: the accepted one, or before
-/// there is one the newest held closure's.
+/// there is one the newest held closure's, or else the one that session's robot accepted and shares
+/// ([`crate::loop_closure::Session::search_prior`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SessionPrior {
     /// The other session.

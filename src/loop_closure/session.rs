@@ -220,12 +220,15 @@ impl Session {
     }
 
     /// The alignment a revisit search of `session` looks around: the accepted one, or before there is
-    /// one the newest held closure's (so that the closures that would confirm it are registered).
+    /// one the newest held closure's (so that the closures that would confirm it are registered), or
+    /// else the one `session`'s robot accepted to this session ([`Session::take_shared`]): the pairs
+    /// of keyframes this node registers are found where that robot's closures put them.
     pub fn search_prior(&self, session: u32) -> Option<Alignment> {
         self.alignments
             .get(&session)
             .copied()
             .or_else(|| Some(self.held.get(&session)?.last()?.alignment))
+            .or_else(|| self.shared.get(&session).copied())
     }
 
     /// Every other session with a [`Session::search_prior`], and that prior.
@@ -234,6 +237,7 @@ impl Session {
             .alignments
             .keys()
             .chain(self.held.keys())
+            .chain(self.shared.keys())
             .copied()
             .filter(|&s| s != self.own)
             .collect();
@@ -680,6 +684,37 @@ mod tests {
             2,
             "both held closures lie within reach of one"
         );
+    }
+
+    /// Another robot's shared alignment to this session is searched around while this session has no
+    /// closure of its own to that robot: it is that session's search prior, behind a held closure and
+    /// an accepted alignment of this session's own, and never this session's prior to itself.
+    #[test]
+    fn a_shared_alignment_is_searched_around_until_this_session_has_its_own() {
+        let lc = LoopConfig::default();
+        let mut s = Session::new(1);
+        assert_eq!(s.other_search_priors().count(), 0);
+        let shared = Iso2::new(Vec2::new(3.4, -2.2), 0.052);
+        s.take_shared(0, aligned(shared, 150.0), &lc);
+        assert_eq!(s.search_prior(0).map(|p| p.t), Some(shared));
+        assert_eq!(s.search_prior(1), None);
+        let priors: Vec<(u32, Iso2)> = s.other_search_priors().map(|(k, a)| (k, a.t)).collect();
+        assert_eq!(priors, vec![(0, shared)]);
+        // A held closure of this session's own comes first, and its accepted alignment before that.
+        let (c, held) = street_closure(20, 200.0, 0.0, 0.05);
+        let out = s.accept(
+            &place(20, 200.0),
+            c,
+            0,
+            aligned(held, 200.0),
+            Unconfirmed,
+            &lc,
+        );
+        assert!(out.is_empty(), "a first closure to another robot waits");
+        assert_eq!(s.search_prior(0).map(|p| p.t), Some(held));
+        let own = Iso2::new(Vec2::new(3.1, -2.1), 0.049);
+        s.set_alignment(0, aligned(own, 210.0));
+        assert_eq!(s.search_prior(0).map(|p| p.t), Some(own));
     }
 
     /// Along a road whose guard rail posts repeat every 2 m a closure slid by a post period fits as

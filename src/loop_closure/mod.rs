@@ -371,11 +371,8 @@ impl LoopCloser {
         out: &mut Decisions,
     ) -> Option<(LoopClosure, Standing)> {
         let alignment = self.state.search_prior(self.session).map(|a| (a.t, a.path));
-        let vouched = self
-            .state
-            .alignments()
-            .get(&self.session)
-            .is_some_and(|a| drift::vouches(query.path_distance - a.path, &self.lc));
+        let path = query.path_distance;
+        let vouched = self.state.vouches_for(self.session, path, &self.lc);
         let others: Vec<SessionPrior> = self
             .state
             .other_search_priors()
@@ -383,8 +380,7 @@ impl LoopCloser {
                 session,
                 t: a.t,
                 path: a.path,
-                vouched: self.state.alignments().contains_key(&session)
-                    && drift::vouches(query.path_distance - a.path, &self.lc),
+                vouched: self.state.vouches_for(session, path, &self.lc),
             })
             .collect();
         let rounds = db.candidate_rounds(

@@ -246,6 +246,13 @@ impl Session {
             .filter_map(|s| Some((s, self.search_prior(s)?)))
     }
 
+    /// The accepted alignment to `session` is fresh enough at `path` to vouch for a closure alone.
+    pub fn vouches_for(&self, session: u32, path: f64, lc: &LoopConfig) -> bool {
+        self.alignments
+            .get(&session)
+            .is_some_and(|a| vouches(path - a.path, lc))
+    }
+
     /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone.
     pub fn any_vouches(&self, path: f64, lc: &LoopConfig) -> bool {
         self.alignments.values().any(|a| vouches(path - a.path, lc))

@@ -478,21 +478,46 @@ class BackendNode:
               f"{odometry} odometry messages", flush=True)
 
 
+# The longest the back end waits for ROS traffic before it looks at SIGINT / SIGTERM again (s).
+SIGNAL_POLL_SECONDS = 0.2
+
+
 def main(argv=None) -> int:
+    """Spins until SIGINT or SIGTERM, then optimises once more and writes ``--out`` / ``--tum`` (a second
+    signal interrupts that).
+
+    The signals are this script's, not rclpy's: rclpy's handler shuts the context down from another
+    thread, which can race with the executor, and its wake-up of a blocked wait is sometimes lost, leaving
+    the back end waiting for traffic that never comes. Here a handler only sets a flag, and each wait
+    lasts at most ``SIGNAL_POLL_SECONDS``, so the flag is seen within that time."""
+    import signal
+
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
 
     a = parse_args(argv)
-    rclpy.init()
+    stop = []
+
+    def on_signal(signum, frame) -> None:
+        if stop:  # a second signal abandons the final optimisation
+            raise KeyboardInterrupt
+        stop.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(a.node_name)
     backend = BackendNode(node, a)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     print("backend_gtsam: running", flush=True)
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        while not stop:
+            executor.spin_once(timeout_sec=SIGNAL_POLL_SECONDS)
     finally:
         backend.finish()
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0

@@ -128,15 +128,19 @@ pub struct LoopConfig {
     pub trusted_prior_std: f64,
     /// Keyframes searched again per new keyframe once closures to a session are confirmed (default
     /// 1; 0 disables, also at the end of a bag): the keyframes of the last `backfill_horizon` metres
-    /// of path that got no closure while nothing vouched for their matches are searched again, newest
-    /// first, and what agrees with the confirmed alignment is published, late. One at a time keeps the
+    /// of path that got no closure while nothing vouched for their matches are searched again,
+    /// walking away from the confirming keyframe, and what agrees with the confirmed alignment is
+    /// published, late. In a fleet the same budget also searches this robot's keyframes without a
+    /// closure around another robot's alignment (shared before this node has one, or its own beyond
+    /// where the walk went stale), holding what they find for confirmation. One at a time keeps the
     /// added latency to one more search per keyframe.
     pub backfill_per_keyframe: usize,
     /// Metres of path back that a confirmation's searches again reach (default 2000; at least
     /// `confirmation_horizon`). They walk back along the route: each closure they publish gives the
     /// alignment the next older keyframe is searched around, so a confirmation that came late still
     /// closes the keyframes since the revisit began. The walk stops where no alignment is fresh
-    /// enough to vouch (`trusted_prior_std`), before the revisit began; the horizon bounds the
+    /// enough to vouch (`trusted_prior_std`), before the revisit began (on a walk to another robot's
+    /// keyframes, those beyond are then searched as new keyframes are); the horizon bounds the
     /// keyframes a confirmation may search again, and should not cut the walk short: a confirmation
     /// can come hundreds of metres into a revisit where places repeat.
     pub backfill_horizon: f64,

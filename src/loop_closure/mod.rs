@@ -24,6 +24,7 @@ pub use config::LoopConfig;
 pub use session::{Alignment, QueryPlace, Session, Standing};
 
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use crate::keyframe_db::{
     Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin, SessionPrior,
@@ -228,20 +229,39 @@ impl LoopCloser {
         let horizon = self.lc.backfill_horizon;
         self.state
             .note_keyframe(query.id, query.path_distance, horizon);
-        if let Some((c, standing)) = self.best_closure(db, query, prepared, out) {
-            let Some((session, alignment)) = closure_alignment(db, query, &c) else {
-                return;
-            };
-            let place = QueryPlace {
-                id: query.id,
-                path: query.path_distance,
-                t_odom_body: query.t_odom_body,
-            };
-            let publish = self
-                .state
-                .accept(&place, c, session, alignment, standing, &self.lc);
-            self.publish(publish, out);
+        let found = self.best_closure(db, query, prepared, out);
+        self.offer(db, query, found, None, out);
+    }
+
+    /// `found`, `query`'s best closure among its candidates, offered for acceptance: published, held
+    /// or confirming held ones ([`Session::accept`]). With `only`, a closure to another session is
+    /// left alone.
+    fn offer(
+        &mut self,
+        db: &KeyframeDb,
+        query: &KeyframeRecord,
+        found: Option<(LoopClosure, Standing)>,
+        only: Option<u32>,
+        out: &mut Decisions,
+    ) {
+        let Some((c, standing)) = found else {
+            return;
+        };
+        let Some((session, alignment)) = closure_alignment(db, query, &c) else {
+            return;
+        };
+        if only.is_some_and(|s| s != session) {
+            return;
         }
+        let place = QueryPlace {
+            id: query.id,
+            path: query.path_distance,
+            t_odom_body: query.t_odom_body,
+        };
+        let publish = self
+            .state
+            .accept(&place, c, session, alignment, standing, &self.lc);
+        self.publish(publish, out);
     }
 
     /// Another robot's keyframe `index`, just added to `db`: this session's keyframes that may revisit
@@ -313,51 +333,83 @@ impl LoopCloser {
         }
     }
 
-    /// Searches up to `n` keyframes queued to be searched again (`loop.backfill_per_keyframe`; at the
-    /// end of the input, all of them). Only what agrees with a fresh alignment is published from here,
-    /// and the keyframes queued after this one lie further back along the path: once no alignment is
-    /// fresh enough to vouch (`loop.trusted_prior_std`), the rest are not searched.
+    /// Searches up to `n` keyframes again (`loop.backfill_per_keyframe`; at the end of the input, all
+    /// of them): first those queued after a confirmation ([`LoopCloser::search_again`]), then those
+    /// left from before another robot's shared alignment arrived ([`LoopCloser::walk`]).
     pub fn backfill(&mut self, db: &mut KeyframeDb, n: usize, out: &mut Decisions) {
         for _ in 0..n {
-            let Some(id) = self.state.next_backfill() else {
-                return;
-            };
-            let Some(rec) = db.get(id).cloned() else {
-                continue;
-            };
-            let prepared = match db.prepared(id as usize, &self.rc) {
-                Ok(p) => p,
-                Err(e) => {
-                    log::debug!("keyframe {id} not searched again: {e}");
-                    continue;
-                }
-            };
-            // Searched around the chain's alignment instead of the newest one, which is put back
-            // after.
-            let swapped = self.state.swap_in_chain(rec.path_distance, &self.lc);
-            let fresh = self.state.any_vouches(rec.path_distance, &self.lc);
-            let found = if fresh {
-                self.best_closure(db, &rec, &prepared, out)
+            if let Some(id) = self.state.next_backfill() {
+                self.search_again(db, id, out);
+            } else if let Some((session, id)) = self.state.next_walk() {
+                self.walk(db, session, id, out);
             } else {
-                None
-            };
-            self.state.restore(swapped);
-            if !fresh {
-                log::debug!(
-                    "keyframe {id} and {} older ones not searched again: no alignment is fresh enough there",
-                    self.state.backfill_len()
-                );
-                self.state.clear_backfill();
                 return;
             }
-            // Only what agrees with the alignment that vouches is published.
-            let Some((c, Standing::Vouched)) = found else {
-                continue;
-            };
-            if let Some((s, alignment)) = closure_alignment(db, &rec, &c) {
-                self.state.extend_chain(s, alignment);
+        }
+    }
+
+    /// Searches keyframe `id`, queued after a confirmation, again. Only what agrees with a fresh
+    /// alignment is published from here, and the keyframes queued after this one on its walk lie
+    /// further along the path from the confirmation: once no alignment is fresh enough to vouch
+    /// (`loop.trusted_prior_std`), the rest of that walk is not searched.
+    fn search_again(&mut self, db: &mut KeyframeDb, id: u64, out: &mut Decisions) {
+        let Some((rec, prepared)) = self.keyframe(db, id) else {
+            return;
+        };
+        // Searched around the chain's alignment instead of the newest one, which is put back after.
+        let swapped = self.state.swap_in_chain(rec.path_distance, &self.lc);
+        let fresh = self.state.any_vouches(rec.path_distance, &self.lc);
+        let found = if fresh {
+            self.best_closure(db, &rec, &prepared, out)
+        } else {
+            None
+        };
+        self.state.restore(swapped);
+        if !fresh {
+            log::debug!(
+                "search again stopped at keyframe {id} ({} beyond it): no alignment is fresh enough there",
+                self.state.backfill_len()
+            );
+            let foreign = db.foreign();
+            self.state.walk_gone_stale(id, rec.path_distance, |s| {
+                foreign.session_origin(s).is_some()
+            });
+            return;
+        }
+        // Only what agrees with the alignment that vouches is published.
+        let Some((c, Standing::Vouched)) = found else {
+            return;
+        };
+        if let Some((s, alignment)) = closure_alignment(db, &rec, &c) {
+            self.state.extend_chain(s, alignment);
+        }
+        self.publish(vec![c], out);
+    }
+
+    /// Searches keyframe `id`, which has no closure, again as a new keyframe is searched, for a
+    /// closure to `session` (another robot's): around that robot's shared alignment, or the
+    /// alignment this node accepted that no longer vouches there ([`Session::next_walk`]). What it
+    /// finds is offered for acceptance and held until others agree.
+    fn walk(&mut self, db: &mut KeyframeDb, session: u32, id: u64, out: &mut Decisions) {
+        if let Some((rec, prepared)) = self.keyframe(db, id) {
+            let found = self.best_closure(db, &rec, &prepared, out);
+            self.offer(db, &rec, found, Some(session), out);
+        }
+    }
+
+    /// Keyframe `id` of the map and its prepared submap, if it can be searched.
+    fn keyframe(
+        &self,
+        db: &mut KeyframeDb,
+        id: u64,
+    ) -> Option<(KeyframeRecord, Arc<PreparedSubmap>)> {
+        let rec = db.get(id).cloned()?;
+        match db.prepared(id as usize, &self.rc) {
+            Ok(p) => Some((rec, p)),
+            Err(e) => {
+                log::debug!("keyframe {id} not searched again: {e}");
+                None
             }
-            self.publish(vec![c], out);
         }
     }
 

@@ -124,6 +124,9 @@ fn turn_spanned(first: f64, rest: impl Iterator<Item = f64>) -> bool {
     })
 }
 
+/// Keyframes queued to be searched again, in the order they are searched: (id, path length).
+type Queue = VecDeque<(u64, f64)>;
+
 /// Closure acceptance over one session.
 #[derive(Debug, Clone, Default)]
 pub struct Session {
@@ -140,14 +143,25 @@ pub struct Session {
     /// This session's keyframes of the last `loop.backfill_horizon` metres without a published
     /// closure (id, path length).
     unclosed: VecDeque<(u64, f64)>,
-    /// Keyframes queued to be searched again, newest first.
-    backfill: VecDeque<u64>,
+    /// Keyframes queued to be searched again, each further along the path from the confirmation
+    /// than the one before: those made after the confirming keyframe, oldest first (there are some
+    /// only when it was an older keyframe searched around a shared alignment), then `behind`.
+    backfill: Queue,
+    /// The keyframes made before the confirming keyframe, newest first, and the confirmation's
+    /// alignment (its session) that the chain starts from again when `backfill` is done with.
+    behind: Option<(Queue, (u32, Alignment))>,
     /// The alignment the queued keyframes are searched around (its session): the confirmation's,
     /// then each closure those searches publish.
     chain: Option<(u32, Alignment)>,
     /// The alignments of the closures the confirmation published: a queued keyframe where the
     /// chain's is no longer fresh is searched around the one found nearest to it along the path.
     anchors: Vec<Alignment>,
+    /// Keyframes without a closure to search as new keyframes are, for closures to a session (its
+    /// number first) that are held until others agree ([`Session::next_walk`]): those left when a
+    /// shared alignment to a session arrives before this session has one of its own, and those a
+    /// search again to another robot's session leaves where no alignment is fresh enough
+    /// ([`Session::walk_gone_stale`]).
+    walks: VecDeque<(u32, VecDeque<u64>)>,
 }
 
 impl Session {
@@ -175,6 +189,10 @@ impl Session {
     /// `session` are dropped, as the gates would refuse them now ([`super::drift::Prior::Anchored`]).
     pub fn take_shared(&mut self, session: u32, alignment: Alignment, lc: &LoopConfig) {
         if self.shared.insert(session, alignment).is_none() {
+            if !self.alignments.contains_key(&session) && lc.backfill_per_keyframe > 0 {
+                let unclosed = self.unclosed.iter().rev().map(|&(id, _)| id).collect();
+                self.walks.push_back((session, unclosed));
+            }
             log::debug!(
                 "session {session}'s robot accepted an alignment to this session ({:.2} {:.2} {:.3}, at {:.0} m here, {:.0} m there)",
                 alignment.t.translation.x,
@@ -371,6 +389,9 @@ impl Session {
                 alignment.t.translation.y,
                 alignment.t.rotation.angle()
             );
+            // A keyframe searched again (a walk) can find a pair it holds already: held once.
+            let pair = (c.query_id, c.match_id);
+            pending.retain(|h| (h.closure.query_id, h.closure.match_id) != pair);
             pending.push(Held {
                 closure: c,
                 alignment,
@@ -394,27 +415,28 @@ impl Session {
             "closures to session {session} confirmed by {} agreeing matches",
             publish.len()
         );
-        self.queue_unclosed(query.id, &publish, lc);
         self.chain = Some((session, alignment));
+        self.queue_unclosed(query, &publish, lc);
         Some(publish)
     }
 
-    /// Queues the keyframes before a confirmation that got nothing to be searched again, newest
-    /// first (not even at the end of a bag when `backfill_per_keyframe` is 0); `query` and the
-    /// confirmed closures' query keyframes are done.
-    fn queue_unclosed(&mut self, query: u64, publish: &[LoopClosure], lc: &LoopConfig) {
+    /// Queues the keyframes that got nothing to be searched again after a confirmation at `query`
+    /// (not even at the end of a bag when `backfill_per_keyframe` is 0), walking away from it: those
+    /// made after it forward, then those before it back; `query` and the confirmed closures' query
+    /// keyframes are done. Each walk follows its own chain of alignments from the confirmation's.
+    fn queue_unclosed(&mut self, query: &QueryPlace, publish: &[LoopClosure], lc: &LoopConfig) {
         let unclosed = std::mem::take(&mut self.unclosed);
-        self.backfill = if lc.backfill_per_keyframe > 0 {
-            let done = |id: u64| id == query || publish.iter().any(|p| p.query_id == id);
-            unclosed
-                .iter()
-                .rev()
-                .map(|&(id, _)| id)
-                .filter(|&id| !done(id))
-                .collect()
-        } else {
-            VecDeque::new()
-        };
+        self.backfill.clear();
+        self.behind = None;
+        if lc.backfill_per_keyframe == 0 {
+            return;
+        }
+        let done = |id: u64| id == query.id || publish.iter().any(|p| p.query_id == id);
+        let open: Vec<(u64, f64)> = unclosed.into_iter().filter(|&(id, _)| !done(id)).collect();
+        let (after, before): (Vec<_>, Vec<_>) = open.iter().partition(|&&(_, p)| p > query.path);
+        self.backfill = after.into_iter().copied().collect();
+        let behind = before.into_iter().rev().copied().collect();
+        self.behind = self.chain.map(|chain| (behind, chain));
     }
 
     /// `c` was published: its query keyframe has a closure.
@@ -422,19 +444,60 @@ impl Session {
         self.unclosed.retain(|&(id, _)| id != c.query_id);
     }
 
-    /// The next keyframe to search again, if any.
+    /// The next keyframe to search again, if any. The walk back from the confirmation starts
+    /// from the confirmation's alignment again.
     pub fn next_backfill(&mut self) -> Option<u64> {
-        self.backfill.pop_front()
+        if self.backfill.is_empty() {
+            let (behind, chain) = self.behind.take()?;
+            self.backfill = behind;
+            self.chain = Some(chain);
+        }
+        self.backfill.pop_front().map(|(id, _)| id)
     }
 
-    /// Keyframes queued to be searched again.
+    /// Keyframes queued to be searched again on the present walk away from the confirmation.
     pub fn backfill_len(&self) -> usize {
         self.backfill.len()
     }
 
-    /// Forgets the keyframes queued to be searched again.
-    pub fn clear_backfill(&mut self) {
-        self.backfill.clear();
+    /// No alignment is fresh enough at keyframe `id` (path length `path`), just taken from the search
+    /// again's present walk away from the confirmation. When the chain's session is another robot's
+    /// (`another_robot`), it and the rest of that walk go back to the keyframes without a closure and
+    /// are searched as new keyframes are, for closures to that session that are held until others
+    /// agree ([`Session::next_walk`]): two robots driving at once can pass the same places for
+    /// kilometres before the first confirmation between them. Otherwise the rest of the walk is
+    /// dropped: one robot's keyframes beyond lie before its revisit began, and searched around an
+    /// alignment that no longer vouches they find places that repeat along its own route.
+    pub fn walk_gone_stale(&mut self, id: u64, path: f64, another_robot: impl Fn(u32) -> bool) {
+        let mut rest = std::mem::take(&mut self.backfill);
+        rest.push_front((id, path));
+        let Some((session, _)) = self.chain.filter(|&(s, _)| another_robot(s)) else {
+            return;
+        };
+        self.walks
+            .push_back((session, rest.iter().map(|&(id, _)| id).collect()));
+        self.unclosed.extend(rest);
+        self.unclosed
+            .make_contiguous()
+            .sort_by(|a, b| a.1.total_cmp(&b.1));
+    }
+
+    /// The next keyframe to search as a new keyframe is, and the session its closure must go to
+    /// (the walks): one that still has no closure. A confirmation queues the keyframes
+    /// without a closure to be searched again, which ends the walks over them.
+    pub fn next_walk(&mut self) -> Option<(u32, u64)> {
+        while let Some((session, ids)) = self.walks.front_mut() {
+            match ids.pop_front() {
+                Some(id) if self.unclosed.iter().any(|&(u, _)| u == id) => {
+                    return Some((*session, id));
+                }
+                Some(_) => {}
+                None => {
+                    self.walks.pop_front();
+                }
+            }
+        }
+        None
     }
 
     /// A closure published by a search again moves the chain to the alignment it implies.
@@ -809,9 +872,14 @@ mod tests {
         assert_eq!(ids, [10, 10, 14]);
         assert_eq!(s.alignments()[&0].t, a);
         assert_eq!(s.alignments()[&0].path, 140.0);
-        // The keyframes before it that got nothing are queued, newest first.
-        assert_eq!(s.next_backfill(), Some(19));
-        assert_eq!(s.backfill_len(), 17, "all but 10, 14 and the one taken");
+        // The keyframes that got nothing are queued: those made after it oldest first, then those
+        // before it newest first.
+        assert_eq!(s.next_backfill(), Some(15));
+        assert_eq!(s.backfill_len(), 4, "16 to 19");
+        assert_eq!(
+            drain_backfill(&mut s),
+            [16, 17, 18, 19, 13, 12, 11, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0]
+        );
     }
 
     /// Another session's first closures (a loaded map, another robot) wait for
@@ -1124,5 +1192,95 @@ mod tests {
         assert!(s.alignments().contains_key(&7));
         s.restore(swapped);
         assert!(!s.alignments().contains_key(&7));
+    }
+
+    /// All the keyframes [`Session::next_backfill`] gives.
+    fn drain_backfill(s: &mut Session) -> Vec<u64> {
+        std::iter::from_fn(|| s.next_backfill()).collect()
+    }
+
+    /// Keyframes 0 to 19, 10 m apart: a closure held at keyframe 12 is confirmed at the older
+    /// keyframe 8 (as keyframes searched again by a walk find them), and the first keyframe to search
+    /// again, 9, is taken.
+    fn confirmed_at_an_older_keyframe(lc: &LoopConfig) -> Session {
+        let a = true_alignment();
+        let mut s = session_with_keyframes(20, lc);
+        offer(&mut s, (12, 120.0), (2, 0.7), a, lc);
+        assert_eq!(offer(&mut s, (8, 80.0), (0, 0.7), a, lc).len(), 2);
+        assert_eq!(s.next_backfill(), Some(9));
+        s
+    }
+
+    /// A confirmation at an older keyframe (an older keyframe searched around a shared alignment)
+    /// queues the keyframes made after it oldest first, then those before it newest first, and the
+    /// walk back starts from the confirmation's alignment again, not from where the walk forward
+    /// ended.
+    #[test]
+    fn a_confirmation_at_an_older_keyframe_walks_forward_then_back() {
+        let lc = LoopConfig::default();
+        let mut s = confirmed_at_an_older_keyframe(&lc);
+        s.extend_chain(0, aligned(Iso2::new(Vec2::new(3.2, -2.0), 0.05), 90.0));
+        let forward: Vec<u64> = std::iter::from_fn(|| s.next_backfill())
+            .take_while(|&id| id != 7)
+            .collect();
+        assert_eq!(forward, [10, 11, 13, 14, 15, 16, 17, 18, 19]);
+        assert_eq!(
+            s.chain,
+            Some((0, aligned(true_alignment(), 80.0))),
+            "back from the confirmation"
+        );
+        assert_eq!(drain_backfill(&mut s), [6, 5, 4, 3, 2, 1, 0]);
+    }
+
+    /// Where no alignment vouches any more, the rest of a search again's walk to another robot's
+    /// session is searched as new keyframes are, for closures to that session (to one robot's own
+    /// session it ends there); the walk back from the confirmation still follows a walk forward that
+    /// went stale, and a confirmation among the keyframes walked ends the walk over them.
+    #[test]
+    fn a_walk_to_another_robot_gone_stale_is_searched_as_new_keyframes() {
+        let lc = LoopConfig::default();
+        let mut s = confirmed_at_an_older_keyframe(&lc);
+        assert_eq!(s.next_backfill(), Some(10));
+        let mut lone = s.clone();
+        lone.walk_gone_stale(10, 100.0, |_| false);
+        assert_eq!(drain_backfill(&mut lone), [7, 6, 5, 4, 3, 2, 1, 0]);
+        assert_eq!(lone.next_walk(), None, "one robot's walk ends there");
+        s.walk_gone_stale(10, 100.0, |session| session == 0);
+        assert_eq!(drain_backfill(&mut s), [7, 6, 5, 4, 3, 2, 1, 0]);
+        assert_eq!(s.next_walk(), Some((0, 10)));
+        s.published(&closure(11, 1, 0.7));
+        assert_eq!(s.next_walk(), Some((0, 13)), "11 has a closure now");
+        // Two walked keyframes confirm a new alignment: the walk ends, and what it had not reached
+        // is queued to be searched again around that alignment.
+        let b = Iso2::new(Vec2::new(3.6, -2.0), 0.05);
+        offer(&mut s, (14, 140.0), (4, 0.7), b, &lc);
+        assert_eq!(offer(&mut s, (17, 170.0), (7, 0.7), b, &lc).len(), 2);
+        assert_eq!(s.next_walk(), None);
+        assert_eq!(drain_backfill(&mut s), [18, 19, 16, 15, 13, 10]);
+    }
+
+    /// A shared alignment to a session that arrives before this session has one of its own walks
+    /// over this session's keyframes that have no closure, newest first; once this session has its
+    /// own, a second shared alignment starts no walk.
+    #[test]
+    fn a_shared_alignment_walks_over_the_keyframes_without_a_closure() {
+        let lc = LoopConfig::default();
+        let mut s = session_with_keyframes(5, &lc);
+        s.own = 1;
+        s.published(&closure(3, 0, 0.7));
+        s.take_shared(0, aligned(true_alignment(), 30.0), &lc);
+        let walked: Vec<(u32, u64)> = std::iter::from_fn(|| s.next_walk()).collect();
+        assert_eq!(walked, [(0, 4), (0, 2), (0, 1), (0, 0)]);
+        // A walked keyframe that finds the pair it holds already holds it once, and a confirmation
+        // publishes it once.
+        let a = true_alignment();
+        assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
+        assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
+        assert_eq!(s.held[&0].len(), 1);
+        let mut s = session_with_keyframes(5, &lc);
+        s.own = 1;
+        s.set_alignment(2, aligned(true_alignment(), 30.0));
+        s.take_shared(2, aligned(true_alignment(), 30.0), &lc);
+        assert_eq!(s.next_walk(), None);
     }
 }

@@ -334,8 +334,8 @@ impl LoopCloser {
     }
 
     /// Searches up to `n` keyframes again (`loop.backfill_per_keyframe`; at the end of the input, all
-    /// of them): first those queued after a confirmation ([`LoopCloser::search_again`]), then those
-    /// left from before another robot's shared alignment arrived ([`LoopCloser::walk`]).
+    /// of them): first those queued after a confirmation ([`LoopCloser::search_again`]), then the
+    /// walks over keyframes without a closure to another robot's session ([`LoopCloser::walk`]).
     pub fn backfill(&mut self, db: &mut KeyframeDb, n: usize, out: &mut Decisions) {
         for _ in 0..n {
             if let Some(id) = self.state.next_backfill() {
@@ -351,7 +351,8 @@ impl LoopCloser {
     /// Searches keyframe `id`, queued after a confirmation, again. Only what agrees with a fresh
     /// alignment is published from here, and the keyframes queued after this one on its walk lie
     /// further along the path from the confirmation: once no alignment is fresh enough to vouch
-    /// (`loop.trusted_prior_std`), the rest of that walk is not searched.
+    /// (`loop.trusted_prior_std`), the rest of that walk is not searched again here
+    /// ([`Session::walk_gone_stale`] says what becomes of it).
     fn search_again(&mut self, db: &mut KeyframeDb, id: u64, out: &mut Decisions) {
         let Some((rec, prepared)) = self.keyframe(db, id) else {
             return;

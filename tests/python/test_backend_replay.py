@@ -109,11 +109,10 @@ def run(a, messages, node, backend) -> dict:
         result["node_exit"] = node.proc.wait(timeout=30)
         rs.spin_until(lambda: True, 0.5, "spin")
         result.update(got)
-    # The back end optimises once more and writes its trajectory when interrupted. That batch
-    # optimisation of the whole graph takes seconds on an idle machine and over a minute on a loaded
-    # two-core one; the bound is for a back end that never exits.
+    # The back end optimises once more and writes its trajectory when interrupted, in well under a
+    # second for these drives; the bound is for a back end that never exits.
     backend.proc.send_signal(signal.SIGINT)
-    result["backend_exit"] = backend.proc.wait(timeout=300)
+    result["backend_exit"] = backend.proc.wait(timeout=60)
     result["backend_trajectory"] = str(a.backend_out)
     return result
 

@@ -486,10 +486,9 @@ def main(argv=None) -> int:
     """Spins until SIGINT or SIGTERM, then optimises once more and writes ``--out`` / ``--tum`` (a second
     signal interrupts that).
 
-    The signals are this script's, not rclpy's: rclpy's handler shuts the context down from another
-    thread, which can race with the executor, and its wake-up of a blocked wait is sometimes lost, leaving
-    the back end waiting for traffic that never comes. Here a handler only sets a flag, and each wait
-    lasts at most ``SIGNAL_POLL_SECONDS``, so the flag is seen within that time."""
+    The signals are this script's, not rclpy's: rclpy's wake-up of a blocked wait on SIGINT is
+    sometimes lost, leaving the back end waiting for traffic that never comes. Here a handler only sets
+    a flag, and each wait lasts at most ``SIGNAL_POLL_SECONDS``, so the flag is seen within that time."""
     import signal
 
     import rclpy

@@ -229,24 +229,22 @@ impl LoopCloser {
         let horizon = self.lc.backfill_horizon;
         self.state
             .note_keyframe(query.id, query.path_distance, horizon);
-        let found = self.best_closure(db, query, prepared, out);
-        self.offer(db, query, found, None, out);
+        if let Some(found) = self.best_closure(db, query, prepared, out) {
+            self.offer(db, query, found, None, out);
+        }
     }
 
-    /// `found`, `query`'s best closure among its candidates, offered for acceptance: published, held
-    /// or confirming held ones ([`Session::accept`]). With `only`, a closure to another session is
+    /// `query`'s best closure among its candidates, offered for acceptance: published, held or
+    /// confirming held ones ([`Session::accept`]). With `only`, a closure to another session is
     /// left alone.
     fn offer(
         &mut self,
         db: &KeyframeDb,
         query: &KeyframeRecord,
-        found: Option<(LoopClosure, Standing)>,
+        (c, standing): (LoopClosure, Standing),
         only: Option<u32>,
         out: &mut Decisions,
     ) {
-        let Some((c, standing)) = found else {
-            return;
-        };
         let Some((session, alignment)) = closure_alignment(db, query, &c) else {
             return;
         };
@@ -392,8 +390,10 @@ impl LoopCloser {
     /// alignment this node accepted that no longer vouches there ([`Session::next_walk`]). What it
     /// finds is offered for acceptance and held until others agree.
     fn walk(&mut self, db: &mut KeyframeDb, session: u32, id: u64, out: &mut Decisions) {
-        if let Some((rec, prepared)) = self.keyframe(db, id) {
-            let found = self.best_closure(db, &rec, &prepared, out);
+        let Some((rec, prepared)) = self.keyframe(db, id) else {
+            return;
+        };
+        if let Some(found) = self.best_closure(db, &rec, &prepared, out) {
             self.offer(db, &rec, found, Some(session), out);
         }
     }

@@ -95,7 +95,11 @@ pub struct LoopConfig {
     /// The same for the first closures to another session, a loaded map or another robot (default 4):
     /// no odometry links the two sessions; two streets far apart in a grid of look-alike blocks can
     /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
-    /// two robots driving it towards each other (docs/experiments.md, "Fleets").
+    /// two robots driving it towards each other (docs/experiments.md, "Fleets"). Closures to the
+    /// robot's own keyframes that contradict its accepted alignment to itself by more than the drift
+    /// between them, while that alignment is fresh enough to vouch (`trusted_prior_std`), need as
+    /// many: two keyframes onto a street slid along itself by a block agree with each other, and
+    /// would replace an alignment that closures a little way back bore out.
     pub foreign_confirmations: usize,
     /// A session's closures to itself that lie beyond the drift model, but within three times its
     /// bounds, while no accepted alignment to itself vouches for them (none yet, or one too far back

@@ -71,8 +71,9 @@ pub enum Standing {
     /// It agrees with an accepted alignment fresh enough to vouch for it: published alone.
     Vouched,
     /// It agrees with odometry, or goes to another session that has nothing to contradict it:
-    /// published once `loop.confirmations` (another session's: `loop.foreign_confirmations`)
-    /// closures agree.
+    /// published once `loop.confirmations` (another session's, or when it contradicts a fresh
+    /// accepted alignment beyond the drift between them: `loop.foreign_confirmations`) closures
+    /// agree.
     Unconfirmed,
     /// A closure to this session beyond the drift model while no accepted alignment vouches (none
     /// yet, or a stale one): odometry no longer tells where the session is, as between two
@@ -282,9 +283,10 @@ impl Session {
     /// other query keyframes agree with it (`loop.confirmations`, `foreign_confirmations`,
     /// `confirmation_span`, `confirmation_overlap`, `confirmation_horizon`). Returns what to publish
     /// now, in order; on a confirmation the keyframes that got nothing since are queued to be
-    /// searched again. A closure that contradicts the accepted alignment and is confirmed replaces
-    /// it, so that one false closure that slipped through cannot block every true one after it; a
-    /// closure published on that alignment's word drops the held ones it contradicts
+    /// searched again. A closure that contradicts the accepted alignment and is confirmed (while the
+    /// alignment is fresh enough to vouch, by `foreign_confirmations`, `overturns_fresh`)
+    /// replaces it, so that one false closure that slipped through cannot block every true one
+    /// after it; a closure published on that alignment's word drops the held ones it contradicts
     /// (`refute_held`).
     pub fn accept(
         &mut self,
@@ -296,7 +298,9 @@ impl Session {
         lc: &LoopConfig,
     ) -> Vec<LoopClosure> {
         let beyond = standing == Standing::BeyondDrift;
-        let needed = if session == self.own && !beyond {
+        let overturns = standing == Standing::Unconfirmed
+            && self.overturns_fresh(query, session, &alignment, lc);
+        let needed = if session == self.own && !beyond && !overturns {
             lc.confirmations
         } else {
             lc.foreign_confirmations
@@ -319,6 +323,32 @@ impl Session {
         };
         self.alignments.insert(session, alignment);
         publish
+    }
+
+    /// A closure that implies `alignment` to `session` contradicts the accepted alignment to it, and
+    /// that one is fresh enough to vouch: the two lie beyond [`CONFIRM_CHI2`] of each other
+    /// ([`alignment_distance`], with the drift over the path between the two query keyframes and
+    /// between the two match keyframes, as [`Self::refute_held`] compares them). Such a closure would
+    /// overturn closures that agreed with each other a little way back, so it needs as many agreeing
+    /// closures as a first alignment without odometry (`loop.foreign_confirmations`): a street slid
+    /// along itself by a repeating block agrees with itself from two keyframes. A closure onto
+    /// another pass of the place, a lap along the earlier path, lies within the drift over that lap.
+    fn overturns_fresh(
+        &self,
+        query: &QueryPlace,
+        session: u32,
+        alignment: &Alignment,
+        lc: &LoopConfig,
+    ) -> bool {
+        let Some(fresh) = self
+            .alignments
+            .get(&session)
+            .filter(|a| vouches(query.path - a.path, lc))
+        else {
+            return false;
+        };
+        let gap = (query.path - fresh.path).abs() + (alignment.match_path - fresh.match_path).abs();
+        alignment_distance(&fresh.t, &alignment.t, &query.t_odom_body, gap, lc) > CONFIRM_CHI2
     }
 
     /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
@@ -559,7 +589,7 @@ fn agreeing(
     alignment: &Alignment,
     lc: &LoopConfig,
 ) -> Vec<usize> {
-    (0..pending.len())
+    let with_c: Vec<usize> = (0..pending.len())
         .filter(|&k| {
             let h = &pending[k];
             let gap = query.path - h.alignment.path;
@@ -574,7 +604,44 @@ fn agreeing(
                     <= CONFIRM_CHI2
                 && consistent()
         })
-        .collect()
+        .collect();
+    if beyond {
+        return with_c;
+    }
+    mutually_agreeing(pending, query, with_c, lc)
+}
+
+/// The held closures `agree` (indices into `pending`, ascending) that also agree with each other:
+/// taken nearest `query` along the path first, each kept when it is within [`CONFIRM_CHI2`] of every
+/// one kept before it ([`closure_disagreement`] over the path between their query keyframes), unless
+/// one of the two lies beyond the drift model. Agreeing with the newest closure alone lets a closure
+/// far back along the path through: the drift over a long stretch covers a street slid by a block,
+/// which the closures in between rule out. Ascending, as `agree`.
+fn mutually_agreeing(
+    pending: &[Held],
+    query: &QueryPlace,
+    mut agree: Vec<usize>,
+    lc: &LoopConfig,
+) -> Vec<usize> {
+    let back = |k: usize| (query.path - pending[k].alignment.path).abs();
+    agree.sort_by(|&a, &b| back(a).total_cmp(&back(b)));
+    let mut kept: Vec<usize> = Vec::with_capacity(agree.len());
+    for k in agree {
+        let h = &pending[k];
+        let fits = |j: &usize| {
+            let o = &pending[*j];
+            let gap = h.alignment.path - o.alignment.path;
+            h.turn
+                || o.turn
+                || closure_disagreement(&h.closure, &o.closure, gap, lc)
+                    .is_none_or(|d| d <= CONFIRM_CHI2)
+        };
+        if kept.iter().all(fits) {
+            kept.push(k);
+        }
+    }
+    kept.sort_unstable();
+    kept
 }
 
 /// Whether `c` with the held closures `agree` confirms: `needed` closures in all, their query
@@ -823,6 +890,35 @@ mod tests {
         assert!(closure_disagreement(&slid, &c, 10.0, &lc).expect("regular") > CONFIRM_CHI2);
     }
 
+    /// A closure slid 12 m along the street, held 100 m back, agrees with a true closure that far on
+    /// (the drift over 100 m covers 12 m) but not with the true closures held 20-40 m after it:
+    /// the three true ones confirm each other without it, and it stays held.
+    #[test]
+    fn a_confirmation_takes_only_closures_that_agree_with_each_other() {
+        let lc = LoopConfig {
+            confirmations: 3,
+            ..LoopConfig::default()
+        };
+        let mut s = session_with_keyframes(11, &lc);
+        let mut offer_at = |q: u64, slide: f64| {
+            let path = 10.0 * q as f64;
+            let (c, a) = street_closure(q, path, slide, 0.3);
+            s.accept(&place(q, path), c, 0, aligned(a, path), Unconfirmed, &lc)
+        };
+        assert!(offer_at(0, 12.0).is_empty());
+        assert!(offer_at(6, 0.0).is_empty());
+        assert!(offer_at(8, 0.0).is_empty());
+        let published: Vec<u64> = offer_at(10, 0.0).iter().map(|c| c.query_id).collect();
+        assert_eq!(published, [6, 8, 10]);
+        let (slid, _) = street_closure(0, 0.0, 12.0, 0.3);
+        let (newest, _) = street_closure(10, 100.0, 0.0, 0.3);
+        let (between, _) = street_closure(6, 60.0, 0.0, 0.3);
+        assert!(
+            closure_disagreement(&slid, &newest, -100.0, &lc).expect("regular") <= CONFIRM_CHI2
+        );
+        assert!(closure_disagreement(&slid, &between, -60.0, &lc).expect("regular") > CONFIRM_CHI2);
+    }
+
     /// Beyond the drift model the odometry between two keyframes is not known to the model's
     /// accuracy: the slid closure of the test above agrees there on its alignment alone.
     #[test]
@@ -921,6 +1017,30 @@ mod tests {
             &lc,
         );
         assert_eq!(published.len(), 2);
+    }
+
+    /// Closures that contradict the session's accepted alignment to itself while it is fresh enough
+    /// to vouch need `foreign_confirmations` agreeing closures, not `confirmations`: two keyframes
+    /// onto a street slid along itself by a block agree with each other as well as true ones do.
+    /// Four such closures still replace the alignment.
+    #[test]
+    fn overturning_a_fresh_alignment_needs_foreign_confirmations() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::new(0);
+        assert!(offer(&mut s, (10, 100.0), (0, 0.7), a, &lc).is_empty());
+        assert_eq!(offer(&mut s, (14, 140.0), (4, 0.7), a, &lc).len(), 2);
+        assert!(s.vouches_for(0, 150.0, &lc));
+        let slid = a * Iso2::new(Vec2::new(20.0, 0.0), 0.0);
+        assert!(offer(&mut s, (15, 150.0), (25, 0.7), slid, &lc).is_empty());
+        assert!(
+            offer(&mut s, (19, 190.0), (29, 0.7), slid, &lc).is_empty(),
+            "two closures do not overturn a fresh alignment"
+        );
+        assert!(offer(&mut s, (20, 200.0), (30, 0.7), slid, &lc).is_empty());
+        let published = offer(&mut s, (21, 210.0), (31, 0.7), slid, &lc);
+        let ids: Vec<u64> = published.iter().map(|c| c.query_id).collect();
+        assert_eq!(ids, [15, 19, 20, 21], "four do");
     }
 
     /// A closure to the own session beyond the drift model needs `foreign_confirmations`, and so
@@ -1068,15 +1188,15 @@ mod tests {
         );
         assert_eq!(vouched.len(), 1, "published on the alignment's word");
         assert!(
-            offer(&mut s, (24, 240.0), (13, 0.7), b, &lc).is_empty(),
+            offer(&mut s, (29, 290.0), (18, 0.7), b, &lc).is_empty(),
             "the held contradiction was refuted by keyframe 22"
         );
         assert_eq!(s.alignments()[&0].t, a);
-        let published: Vec<u64> = offer(&mut s, (28, 280.0), (17, 0.7), b, &lc)
+        let published: Vec<u64> = offer(&mut s, (33, 330.0), (22, 0.7), b, &lc)
             .iter()
             .map(|c| c.query_id)
             .collect();
-        assert_eq!(published, [24, 28]);
+        assert_eq!(published, [29, 33]);
         assert_eq!(s.alignments()[&0].t, b);
         // A held closure onto another pass of the place, a lap further along the earlier path, may
         // imply an alignment metres away from the accepted one by the drift over that lap: a closure
@@ -1088,31 +1208,31 @@ mod tests {
         };
         let held = take(
             &mut s,
-            (30, 300.0),
-            (40, 0.7),
-            (other_pass(300.0), Unconfirmed),
+            (40, 400.0),
+            (50, 0.7),
+            (other_pass(400.0), Unconfirmed),
             &lc,
         );
         assert!(held.is_empty());
         let on_b = take(
             &mut s,
-            (31, 310.0),
-            (20, 0.7),
-            (aligned(b, 310.0), Vouched),
+            (41, 410.0),
+            (30, 0.7),
+            (aligned(b, 410.0), Vouched),
             &lc,
         );
         assert_eq!(on_b.len(), 1);
         let published: Vec<u64> = take(
             &mut s,
-            (34, 340.0),
-            (44, 0.7),
-            (other_pass(340.0), Unconfirmed),
+            (44, 440.0),
+            (54, 0.7),
+            (other_pass(440.0), Unconfirmed),
             &lc,
         )
         .iter()
         .map(|c| c.query_id)
         .collect();
-        assert_eq!(published, [30, 34]);
+        assert_eq!(published, [40, 44]);
     }
 
     #[test]

@@ -327,8 +327,7 @@ impl Session {
 
     /// A closure that implies `alignment` to `session` contradicts the accepted alignment to it, and
     /// that one is fresh enough to vouch: the two lie beyond [`CONFIRM_CHI2`] of each other
-    /// ([`alignment_distance`], with the drift over the path between the two query keyframes and
-    /// between the two match keyframes, as [`Self::refute_held`] compares them). Such a closure would
+    /// ([`apart`], as [`Self::refute_held`] compares them). Such a closure would
     /// overturn closures that agreed with each other a little way back, so it needs as many agreeing
     /// closures as a first alignment without odometry (`loop.foreign_confirmations`): a street slid
     /// along itself by a repeating block agrees with itself from two keyframes. A closure onto
@@ -340,22 +339,15 @@ impl Session {
         alignment: &Alignment,
         lc: &LoopConfig,
     ) -> bool {
-        let Some(fresh) = self
-            .alignments
+        self.alignments
             .get(&session)
             .filter(|a| vouches(query.path - a.path, lc))
-        else {
-            return false;
-        };
-        let gap = (query.path - fresh.path).abs() + (alignment.match_path - fresh.match_path).abs();
-        alignment_distance(&fresh.t, &alignment.t, &query.t_odom_body, gap, lc) > CONFIRM_CHI2
+            .is_some_and(|fresh| apart(fresh, alignment, query, lc) > CONFIRM_CHI2)
     }
 
     /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
-    /// closures to that session whose alignments it contradicts are dropped ([`alignment_distance`]
-    /// beyond [`CONFIRM_CHI2`], with the drift over the path between the two query keyframes and
-    /// between the two match keyframes: two true closures onto two passes of one place a lap apart
-    /// imply alignments that differ by the drift over that lap). Each contradicts an alignment that
+    /// closures to that session whose alignments it contradicts are dropped ([`apart`] beyond
+    /// [`CONFIRM_CHI2`]). Each contradicts an alignment that
     /// a newer closure has borne out; left waiting, two such closures on either side of a stretch
     /// the alignment keeps vouching for would confirm each other and replace it (a road slid along
     /// itself by its repeating posts agrees with itself over the drift between them). A false
@@ -372,10 +364,7 @@ impl Session {
             return;
         };
         pending.retain(|h| {
-            let gap = (query.path - h.alignment.path).abs()
-                + (alignment.match_path - h.alignment.match_path).abs();
-            let d2 =
-                alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc);
+            let d2 = apart(&h.alignment, alignment, query, lc);
             if d2 > CONFIRM_CHI2 {
                 log::debug!(
                     "held closure {} -> {} dropped: closure {} on the accepted alignment contradicts it (squared distance {d2:.1})",
@@ -571,6 +560,21 @@ impl Session {
     }
 }
 
+/// Squared distance ([`alignment_distance`]) between an earlier alignment and `alignment`, which a
+/// closure at `query` implies, with the drift over the path between the two query keyframes and
+/// between the two match keyframes: two true closures onto two passes of one place a lap apart imply
+/// alignments that differ by the drift over that lap.
+fn apart(earlier: &Alignment, alignment: &Alignment, query: &QueryPlace, lc: &LoopConfig) -> f64 {
+    let gap = (query.path - earlier.path).abs() + (alignment.match_path - earlier.match_path).abs();
+    alignment_distance(&earlier.t, &alignment.t, &query.t_odom_body, gap, lc)
+}
+
+/// Closure `a` lies within [`CONFIRM_CHI2`] of its prediction from `b`, `gap` metres of path away
+/// ([`closure_disagreement`]; agreeing when that is singular).
+fn closures_agree(a: &LoopClosure, b: &LoopClosure, gap: f64, lc: &LoopConfig) -> bool {
+    closure_disagreement(a, b, gap, lc).is_none_or(|d| d <= CONFIRM_CHI2)
+}
+
 /// The held closures (indices into `pending`) from other query keyframes that agree with `c`: their
 /// alignments within [`CONFIRM_CHI2`] of `alignment`, `c`'s, at the generous accuracy of
 /// [`alignment_distance`] plus the drift between them, and, unless `c` or the held closure lies
@@ -593,12 +597,7 @@ fn agreeing(
         .filter(|&k| {
             let h = &pending[k];
             let gap = query.path - h.alignment.path;
-            let consistent = || {
-                beyond
-                    || h.turn
-                    || closure_disagreement(&h.closure, c, gap, lc)
-                        .is_none_or(|d| d <= CONFIRM_CHI2)
-            };
+            let consistent = || beyond || h.turn || closures_agree(&h.closure, c, gap, lc);
             h.closure.query_id != c.query_id
                 && alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc)
                     <= CONFIRM_CHI2
@@ -631,10 +630,7 @@ fn mutually_agreeing(
         let fits = |j: &usize| {
             let o = &pending[*j];
             let gap = h.alignment.path - o.alignment.path;
-            h.turn
-                || o.turn
-                || closure_disagreement(&h.closure, &o.closure, gap, lc)
-                    .is_none_or(|d| d <= CONFIRM_CHI2)
+            h.turn || o.turn || closures_agree(&h.closure, &o.closure, gap, lc)
         };
         if kept.iter().all(fits) {
             kept.push(k);

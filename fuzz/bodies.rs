@@ -453,7 +453,7 @@ pub fn cloud_to_bytes(
     b
 }
 
-/// Map file magic (as `src/keyframe_db/file.rs` writes it).
+/// Map file magic (as `crates/core/src/keyframe_db/file.rs` writes it).
 pub const MAP_MAGIC: &[u8; 8] = b"DCLOCMAP";
 
 /// The map file of target `keyframe_map`. The first byte of the input chooses, modulo 4:

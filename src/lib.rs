@@ -1,33 +1,27 @@
 //! dc_loc: Doppler-compensated, uncertainty-aware loop closures from automotive radar (DC-Loc, ICRA 2022).
 //!
-//! The library is the algorithm core: no DDS, no async, no wall clock. Data flows one way:
-//! bytes ([`cloud`], [`io`]) -> radar scans ([`radar`]: Doppler compensation, per-point covariance,
-//! ego-motion and moving-object rejection) -> submaps ([`submap`]) -> registration ([`registration`],
-//! [`baselines`]) -> results. The node, the offline runner, the demo and the tests drive the same code.
+//! This package is the `dc_loc` binary and its command line ([`cli`]). Its library gathers the
+//! workspace's crates under one name, for the binary, the tests, the benches and the examples:
+//! - `dc_loc_core`: the method ([`radar`], [`submap`], [`registration`], [`keyframe_db`],
+//!   [`loop_closure`], [`pipeline`], ...), with no ROS client, DDS, CLI, plotting, file format or
+//!   simulator;
+//! - `dc_loc_io`: files in and out ([`bag`], [`io`], [`params`]);
+//! - `dc_loc_node`: the ROS 2 node ([`ros`], cargo feature `ros`, on by default);
+//! - `dc_loc_lab`: the simulator, the evaluation protocol and the baselines ([`sim`], [`eval`],
+//!   [`baselines`]).
+//!
+//! docs/architecture.md says why each crate exists.
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
 
-pub mod bag;
-pub mod baselines;
 pub mod cli;
-pub mod cloud;
-pub mod eval;
-pub mod fleet;
-pub mod growing_index;
-pub mod input;
-pub mod io;
-pub mod keyframe_db;
-pub mod loop_closure;
-pub mod math;
-pub mod msgs;
-pub mod output;
-pub mod params;
-pub mod pipeline;
-pub mod place;
-pub mod radar;
-pub mod registration;
-pub mod ros;
-pub mod runner;
-pub mod sim;
-pub mod submap;
-pub mod validate;
+
+pub use dc_loc_core::{
+    cdr, cloud, fleet, growing_index, input, keyframe_db, loop_closure, math, msgs, output,
+    pipeline, place, radar, registration, runner, submap, validate,
+};
+pub use dc_loc_io::sources as io;
+pub use dc_loc_io::{bag, params};
+pub use dc_loc_lab::{baselines, eval, sim};
+#[cfg(feature = "ros")]
+pub use dc_loc_node as ros;

@@ -1,4 +1,4 @@
-//! rosbag2 MCAP bags and ROS 2 CDR (src/bag) against independent truth:
+//! rosbag2 MCAP bags and ROS 2 CDR (crates/io/src/bag) against independent truth:
 //! - CDR bytes made by the Python rosbags library (tests/fixtures/cdr_fixtures.json, from
 //!   tests/python/make_cdr_fixtures.py), byte for byte, both endiannesses;
 //! - a bag written by rosbags (tests/fixtures/rosbags_bag, from tests/python/make_rosbags_bag.py);

@@ -117,7 +117,7 @@ fn no_development_history_in_code_or_docs() {
         "formats.md",
     ];
     let mut files = Vec::new();
-    let mut stack = vec![root.join("src"), root.join("docs")];
+    let mut stack = vec![root.join("src"), root.join("crates"), root.join("docs")];
     while let Some(dir) = stack.pop() {
         for e in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
             let p = e.path();

@@ -51,7 +51,7 @@ struct Drive {
     drive: SimDrive,
     /// `dc_loc run` closures.
     offline: Vec<ClosureRecord>,
-    /// Revisit opportunities (src/eval's pairs: nearest earlier keyframe of another pass within 5 m,
+    /// Revisit opportunities (crates/lab/src/eval's pairs: nearest earlier keyframe of another pass within 5 m,
     /// same direction): query keyframe id -> target keyframe id.
     opportunities: BTreeMap<u64, u64>,
 }

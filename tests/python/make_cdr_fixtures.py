@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Writes tests/fixtures/cdr_fixtures.json: CDR bytes made by the rosbags library (independent truth
-for src/bag/cdr.rs) and rosbags' RIHS01 type hashes (for src/bag/schema.rs).
+for crates/core/src/cdr.rs) and rosbags' RIHS01 type hashes (for crates/io/src/bag/schema.rs).
 
-Each case holds a message as a dict (the serde_json form of the Rust structs in src/msgs.rs), its CDR
+Each case holds a message as a dict (the serde_json form of the Rust structs in crates/core/src/msgs.rs), its CDR
 little endian (`cdr_hex`, as ROS 2 writes it) and big endian (`cdr_be_hex`), both from
 `Typestore.serialize_cdr`. Floats are dyadic rationals so that JSON round-trips them exactly.
 

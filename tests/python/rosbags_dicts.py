@@ -2,7 +2,7 @@
 
 A message dict uses the .msg field names, nested dicts for nested messages, lists of ints for
 uint8[] and lists of floats for float64[36]: the same JSON that serde_json makes of the Rust structs in
-src/msgs.rs, so one JSON value describes a message on both sides.
+crates/core/src/msgs.rs, so one JSON value describes a message on both sides.
 """
 
 from __future__ import annotations

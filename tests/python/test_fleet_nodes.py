@@ -50,11 +50,11 @@ DIR is what ``dc_loc sim --fleet N`` writes: ``DIR/robot_<k>/`` holds robot k's 
    robots together against the ground truth after one rigid alignment (``summary.backend``).
 Exit code 0 when the run went through (the checks are the Rust test's), 1 otherwise.
 
-Judging, as ``judge`` in src/eval/revisits.rs with src/eval/fleet.rs's robots for passes:
+Judging, as ``judge`` in crates/lab/src/eval/revisits.rs with crates/lab/src/eval/fleet.rs's robots for passes:
 - ground truth: each bag's ``/ground_truth/odom`` (frame ``map``, one world frame for the whole fleet),
   interpolated linearly (heading unwrapped) at a keyframe's stamp;
 - a closure is correct when the translation of ``relative_pose`` (T_match_query) is within 2.0 m of the
-  ground truth's ``T_map_match^-1 T_map_query`` (src/eval/revisits.rs FALSE_CLOSURE_THRESHOLD); its
+  ground truth's ``T_map_match^-1 T_map_query`` (crates/lab/src/eval/revisits.rs FALSE_CLOSURE_THRESHOLD); its
   rotation error is reported, not used;
 - an opportunity is a keyframe whose ground-truth pose lies within 5.0 m (SAME_RADIUS) of a keyframe of
   another robot with an older stamp, the two headings within 90 degrees; it is found when the keyframe is
@@ -103,15 +103,15 @@ from test_node_replay import read_bag, record
 
 FLEET_TOPIC = "/dc_loc/keyframes"
 GROUND_TRUTH_TOPIC = "/ground_truth/odom"
-FALSE_CLOSURE_THRESHOLD = 2.0  # m, src/eval/revisits.rs
-SAME_RADIUS = 5.0  # m, src/eval/revisits.rs
+FALSE_CLOSURE_THRESHOLD = 2.0  # m, crates/lab/src/eval/revisits.rs
+SAME_RADIUS = 5.0  # m, crates/lab/src/eval/revisits.rs
 SAME_DIRECTION = 0.5 * math.pi  # headings closer than this are the same direction (is_reverse)
 STAMP_TOLERANCE = 1e-6  # s, a Keyframe's stamp against a closure's
 FLOOD_EXTRA = 500  # well-formed flood keyframes beyond node.fleet_history
 FLOOD_POINTS = 20  # points of a flood keyframe
 FLOOD_START = 0.25  # of the concurrent replay's duration
 NODE_FLEET_HISTORY, NODE_FLEET_RATE = 1000, 10.0  # the node's defaults
-# The malformed keyframes of a flood: what src/fleet/wire.rs decode refuses (bad_keyframe).
+# The malformed keyframes of a flood: what crates/core/src/fleet/wire.rs decode refuses (bad_keyframe).
 FLOOD_MALFORMED = ("covariances 2 a point", "quaternion of zeros", "odd point coordinates", "NaN position",
                    "heard robots without ids", "negative path length", "alignment without its paths")
 

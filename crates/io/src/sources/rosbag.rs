@@ -1,0 +1,267 @@
+//! A rosbag2 bag as the pipeline's input stream: [`BagInputs`] reads the radar and odometry topics of
+//! a configuration (and optionally a ground-truth `nav_msgs/Odometry` topic) in log-time order.
+//!
+//! Radar clouds (`sensor_msgs/PointCloud2`, or `radar_msgs/RadarScan` for a radar whose
+//! `radars.<name>.message` is `radar_scan`) come from `radars.<name>.topic` (radar index = position in
+//! `radar_names`), odometry from
+//! `odometry.topic`. Bad messages never stop a run: a message that does not decode, an odometry pose
+//! that is not finite, a cloud whose `header.frame_id` is not the radar's configured `frame_id` (when
+//! that is not empty), or damage in the bag file itself come out as [`InputIssue`]s and the stream
+//! goes on. A configuration that does not fit the bag (a configured topic missing, or of another type)
+//! is refused up front by [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is
+//! replaced by the bag's log time.
+
+use std::collections::BTreeMap;
+
+use crate::bag::{BagError, BagReader, Messages, schema};
+use dc_loc_core::input::{
+    Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, radar_scan_input,
+};
+use dc_loc_core::math::Stamp;
+use dc_loc_core::msgs::nav_msgs::Odometry;
+use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
+use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::pipeline::Config;
+use dc_loc_core::radar::RadarMessage;
+
+/// Why a bag cannot be run with a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum BagInputError {
+    /// The bag could not be read.
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// A configured topic is not in the bag.
+    #[error(
+        "parameter `{parameter}`: topic {topic} is not in the bag {bag} (its topics: {available})"
+    )]
+    MissingTopic {
+        /// The parameter naming the topic (`radars.front.topic`, `odometry.topic`, or
+        /// `ground_truth_topic`).
+        parameter: String,
+        /// The topic.
+        topic: String,
+        /// The bag path.
+        bag: String,
+        /// The bag's topics, comma-separated.
+        available: String,
+    },
+    /// A configured topic has another message type in the bag.
+    #[error(
+        "parameter `{parameter}`: topic {topic} has type {got} in the bag, expected {expected}"
+    )]
+    TopicType {
+        /// The parameter naming the topic.
+        parameter: String,
+        /// The topic.
+        topic: String,
+        /// The type dc_loc reads there.
+        expected: &'static str,
+        /// The type in the bag.
+        got: String,
+    },
+}
+
+/// What a topic is read as.
+#[derive(Debug, Clone)]
+enum Route {
+    /// Radar messages: the radars publishing on this topic, with their expected frame ids, and the
+    /// topic's message type.
+    Radar(Vec<(usize, String)>, RadarMessage),
+    Odometry,
+    GroundTruth,
+}
+
+/// The type name of `radar_msgs/RadarScan` in a bag.
+const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
+
+/// The radar of `radars` whose frame is `got` (an empty configured frame accepts any).
+fn radar_for(radars: &[(usize, String)], got: &str) -> Result<usize, IssueReason> {
+    radars
+        .iter()
+        .find(|(_, frame)| frame.is_empty() || frame == got)
+        .map(|&(radar, _)| radar)
+        .ok_or_else(|| IssueReason::FrameMismatch {
+            expected: radars
+                .iter()
+                .map(|(_, f)| f.as_str())
+                .collect::<Vec<_>>()
+                .join("|"),
+            got: got.to_string(),
+        })
+}
+
+/// The pipeline inputs of a bag, in log-time order (see the module documentation).
+pub struct BagInputs {
+    messages: Messages,
+    routes: BTreeMap<String, Route>,
+    /// Newest log time seen: the stamp of damage reports.
+    last_log_time: Stamp,
+    total: u64,
+}
+
+impl BagInputs {
+    /// Prepares to read the radar and odometry topics of `cfg` (and `ground_truth_topic`, a
+    /// `nav_msgs/Odometry` topic, when given) from `reader`.
+    ///
+    /// Fails when a configured topic is missing from the bag or has another type, naming the parameter.
+    pub fn new(
+        reader: &BagReader,
+        cfg: &Config,
+        ground_truth_topic: Option<&str>,
+    ) -> Result<Self, BagInputError> {
+        let mut routes: BTreeMap<String, Route> = BTreeMap::new();
+        let mut wanted: Vec<(String, String, &'static str)> = Vec::new();
+        for (i, name) in cfg.radar_names.iter().enumerate() {
+            let Some(rc) = cfg.radars.get(name) else {
+                continue;
+            };
+            let expected = match rc.message {
+                RadarMessage::PointCloud2 => schema::POINT_CLOUD2,
+                RadarMessage::RadarScan => RADAR_SCAN,
+            };
+            wanted.push((format!("radars.{name}.topic"), rc.topic.clone(), expected));
+            if let Route::Radar(list, _) = routes
+                .entry(rc.topic.clone())
+                .or_insert_with(|| Route::Radar(Vec::new(), rc.message))
+            {
+                list.push((i, rc.frame_id.clone()));
+            }
+        }
+        wanted.push((
+            "odometry.topic".into(),
+            cfg.odometry.topic.clone(),
+            schema::ODOMETRY,
+        ));
+        routes
+            .entry(cfg.odometry.topic.clone())
+            .or_insert(Route::Odometry);
+        if let Some(gt) = ground_truth_topic {
+            wanted.push((
+                "ground_truth_topic".into(),
+                gt.to_string(),
+                schema::ODOMETRY,
+            ));
+            routes.entry(gt.to_string()).or_insert(Route::GroundTruth);
+        }
+        let mut total = 0;
+        for (parameter, topic, expected) in &wanted {
+            let Some(info) = reader.topic(topic) else {
+                return Err(BagInputError::MissingTopic {
+                    parameter: parameter.clone(),
+                    topic: topic.clone(),
+                    bag: reader.path().display().to_string(),
+                    available: reader
+                        .topics()
+                        .iter()
+                        .map(|t| t.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                });
+            };
+            if info.type_name != *expected {
+                return Err(BagInputError::TopicType {
+                    parameter: parameter.clone(),
+                    topic: topic.clone(),
+                    expected,
+                    got: info.type_name.clone(),
+                });
+            }
+        }
+        for topic in routes.keys() {
+            total += reader.topic(topic).map_or(0, |t| t.message_count);
+        }
+        let topics: Vec<&str> = routes.keys().map(String::as_str).collect();
+        let messages = reader.messages_on(&topics)?;
+        Ok(BagInputs {
+            messages,
+            routes,
+            last_log_time: Stamp(0),
+            total,
+        })
+    }
+
+    /// Messages on the topics read (the length of the stream, issues included, for progress).
+    pub fn total_messages(&self) -> u64 {
+        self.total
+    }
+}
+
+impl Iterator for BagInputs {
+    type Item = Result<Input, InputIssue>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            let msg = match self.messages.next()? {
+                Ok(m) => m,
+                Err(e) => {
+                    return Some(Err(InputIssue {
+                        topic: String::new(),
+                        stamp: self.last_log_time,
+                        reason: IssueReason::Damaged(Box::new(e)),
+                    }));
+                }
+            };
+            self.last_log_time = msg.log_time;
+            // Unknown topics cannot come (the reader filters), but skip them rather than trust that.
+            let Some(route) = self.routes.get(msg.topic()) else {
+                continue;
+            };
+            let issue = |stamp, reason| InputIssue {
+                topic: msg.topic().to_string(),
+                stamp,
+                reason,
+            };
+            return Some(match route {
+                Route::Radar(radars, RadarMessage::PointCloud2) => {
+                    match msg.decode::<PointCloud2>() {
+                        Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                        Ok(mut cloud) => match header_stamp(&cloud.header, msg.log_time) {
+                            Err(reason) => Err(issue(msg.log_time, reason)),
+                            Ok(stamp) => {
+                                cloud.header.stamp = stamp.into();
+                                radar_for(radars, &cloud.header.frame_id)
+                                    .map(|radar| Input::Radar { radar, cloud })
+                                    .map_err(|reason| issue(stamp, reason))
+                            }
+                        },
+                    }
+                }
+                Route::Radar(radars, RadarMessage::RadarScan) => {
+                    match msg.decode::<RadarScanMsg>() {
+                        Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                        Ok(scan) => match header_stamp(&scan.header, msg.log_time) {
+                            Err(reason) => Err(issue(msg.log_time, reason)),
+                            Ok(stamp) => radar_for(radars, &scan.header.frame_id)
+                                .map(|radar| radar_scan_input(radar, stamp, &scan))
+                                .map_err(|reason| issue(stamp, reason)),
+                        },
+                    }
+                }
+                Route::Odometry | Route::GroundTruth => match msg.decode::<Odometry>() {
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                    Ok(odom) => {
+                        let stamp = match header_stamp(&odom.header, msg.log_time) {
+                            Ok(s) => s,
+                            Err(reason) => return Some(Err(issue(msg.log_time, reason))),
+                        };
+                        match ground_truth_sample(&odom) {
+                            None => Err(issue(stamp, IssueReason::NonFinitePose)),
+                            Some((_, pose, speed)) => Ok(if matches!(route, Route::Odometry) {
+                                Input::Odometry {
+                                    stamp,
+                                    t_odom_body: pose,
+                                }
+                            } else {
+                                Input::GroundTruth {
+                                    stamp,
+                                    t_map_body: pose,
+                                    speed,
+                                }
+                            }),
+                        }
+                    }
+                },
+            });
+        }
+    }
+}

@@ -1,0 +1,266 @@
+//! A simulated drive as a rosbag2 bag (what `dc_loc sim` writes), with the params YAML to run it.
+//!
+//! Entry points: [`export_drive`] (bag + `dc_loc.yaml` in one directory, an [`ExportSummary`]),
+//! [`write_bag`] (the bag alone), [`params_yaml`] (any [`dc_loc_core::pipeline::Config`] as a ROS 2 params file; also makes
+//! the shipped `params/*.yaml`), [`drive_description`].
+//!
+//! The bag (`<dir>/metadata.yaml`, `<dir>/<name>_0.mcap`, written by [`BagWriter`]):
+//! - each radar's scans as `sensor_msgs/msg/PointCloud2` on its topic (from [`SimDrive::to_config`]),
+//!   `frame_id` the radar frame, fields `x, y, z, v_r, rcs` FLOAT32 ([`CloudLayout::radar_f32`]);
+//! - [`dc_loc_core::pipeline::Config`]'s odometry topic (`/odom`): `nav_msgs/msg/Odometry`, frame `odom`, child
+//!   `base_link` (the simulator's `odom_frame` and `body_frame`), the drifting odometry;
+//! - [`GROUND_TRUTH_TOPIC`]: `nav_msgs/msg/Odometry`, frame `map`, the true pose and twist;
+//! - [`TF_STATIC_TOPIC`]: one `tf2_msgs/msg/TFMessage` at the start with `base_link -> <radar frame>`
+//!   for every radar (the extrinsics), offered transient local as tf2's static broadcaster does.
+//!
+//! Each message's log time is its stamp. Deterministic: one drive gives byte-identical files.
+
+use std::path::{Path, PathBuf};
+
+use crate::sim::{SimConfig, SimDrive, SimEventRef};
+use dc_loc_core::cloud::{CloudLayout, EncodeError, encode_detections};
+use dc_loc_core::math::Stamp;
+use dc_loc_core::msgs::geometry_msgs::{Transform, TransformStamped};
+use dc_loc_core::msgs::std_msgs::Header;
+use dc_loc_core::msgs::tf2_msgs::TFMessage;
+use dc_loc_io::bag::{BagError, BagWriter, schema};
+
+/// Topic of the ground-truth odometry.
+pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/odom";
+/// Topic of the static transforms.
+pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// Name of the params file written into the bag directory.
+pub const PARAMS_FILE: &str = "dc_loc.yaml";
+pub use dc_loc_io::params::file::{NODE_NAME, params_yaml};
+
+/// Why a drive could not be exported.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The bag writer failed (the directory exists and is not empty, I/O, ...).
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// A scan could not be encoded as a PointCloud2.
+    #[error("scan of radar {radar} at {:.6} s: {source}", .stamp.as_secs_f64())]
+    Encode {
+        /// Radar index.
+        radar: usize,
+        /// Scan stamp.
+        stamp: Stamp,
+        /// The encoder's error.
+        #[source]
+        source: EncodeError,
+    },
+    /// The params file could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Messages written on one topic.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TopicCount {
+    /// Topic name.
+    pub topic: String,
+    /// Message type.
+    pub type_name: &'static str,
+    /// Messages written.
+    pub count: u64,
+}
+
+/// What [`export_drive`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExportSummary {
+    /// The bag directory.
+    pub bag_dir: PathBuf,
+    /// The params YAML (inside the bag directory).
+    pub params_file: PathBuf,
+    /// Messages in the bag.
+    pub messages: u64,
+    /// Per topic, in the order added.
+    pub topics: Vec<TopicCount>,
+}
+
+/// Writes the bag of `drive` into `dir` (created, or empty); returns the bag directory and the
+/// messages per topic.
+pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCount>), ExportError> {
+    let sim = &drive.setup.config;
+    let cfg = drive.to_config();
+    let mut bag = BagWriter::create(dir)?;
+    let tf_topic = bag.add_topic(TF_STATIC_TOPIC, schema::TF_MESSAGE)?;
+    let odom_topic = bag.add_topic(&cfg.odometry.topic, schema::ODOMETRY)?;
+    let gt_topic = bag.add_topic(GROUND_TRUTH_TOPIC, schema::ODOMETRY)?;
+    let mut radar_topics = Vec::new();
+    for (_, rc) in cfg.radar_list() {
+        radar_topics.push((
+            bag.add_topic(&rc.topic, schema::POINT_CLOUD2)?,
+            rc.frame_id.clone(),
+        ));
+    }
+    let count = |topic: &str, type_name| TopicCount {
+        topic: topic.to_string(),
+        type_name,
+        count: 0,
+    };
+    let mut counts = vec![
+        count(TF_STATIC_TOPIC, schema::TF_MESSAGE),
+        count(&cfg.odometry.topic, schema::ODOMETRY),
+        count(GROUND_TRUTH_TOPIC, schema::ODOMETRY),
+    ];
+    counts.extend(
+        cfg.radar_list()
+            .into_iter()
+            .map(|(_, rc)| count(&rc.topic, schema::POINT_CLOUD2)),
+    );
+
+    // The extrinsics once, at the start.
+    let start = drive.setup.start;
+    let tf = TFMessage {
+        transforms: cfg
+            .radar_list()
+            .into_iter()
+            .map(|(_, rc)| TransformStamped {
+                header: Header {
+                    stamp: start.into(),
+                    frame_id: sim.body_frame.clone(),
+                },
+                child_frame_id: rc.frame_id.clone(),
+                transform: Transform::from(&rc.t_body_radar()),
+            })
+            .collect(),
+    };
+    bag.write(tf_topic, start, &tf)?;
+    counts[0].count += 1;
+
+    let layout = CloudLayout::radar_f32();
+    for ev in drive.events() {
+        match ev {
+            SimEventRef::GroundTruth(p) => {
+                bag.write(
+                    gt_topic,
+                    p.stamp,
+                    &p.to_msg(&sim.map_frame, &sim.body_frame),
+                )?;
+                counts[2].count += 1;
+            }
+            SimEventRef::Odometry(o) => {
+                bag.write(
+                    odom_topic,
+                    o.stamp,
+                    &o.to_msg(&sim.odom_frame, &sim.body_frame),
+                )?;
+                counts[1].count += 1;
+            }
+            SimEventRef::Scan(s) => {
+                let r = s.scan.radar;
+                let Some((topic, frame_id)) = radar_topics.get(r) else {
+                    continue; // every scan's radar has a topic: to_config lists the simulated radars
+                };
+                let header = Header {
+                    stamp: s.scan.stamp.into(),
+                    frame_id: frame_id.clone(),
+                };
+                let cloud =
+                    encode_detections(&s.scan.detections, &layout, header).map_err(|source| {
+                        ExportError::Encode {
+                            radar: r,
+                            stamp: s.scan.stamp,
+                            source,
+                        }
+                    })?;
+                bag.write(*topic, s.scan.stamp, &cloud)?;
+                counts[3 + r].count += 1;
+            }
+        }
+    }
+    Ok((bag.finish()?, counts))
+}
+
+/// Writes the bag of `drive` into `dir` and, beside its files, [`PARAMS_FILE`]: the pipeline
+/// configuration of the drive ([`SimDrive::to_config`]) as a params YAML for node [`NODE_NAME`].
+pub fn export_drive(drive: &SimDrive, dir: &Path) -> Result<ExportSummary, ExportError> {
+    let (bag_dir, topics) = write_bag(drive, dir)?;
+    let header = format!(
+        "dc_loc parameters for the simulated drive in this bag directory (written by `dc_loc sim`):\n{}\n\
+         Run it with: dc_loc run --bag {} --params {} --out closures.jsonl",
+        drive_description(&drive.setup.config),
+        bag_dir.display(),
+        bag_dir.join(PARAMS_FILE).display()
+    );
+    let params_file = bag_dir.join(PARAMS_FILE);
+    std::fs::write(&params_file, params_yaml(&drive.to_config(), &header)).map_err(|source| {
+        ExportError::Io {
+            path: params_file.clone(),
+            source,
+        }
+    })?;
+    Ok(ExportSummary {
+        messages: topics.iter().map(|t| t.count).sum(),
+        bag_dir,
+        params_file,
+        topics,
+    })
+}
+
+/// One line describing a drive: seed, radars, noise, laps with speeds (km/h) and directions, odometry
+/// errors.
+pub fn drive_description(cfg: &SimConfig) -> String {
+    let preset = cfg.radar_preset.name();
+    let noise = cfg.noise.model.name();
+    let laps: Vec<String> = cfg
+        .laps
+        .iter()
+        .map(|l| {
+            format!(
+                "{:.0} km/h{}",
+                l.speed * 3.6,
+                if l.reverse { " reverse" } else { "" }
+            )
+        })
+        .collect();
+    let robot = if cfg.robot == 0 && cfg.drive.start == 0.0 {
+        String::new()
+    } else {
+        format!(
+            ", robot {} from {:.0} m along the loop",
+            cfg.robot, cfg.drive.start
+        )
+    };
+    format!(
+        "seed {}{robot}, radar preset {preset} ({} radar{}), noise {noise}, laps [{}], odometry scale \
+         error {}, yaw-rate bias {:.3} deg/s",
+        cfg.seed,
+        cfg.radar_list().len(),
+        if cfg.radar_list().len() == 1 { "" } else { "s" },
+        laps.join(", "),
+        cfg.odometry.scale_error,
+        cfg.odometry.yaw_rate_bias.to_degrees()
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use dc_loc_io::params::{ParamSet, apply};
+
+    use super::*;
+    use crate::sim::{RadarPreset, SimConfig};
+
+    #[test]
+    fn params_yaml_applies_back_to_the_config() {
+        let mut cfg = SimConfig::with_preset(RadarPreset::Nuscenes).to_config();
+        cfg.keyframe.distance = 7.0;
+        cfg.radars.get_mut("front").unwrap().fields.rcs.clear();
+        let text = params_yaml(&cfg, "a test\nsecond line");
+        assert!(text.starts_with("# a test\n# second line\ndc_loc:\n  ros__parameters:\n"));
+        assert!(text.contains("    keyframe:\n      angle: 0.5\n      distance: 7.0\n"));
+        let set = ParamSet::from_yaml(&text, "/", NODE_NAME).unwrap();
+        assert_eq!(apply(&set).unwrap(), cfg);
+        // Another node name gets nothing from it.
+        let other = ParamSet::from_yaml(&text, "/", "other").unwrap();
+        assert!(other.entries().is_empty());
+    }
+}

@@ -1,0 +1,399 @@
+//! The node's DDS endpoints with their QoS: the input subscriptions and the reception loop over them
+//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`], with the optional back-end outputs
+//! of `node.pose_graph_output` and `node.lio_sam_output`) and the service servers.
+
+use std::sync::mpsc::SyncSender;
+use std::time::Duration;
+
+use ros2_client::{
+    MessageTypeName, Name, Node, Publisher, QosProfile, Server, ServiceMapping, ServiceTypeName,
+    Subscription,
+    qos::{Durability, History, Reliability, WhenFull},
+};
+use serde::de::DeserializeOwned;
+
+use super::args::RosArgs;
+use super::backends::{Float64MultiArray, PoseGraph};
+use super::convert::{DiagnosticArray, MarkerArray};
+use super::error::{NodeError, dds};
+use super::inputs::{self, RadarSubscription, Reception, TopicRadars};
+use super::services::{
+    self, PoseWithCovarianceStamped, SaveRequest, TriggerRequest, TriggerResponse,
+};
+use dc_loc_core::input::InputLimits;
+use dc_loc_core::msgs::dc_loc::{Keyframe as KeyframeMsg, LoopClosure as LoopClosureMsg};
+use dc_loc_core::msgs::nav_msgs::Odometry;
+use dc_loc_core::msgs::rosgraph_msgs::Clock;
+use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::msgs::tf2_msgs::TFMessage;
+use dc_loc_core::pipeline::Config;
+use dc_loc_core::radar::RadarMessage;
+use dc_loc_io::params::node::{FleetSettings, NodeSettings};
+
+/// The node's publishers, owned by the worker thread.
+pub struct Outputs {
+    /// `~/loop_closures`.
+    pub closures: Publisher<LoopClosureMsg>,
+    /// `~/markers`.
+    pub markers: Publisher<MarkerArray>,
+    /// `~/submap`.
+    pub submap: Publisher<PointCloud2>,
+    /// `/diagnostics`.
+    pub diagnostics: Publisher<DiagnosticArray>,
+    /// `~/relocalized`.
+    pub relocalized: Publisher<PoseWithCovarianceStamped>,
+    /// `node.pose_graph_topic`, when `node.pose_graph_output` is on.
+    pub pose_graph: Option<Publisher<PoseGraph>>,
+    /// `node.lio_sam_topic`, when `node.lio_sam_output` is on.
+    pub lio_sam: Option<Publisher<Float64MultiArray>>,
+    /// `node.fleet_topic`, when `node.fleet` is on.
+    pub keyframes: Option<Publisher<KeyframeMsg>>,
+}
+
+/// The node's input subscriptions.
+pub struct Subscriptions {
+    /// Per radar topic (several radars may share one; the frame id tells them apart).
+    radars: Vec<(String, TopicRadars, RadarSubscription)>,
+    odometry: (String, Subscription<Odometry>),
+    clock: Option<Subscription<Clock>>,
+    /// `~/save_map`.
+    save_map: Server<TriggerRequest, TriggerResponse>,
+    /// `~/markers` and `~/submap`, resolved: their readers are counted.
+    map_views: [String; 2],
+    /// `node.fleet_topic`, when `node.fleet` is on: the other robots' keyframes.
+    keyframes: Option<(String, Subscription<KeyframeMsg>, FleetSettings)>,
+}
+
+impl Subscriptions {
+    /// Subscribes the radars (one subscription per topic), the odometry, with sim time `/clock`, and
+    /// with `node.fleet` the fleet's keyframes.
+    pub fn new(
+        node: &mut Node,
+        ros_args: &RosArgs,
+        cfg: &Config,
+        settings: &NodeSettings,
+    ) -> Result<Self, NodeError> {
+        let use_sim_time = settings.use_sim_time;
+        // The radars sharing a topic share its message type (the configuration's check).
+        let mut by_topic: std::collections::BTreeMap<String, (RadarMessage, TopicRadars)> =
+            Default::default();
+        for (i, (name, rc)) in cfg.radar_list().into_iter().enumerate() {
+            by_topic
+                .entry(ros_args.resolve_topic(&rc.topic))
+                .or_insert_with(|| (rc.message, Vec::new()))
+                .1
+                .push((i, name.to_string(), rc.frame_id.clone()));
+        }
+        let mut radars = Vec::new();
+        for (topic, (message, topic_radars)) in by_topic {
+            let sub = match message {
+                RadarMessage::PointCloud2 => RadarSubscription::Cloud(subscribe(
+                    node,
+                    &topic,
+                    "sensor_msgs",
+                    "PointCloud2",
+                    INPUT_DEPTH,
+                )?),
+                RadarMessage::RadarScan => RadarSubscription::Scan(subscribe(
+                    node,
+                    &topic,
+                    "radar_msgs",
+                    "RadarScan",
+                    INPUT_DEPTH,
+                )?),
+            };
+            let names: Vec<&str> = topic_radars.iter().map(|r| r.1.as_str()).collect();
+            log::info!("radar {} on {topic} ({message:?})", names.join(", "));
+            radars.push((topic, topic_radars, sub));
+        }
+        let odom_topic = ros_args.resolve_topic(&cfg.odometry.topic);
+        let odometry = subscribe(node, &odom_topic, "nav_msgs", "Odometry", INPUT_DEPTH)?;
+        log::info!("odometry on {odom_topic}");
+        let clock = if use_sim_time {
+            Some(subscribe(node, "/clock", "rosgraph_msgs", "Clock", 10)?)
+        } else {
+            None
+        };
+        let save_map = node
+            .create_server(
+                ServiceMapping::Enhanced,
+                &topic_name(&ros_args.resolve_topic("~/save_map"))?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                reliable(10, Durability::Volatile),
+                reliable(10, Durability::Volatile),
+            )
+            .map_err(dds("~/save_map service"))?;
+        let keyframes = if settings.fleet.enabled {
+            let fleet = &settings.fleet;
+            let topic = ros_args.resolve_topic(&fleet.topic);
+            let qos = reliable(fleet.history, Durability::TransientLocal);
+            let t = node
+                .create_topic(
+                    &topic_name(&topic)?,
+                    MessageTypeName::new("dc_loc", "Keyframe"),
+                    &qos,
+                )
+                .map_err(dds("fleet topic"))?;
+            let sub = node
+                .create_subscription(&t, Some(qos))
+                .map_err(dds("fleet subscription"))?;
+            log::info!("other robots' keyframes on {topic}");
+            Some((topic, sub, fleet.clone()))
+        } else {
+            None
+        };
+        Ok(Subscriptions {
+            radars,
+            odometry: (odom_topic, odometry),
+            clock,
+            keyframes,
+            save_map,
+            map_views: [
+                ros_args.resolve_topic("~/markers"),
+                ros_args.resolve_topic("~/submap"),
+            ],
+        })
+    }
+
+    /// Runs every reception task until `stop` completes; `Some(cause)` when the node cannot go on (a
+    /// task or the worker ended first).
+    pub async fn receive(
+        &self,
+        node: &Node,
+        r: Reception,
+        limits: InputLimits,
+        mut stop: tokio::sync::mpsc::Receiver<()>,
+        worker_done: tokio::sync::oneshot::Receiver<()>,
+        save_requests: SyncSender<SaveRequest>,
+    ) -> Option<String> {
+        let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
+        for (topic, radars, sub) in &self.radars {
+            let shared = r.shared.clone();
+            match sub {
+                RadarSubscription::Cloud(sub) => {
+                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
+                        inputs::radar_input(topic, radars, &limits, &shared, c)
+                    })))
+                }
+                RadarSubscription::Scan(sub) => {
+                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |s| {
+                        inputs::radar_scan(topic, radars, &limits, &shared, s)
+                    })))
+                }
+            }
+        }
+        let (topic, sub) = &self.odometry;
+        let shared = r.shared.clone();
+        tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
+            inputs::odometry_input(topic, &shared, o)
+        })));
+        if let Some(sub) = &self.clock {
+            tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
+        }
+        if let Some((topic, sub, fleet)) = &self.keyframes {
+            let shared = r.shared.clone();
+            let mut gate = inputs::FleetGate::new(fleet);
+            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |k| {
+                inputs::keyframe_input(topic, &mut gate, &shared, k)
+            })));
+        }
+        let counts = inputs::publisher_counts(
+            node,
+            &self.radars,
+            &self.odometry.1,
+            &self.map_views,
+            r.shared,
+        );
+        tasks.push(Box::pin(counts));
+        tasks.push(Box::pin(services::save_map(&self.save_map, save_requests)));
+        // Every task runs as long as the node: the first to end is a failure.
+        let any_ended = futures::future::select_all(tasks);
+        let failure = async {
+            futures::future::select(any_ended, worker_done).await;
+            log::error!("a task the node needs ended: stopping");
+        };
+        let stopped = async {
+            let _ = stop.recv().await;
+        };
+        match futures::future::select(Box::pin(stopped), Box::pin(failure)).await {
+            futures::future::Either::Left(_) => None,
+            futures::future::Either::Right(_) => {
+                Some("a reception task or the worker ended unexpectedly".into())
+            }
+        }
+    }
+}
+
+/// DDS reader history of each input: deep enough that a busy executor never makes the reader discard
+/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz).
+const INPUT_DEPTH: usize = 1000;
+
+/// Best-effort, volatile, keep-last: matches reliable and best-effort publishers alike.
+fn sensor_qos(depth: usize) -> QosProfile {
+    QosProfile::subscription_default()
+        .reliability(Reliability::BestEffort)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth })
+}
+
+fn reliable(depth: usize, durability: Durability) -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::Wait(Duration::from_millis(200)),
+        })
+        .durability(durability)
+        .history(History::KeepLast { depth })
+}
+
+fn topic_name(resolved: &str) -> Result<Name, NodeError> {
+    Name::parse(resolved).map_err(|e| NodeError::Dds(format!("topic name {resolved}: {e:?}")))
+}
+
+fn subscribe<M: DeserializeOwned + 'static>(
+    node: &mut Node,
+    topic: &str,
+    package: &str,
+    type_name: &str,
+    depth: usize,
+) -> Result<Subscription<M>, NodeError> {
+    let qos = sensor_qos(depth);
+    let t = node
+        .create_topic(
+            &topic_name(topic)?,
+            MessageTypeName::new(package, type_name),
+            &qos,
+        )
+        .map_err(dds("input topic"))?;
+    node.create_subscription(&t, Some(qos))
+        .map_err(dds("subscription"))
+}
+
+/// `/tf_static` (remappable) as tf2's listeners read it: reliable, transient local, keep last 100.
+pub fn tf_static(
+    node: &mut Node,
+    ros_args: &RosArgs,
+) -> Result<Subscription<TFMessage>, NodeError> {
+    let qos = reliable(100, Durability::TransientLocal);
+    let t = node
+        .create_topic(
+            &topic_name(&ros_args.resolve_topic("/tf_static"))?,
+            MessageTypeName::new("tf2_msgs", "TFMessage"),
+            &qos,
+        )
+        .map_err(dds("/tf_static topic"))?;
+    node.create_subscription(&t, Some(qos))
+        .map_err(dds("/tf_static subscription"))
+}
+
+/// The publishers, with the back-end outputs the node's parameters (`ros_args`: files and `-p`) turn
+/// on; see [`outputs_with`].
+pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
+    let (settings, _) = NodeSettings::take_from(&ros_args.param_set()?)?;
+    outputs_with(node, ros_args, &settings)
+}
+
+/// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
+/// gets the history), `~/markers`, `~/submap`, `/diagnostics`, `~/relocalized`, and the back-end
+/// outputs `settings` turns on: the `pose_graph_tools_msgs/PoseGraph` topic (QoS of
+/// `~/loop_closures`), the LIO-SAM topic (reliable, volatile: LIO-SAM takes its pairs as they come) and
+/// the fleet's keyframes (reliable, transient local, keep last `node.fleet_history`: a robot that
+/// starts late gets the recent ones).
+pub fn outputs_with(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    settings: &NodeSettings,
+) -> Result<Outputs, NodeError> {
+    let backends = &settings.backends;
+    let fleet = &settings.fleet;
+    Ok(Outputs {
+        closures: publisher(
+            node,
+            ros_args,
+            "~/loop_closures",
+            ("dc_loc", "LoopClosure"),
+            reliable(100, Durability::TransientLocal),
+        )?,
+        markers: publisher(
+            node,
+            ros_args,
+            "~/markers",
+            ("visualization_msgs", "MarkerArray"),
+            reliable(1, Durability::TransientLocal),
+        )?,
+        submap: publisher(
+            node,
+            ros_args,
+            "~/submap",
+            ("sensor_msgs", "PointCloud2"),
+            reliable(1, Durability::Volatile),
+        )?,
+        diagnostics: publisher(
+            node,
+            ros_args,
+            "/diagnostics",
+            ("diagnostic_msgs", "DiagnosticArray"),
+            reliable(10, Durability::Volatile),
+        )?,
+        relocalized: publisher(
+            node,
+            ros_args,
+            "~/relocalized",
+            ("geometry_msgs", "PoseWithCovarianceStamped"),
+            reliable(1, Durability::TransientLocal),
+        )?,
+        pose_graph: if backends.pose_graph_output {
+            Some(publisher(
+                node,
+                ros_args,
+                &backends.pose_graph_topic,
+                ("pose_graph_tools_msgs", "PoseGraph"),
+                reliable(100, Durability::TransientLocal),
+            )?)
+        } else {
+            None
+        },
+        keyframes: if fleet.enabled {
+            Some(publisher(
+                node,
+                ros_args,
+                &fleet.topic,
+                ("dc_loc", "Keyframe"),
+                reliable(fleet.history, Durability::TransientLocal),
+            )?)
+        } else {
+            None
+        },
+        lio_sam: if backends.lio_sam_output {
+            Some(publisher(
+                node,
+                ros_args,
+                &backends.lio_sam_topic,
+                ("std_msgs", "Float64MultiArray"),
+                reliable(100, Durability::Volatile),
+            )?)
+        } else {
+            None
+        },
+    })
+}
+
+/// A publisher of `package/msg/type_name` on the topic `name` resolves to.
+fn publisher<M: serde::Serialize>(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    name: &str,
+    (package, type_name): (&str, &str),
+    qos: QosProfile,
+) -> Result<Publisher<M>, NodeError> {
+    let resolved = ros_args.resolve_topic(name);
+    let t = node
+        .create_topic(
+            &topic_name(&resolved)?,
+            MessageTypeName::new(package, type_name),
+            &qos,
+        )
+        .map_err(dds("output topic"))?;
+    log::info!("publishing {package}/msg/{type_name} on {resolved}");
+    node.create_publisher(&t, Some(qos))
+        .map_err(dds("publisher"))
+}

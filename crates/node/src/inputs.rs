@@ -1,0 +1,306 @@
+//! The reception side: one task per subscription takes messages off DDS, gives a zero stamp the
+//! receive time, does the cheap checks (frame id, size, finite pose) and hands the input to the
+//! worker through the bounded queue ([`take`]); reception never waits for registration. Each message
+//! that is not used is counted by reason.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+use ros2_client::{Node, Subscription};
+use serde::de::DeserializeOwned;
+
+use super::shared::{Inbox, Shared, Work, lock, receive_time};
+use dc_loc_core::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
+use dc_loc_core::math::Stamp;
+use dc_loc_core::msgs::dc_loc::Keyframe as KeyframeMsg;
+use dc_loc_core::msgs::nav_msgs::Odometry;
+use dc_loc_core::msgs::radar_msgs::RadarScan;
+use dc_loc_core::msgs::rosgraph_msgs::Clock;
+use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::msgs::std_msgs::Header;
+use dc_loc_io::params::node::FleetSettings;
+
+/// A message whose zero `header.stamp` the receive time replaces (drivers that leave it unset), as
+/// `dc_loc run` takes a bag's log time.
+pub trait Stamped {
+    /// The message's header.
+    fn header_mut(&mut self) -> &mut Header;
+}
+
+impl Stamped for PointCloud2 {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Stamped for RadarScan {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Stamped for Odometry {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// Why a message is not used: the counter's name and a detail for the warning.
+pub type Refusal = (&'static str, String);
+
+/// Where a subscription's messages go, and what the reception counts.
+#[derive(Clone)]
+pub struct Reception {
+    /// The counters.
+    pub shared: Arc<Shared>,
+    /// The worker's queue.
+    pub inbox: Inbox,
+    /// Stamps from `/clock`.
+    pub use_sim_time: bool,
+}
+
+/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: a stamp whose `nanosec`
+/// is 1e9 or more is refused (`bad_stamp`), a zero stamp becomes the receive time, `convert` turns the message into an input or a refusal (counted), and the input goes
+/// to the worker.
+pub async fn take<M, F>(topic: &str, sub: &Subscription<M>, r: Reception, mut convert: F)
+where
+    M: Stamped + DeserializeOwned + 'static,
+    F: FnMut(M) -> Result<(Input, Option<String>), Refusal>,
+{
+    let mut stream = std::pin::pin!(sub.async_stream());
+    while let Some(item) = stream.next().await {
+        let arrived = Instant::now();
+        let mut msg = match item {
+            Ok((m, _)) => m,
+            Err(e) => {
+                r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
+                continue;
+            }
+        };
+        let header = msg.header_mut();
+        if let Err(e) = header_stamp(header, Stamp(0)) {
+            r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
+            continue;
+        }
+        if Stamp::from(header.stamp) == Stamp(0) {
+            header.stamp = receive_time(&r.shared, r.use_sim_time).into();
+        }
+        match convert(msg) {
+            Ok((input, odom_frame)) => r.inbox.send(Work::Input {
+                input: Box::new(input),
+                odom_frame,
+                arrived,
+            }),
+            Err((reason, detail)) => r.shared.drop_msg(reason, &detail),
+        }
+    }
+}
+
+/// The radars on one topic: (index in `radar_names`, name, expected `frame_id`; empty accepts any).
+pub type TopicRadars = Vec<(usize, String, String)>;
+
+/// A radar topic's subscription, by its message type (`radars.<name>.message`).
+pub enum RadarSubscription {
+    /// `sensor_msgs/PointCloud2`.
+    Cloud(Subscription<PointCloud2>),
+    /// `radar_msgs/RadarScan`.
+    Scan(Subscription<RadarScan>),
+}
+
+/// The radar of `radars` whose frame is `got` (several radars may share a topic), counted as received;
+/// refused when no configured radar has that frame.
+fn radar_of(
+    topic: &str,
+    radars: &TopicRadars,
+    shared: &Shared,
+    got: &str,
+) -> Result<usize, Refusal> {
+    let Some((radar, name, _)) = radars
+        .iter()
+        .find(|(_, _, frame)| frame.is_empty() || frame == got)
+    else {
+        return Err((
+            "unknown_frame",
+            format!("{topic}: frame_id `{got}` is not a configured radar frame"),
+        ));
+    };
+    shared.count_received(name);
+    Ok(*radar)
+}
+
+/// A cloud of `topic` as the input of the radar its `frame_id` names, refused when no configured radar
+/// has that frame or it is larger than `limits`.
+pub fn radar_input(
+    topic: &str,
+    radars: &TopicRadars,
+    limits: &InputLimits,
+    shared: &Shared,
+    cloud: PointCloud2,
+) -> Result<(Input, Option<String>), Refusal> {
+    let radar = radar_of(topic, radars, shared, &cloud.header.frame_id)?;
+    // Refused before the queue, so that huge clouds never wait in it.
+    if let Err(e) = limits.check(&cloud) {
+        return Err(("cloud_too_large", format!("{topic}: {e}")));
+    }
+    Ok((Input::Radar { radar, cloud }, None))
+}
+
+/// A `radar_msgs/RadarScan` of `topic` as the input of the radar its `frame_id` names, refused as a
+/// cloud is (its returns count as points, 20 bytes each).
+pub fn radar_scan(
+    topic: &str,
+    radars: &TopicRadars,
+    limits: &InputLimits,
+    shared: &Shared,
+    scan: RadarScan,
+) -> Result<(Input, Option<String>), Refusal> {
+    let radar = radar_of(topic, radars, shared, &scan.header.frame_id)?;
+    // Each return is five float32 fields.
+    let n = scan.returns.len();
+    if let Err(e) = limits.check_size(n as u64, n.saturating_mul(20)) {
+        return Err(("cloud_too_large", format!("{topic}: {e}")));
+    }
+    let input = radar_scan_input(radar, scan.header.stamp.into(), &scan);
+    Ok((input, None))
+}
+
+impl Stamped for KeyframeMsg {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// At most `node.fleet_rate` keyframes a second from each robot beyond a burst of
+/// `node.fleet_history` (a token bucket per robot).
+pub struct FleetGate {
+    rate: f64,
+    burst: f64,
+    buckets: BTreeMap<i32, (f64, Instant)>,
+}
+
+impl FleetGate {
+    /// A gate for `settings`.
+    pub fn new(settings: &FleetSettings) -> Self {
+        FleetGate {
+            rate: settings.rate,
+            burst: settings.history as f64,
+            buckets: BTreeMap::new(),
+        }
+    }
+
+    /// Whether a keyframe of `robot` arriving `now` may pass.
+    pub fn pass(&mut self, robot: i32, now: Instant) -> bool {
+        let (tokens, last) = self.buckets.entry(robot).or_insert((self.burst, now));
+        let refill = now.saturating_duration_since(*last).as_secs_f64() * self.rate;
+        *tokens = (*tokens + refill).min(self.burst);
+        *last = now;
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// Another robot's keyframe as the input (the pipeline decodes and checks it), refused beyond
+/// `node.fleet_rate` for its robot (`keyframe_over_rate`, counted under the robot).
+pub fn keyframe_input(
+    topic: &str,
+    gate: &mut FleetGate,
+    shared: &Shared,
+    msg: KeyframeMsg,
+) -> Result<(Input, Option<String>), Refusal> {
+    shared.count_received("keyframes");
+    if !gate.pass(msg.robot_id, Instant::now()) {
+        *lock(&shared.fleet_flood).entry(msg.robot_id).or_default() += 1;
+        let detail = format!(
+            "{topic}: robot {} sends more keyframes than node.fleet_rate allows",
+            msg.robot_id
+        );
+        return Err(("keyframe_over_rate", detail));
+    }
+    Ok((Input::Keyframe(Box::new(msg)), None))
+}
+
+/// An odometry message as the input, refused when its pose is not finite.
+pub fn odometry_input(
+    topic: &str,
+    shared: &Shared,
+    odom: Odometry,
+) -> Result<(Input, Option<String>), Refusal> {
+    shared.count_received("odometry");
+    let Some((stamp, t_odom_body)) = odometry_pose(&odom) else {
+        return Err((
+            "bad_odometry",
+            format!("{topic}: pose not finite or zero quaternion"),
+        ));
+    };
+    let input = Input::Odometry { stamp, t_odom_body };
+    Ok((input, Some(odom.header.frame_id)))
+}
+
+/// `/clock` into the shared clock (sim time).
+pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
+    let mut stream = std::pin::pin!(sub.async_stream());
+    while let Some(r) = stream.next().await {
+        if let Ok((c, _)) = r {
+            let s: Stamp = c.clock.into();
+            shared.clock_ns.store(s.0, Ordering::SeqCst);
+        }
+    }
+}
+
+/// Matched publishers per input, every 250 ms, for `/diagnostics` (a user or test waits for them
+/// before sending), and the subscriptions discovered on the map views (`~/markers`, `~/submap`).
+pub async fn publisher_counts(
+    node: &Node,
+    radars: &[(String, TopicRadars, RadarSubscription)],
+    odometry: &Subscription<Odometry>,
+    map_views: &[String; 2],
+    shared: Arc<Shared>,
+) {
+    loop {
+        for (topic, readers) in map_views.iter().zip(&shared.map_view_readers) {
+            readers.store(node.subscription_count(topic), Ordering::SeqCst);
+        }
+        let mut counts = Vec::new();
+        for (_, topic_radars, sub) in radars {
+            let n = match sub {
+                RadarSubscription::Cloud(s) => s.get_publisher_count(node),
+                RadarSubscription::Scan(s) => s.get_publisher_count(node),
+            };
+            counts.extend(topic_radars.iter().map(|(_, name, _)| (name.clone(), n)));
+        }
+        counts.push(("odometry".to_string(), odometry.get_publisher_count(node)));
+        lock(&shared.publishers).extend(counts);
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A robot gets a burst of `node.fleet_history` keyframes, then `node.fleet_rate` a second; another
+    /// robot's allowance is its own.
+    #[test]
+    fn a_flooding_robot_is_held_to_its_rate() {
+        let settings = FleetSettings {
+            history: 50,
+            rate: 10.0,
+            ..FleetSettings::default()
+        };
+        let mut gate = FleetGate::new(&settings);
+        let t0 = Instant::now();
+        let passed = (0..1000).filter(|_| gate.pass(7, t0)).count();
+        assert_eq!(passed, 50, "the burst");
+        let later = t0 + Duration::from_secs(2);
+        let passed = (0..1000).filter(|_| gate.pass(7, later)).count();
+        assert_eq!(passed, 20, "two seconds at 10 a second");
+        assert!(gate.pass(8, later), "another robot has its own allowance");
+    }
+}

@@ -95,7 +95,7 @@ pub struct LoopConfig {
     /// The same for the first closures to another session, a loaded map or another robot (default 4):
     /// no odometry links the two sessions; two streets far apart in a grid of look-alike blocks can
     /// alias consistently from two keyframes, and a street symmetric about a point from three, seen by
-    /// two robots driving it towards each other (docs/experiments.md, "Fleets"). Closures to the
+    /// two robots driving it towards each other. Closures to the
     /// robot's own keyframes that contradict its accepted alignment to itself by more than the drift
     /// between them, while that alignment is fresh enough to vouch (`trusted_prior_std`), need as
     /// many: two keyframes onto a street slid along itself by a block agree with each other, and
@@ -108,7 +108,8 @@ pub struct LoopConfig {
     /// drifted that far (a yaw-rate bias, a long drive) no longer tells where the session is, as
     /// between two sessions, nor does an alignment it has carried since, and closures that agree with
     /// each other around a corner still do. Along one street they do not: a
-    /// parallel street a block away agrees with itself from every keyframe (docs/experiments.md).
+    /// parallel street a block away agrees with itself from every keyframe (docs/experiments.md,
+    /// "Drift beyond the model").
     /// Further out lie a street's look-alikes, such as its point-symmetric twin across a block. Off,
     /// such closures are refused, and odometry beyond its model closes no lap.
     pub confirm_beyond_drift: bool,

@@ -248,7 +248,7 @@ pub struct SubmapConfig {
     /// odometry 1 % long (the simulator's default drift) stretches a 72 km/h submap by 15 cm from
     /// end to end, and two laps at different speeds are
     /// stretched differently: on the demo drive the correction brings DC-Loc's median error from
-    /// 0.065 to 0.058 m (README.md). Wheels that spin or slide read 5-30 % more distance for a
+    /// 0.065 to 0.058 m (docs/experiments.md, "Submaps and odometry"). Wheels that spin or slide read 5-30 % more distance for a
     /// second or two, which the correction also takes out where the slip covers only part of the
     /// submap. A submap whose ratio is off 1 by more than the bound is refused (the odometry is
     /// then used as it is, and the node counts it in its diagnostics): wheels do not over-read by
@@ -257,8 +257,9 @@ pub struct SubmapConfig {
     /// Heights kept in a submap, `[lowest, highest]` in the body frame, m (default `[-100.0, 100.0]`:
     /// all). The registration is planar: a radar that measures elevation sees the road surface and
     /// what passes overhead (signs, bridges, tree crowns), which land in the plane as clutter. Set the
-    /// band to what stands on the ground at the radars' heights, e.g. `[0.3, 5.0]` for a body frame
-    /// on the ground; a planar radar's points all lie at its mounting height. The Doppler ego-motion
+    /// band to what stands on the ground at the radars' heights: the road lies at `-H` for a body
+    /// frame `H` above it, so `[0.3 - H, 5.0 - H]` (`[0.3, 5.0]` for a body frame on the road); a
+    /// planar radar's points all lie at its mounting height. The Doppler ego-motion
     /// fit still uses every detection.
     pub height_band: [f64; 2],
 }

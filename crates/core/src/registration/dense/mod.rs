@@ -46,7 +46,7 @@ pub struct DenseConfig {
     /// Rounds before the `iterations` ones with `max_distance` and `gate` doubled (default 4). A
     /// descriptor-stage estimate can be a few metres off along a street, where only poles and corners
     /// say where along it the submaps sit: beyond `max_distance` they pair with nothing and the
-    /// facades hold the pose where it is (docs/experiments.md, Registration).
+    /// facades hold the pose where it is.
     pub coarse_rounds: usize,
     /// Largest Euclidean distance of a pair, m (default 1.5).
     pub max_distance: f64,

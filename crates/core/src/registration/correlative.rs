@@ -21,9 +21,9 @@
 //!
 //! Entry points: [`CorrelativeConfig`], [`candidates`].
 
-use super::PointSet2;
 use super::dense::TargetTree;
 use super::grid::finite_bounds;
+use super::types::PointSet2;
 use crate::math::{Iso2, Vec2};
 use crate::validate::{Range, Validator};
 use serde::{Deserialize, Serialize};

@@ -38,7 +38,7 @@
 
 use super::grid::PointGrid;
 use crate::math::Vec2;
-use crate::registration::RegistrationError;
+use crate::registration::types::RegistrationError;
 use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 

@@ -21,7 +21,7 @@
 
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_exp};
 use crate::registration::robust::RobustLoss;
-use crate::registration::{PointSet2, RegistrationError};
+use crate::registration::types::{PointSet2, RegistrationError};
 use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
 

@@ -22,9 +22,9 @@
 //! The default is the paper's plain KNN with k = 3: k = 1 or a ratio test raise the share of true
 //! candidates but drop true matches that k = 3 keeps, with no consistent gain in accuracy.
 
-use crate::registration::RegistrationError;
 use crate::registration::descriptor::{DESCRIPTOR_DIM, Descriptor};
 use crate::registration::ransac::Correspondence;
+use crate::registration::types::RegistrationError;
 use crate::validate::{Range, Validator};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};

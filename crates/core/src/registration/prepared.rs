@@ -3,9 +3,9 @@
 //! submaps as every stage sees it ([`PairContext`]).
 
 use super::bearings::Bearings;
-use super::{
-    PointSet2, RegistrationConfig, RegistrationError, dense, descriptor, matching, ransac,
-};
+use super::config::RegistrationConfig;
+use super::types::{PointSet2, RegistrationError};
+use super::{dense, descriptor, matching, ransac};
 use crate::math::Vec2;
 
 /// Cell of the screening's coverage grid, m: a RANSAC motion a metre off still scores its overlap.

@@ -3,7 +3,10 @@
 //! along the heading ([`slide_overlap`]), and how much the two submaps can have seen in common
 //! ([`common_view`]).
 
-use super::{PreparedSubmap, RegistrationConfig, RegistrationError, dense};
+use super::config::RegistrationConfig;
+use super::dense;
+use super::prepared::PreparedSubmap;
+use super::types::RegistrationError;
 use crate::math::{Iso2, Vec2};
 
 /// The best support near a given pose: the dense stage started at `initial`, and the overlap (as in
@@ -102,7 +105,7 @@ pub fn common_view(source: &PreparedSubmap, target: &PreparedSubmap, t: &Iso2) -
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registration::PointSet2;
+    use crate::registration::types::PointSet2;
 
     /// Along bare facades every slid alignment fits as well as the true one; poles and building
     /// edges at irregular places make the true one stand out.

@@ -20,7 +20,7 @@ pub use associate::associate;
 pub use rounds::{DenseResult, Rounds, refine_dense, soften};
 pub use screening::{Coverage, fit_score, object_weights, probes, score_peak};
 
-use super::{PointSet2, RegistrationError};
+use super::types::{PointSet2, RegistrationError};
 use crate::math::{Mat2, Vec2};
 use crate::validate::Validator;
 use serde::{Deserialize, Serialize};

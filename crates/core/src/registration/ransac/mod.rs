@@ -22,34 +22,13 @@
 mod columns;
 
 use crate::math::{Iso2, Mat2, Vec2};
-use crate::registration::{PointSet2, RegistrationError};
+pub use crate::registration::types::Correspondence;
+use crate::registration::types::{PointSet2, RegistrationError};
 use crate::validate::{Range, Validator};
 use columns::{Columns, Scorer};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
-
-/// A candidate match: source (current submap) point index, target (previous submap) point index.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Correspondence {
-    /// Index into the source point set.
-    pub source: u32,
-    /// Index into the target point set.
-    pub target: u32,
-    /// Descriptor distance (Euclidean; 0 when the match did not come from descriptors).
-    pub descriptor_distance: f32,
-}
-
-impl Correspondence {
-    /// A correspondence without a descriptor distance.
-    pub fn new(source: usize, target: usize) -> Self {
-        Correspondence {
-            source: source as u32,
-            target: target as u32,
-            descriptor_distance: 0.0,
-        }
-    }
-}
 
 /// RANSAC settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

@@ -1,23 +1,11 @@
 //! Correlative search: alignments found by geometry alone, for registrations whose descriptor stage
 //! found nothing good.
 //!
-//! Descriptor matching fails where the two passes see a place differently (a submap at 72 km/h spans
-//! twice the street of one at 40 km/h, so the neighbourhoods a descriptor summarises differ): on the
-//! demo drive's 34 pairs that DC-Loc got wrong or could not register, only 6-30 source points had a
-//! descriptor candidate at the true alignment, below RANSAC's `min_inliers`, although the dense stage
-//! started there ends with more overlap than the alignment RANSAC found in 28 of them. This search
-//! looks for alignments without descriptors:
-//! 1. Rotation: each submap's histogram of local line directions (modulo pi; the principal axis of
-//!    each point's neighbourhood, weighted by how line-like it is) is correlated circularly with the
-//!    other's; the best `rotation_peaks` peaks, each with its half-turn, are the candidate rotations.
-//! 2. Translation, per rotation: every probe (a fixed subset of the source points) votes for the
-//!    translation that puts it onto each target point, in cells of `cell` metres; the cells with the
-//!    most votes (over 2 x 2 cells) are the places where most probes land near a target point (a
-//!    correlative scan match by voting).
-//!
-//! The caller refines the best candidates with the dense stage and keeps one only when it ends with
-//! more overlap than the descriptor stage's result and enough descriptor candidates agree with it for
-//! a covariance ([`CorrelativeConfig::min_inliers`]).
+//! [`candidates`] takes candidate rotations from the circular correlation of the two submaps'
+//! histograms of local line directions and, per rotation, candidate translations from the votes of
+//! source probes into cells of `cell` metres. The caller refines the best with the dense stage and keeps
+//! one only under the conditions docs/algorithm.md, "Correlative search", gives (among them
+//! [`CorrelativeConfig::min_inliers`]); that section also says why the search is needed.
 //!
 //! Entry points: [`CorrelativeConfig`], [`candidates`].
 

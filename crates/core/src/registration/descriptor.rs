@@ -1,40 +1,14 @@
 //! Per-point, rotation-invariant neighbourhood descriptors: the Radial Statistics Descriptor (RSD) of
 //! Cen & Newman (ICRA 2019) as DC-Loc uses it for association (paper section III-D).
 //!
+//! Up to `max_keypoints` points of a submap each get a descriptor of their neighbours within `radius`
+//! (found in a [`super::grid::PointGrid`]): a soft radial histogram and, optionally, a rotation
+//! invariant statistic of their bearings ([`AngularStatistic`]), normalised by the neighbour count
+//! ([`Normalisation`]). docs/algorithm.md, "Descriptors", has the construction, the implementations
+//! it follows and the defaults.
+//!
 //! Entry points: [`DescriptorConfig`], [`compute_descriptors`], [`keypoint_indices`],
 //! [`subset_indices`], [`Descriptor`], [`DESCRIPTOR_DIM`], [`AngularStatistic`], [`Normalisation`].
-//!
-//! What is built. For a point `p`, take its neighbours `q` within `radius` (a radius query into a
-//! uniform grid over the support points, [`super::grid::PointGrid`], no per-point allocation) and
-//! form:
-//! - a radial histogram: the neighbours' distances `|q - p|` in `radial_bins` equal rings over
-//!   `[0, radius]`, with linear (soft) assignment to the two nearest ring centres so that a distance
-//!   near a ring border does not flip the descriptor; invariant to rotation and translation;
-//! - optionally an angular statistic of the bearings `phi_q` of `q - p`, made rotation invariant:
-//!   - [`AngularStatistic::Spectrum`]: magnitudes `|sum_q exp(i k phi_q)|`, `k = 1..angular_bins`, the
-//!     magnitude spectrum of the bearing distribution (exact, no sector quantisation; a rotation only
-//!     changes the phases). `k = 1` measures one-sidedness, `k = 2` line-likeness (a wall), etc.;
-//!   - [`AngularStatistic::Sectors`]: neighbour counts in `angular_bins` equal sectors, cyclically
-//!     shifted so that the fullest sector comes first (the "densest slice first" reading of Cen &
-//!     Newman); invariant to rotation only up to the sector quantisation and to ties.
-//!
-//! Both parts are normalised by the neighbour count ([`Normalisation`]) so that two submaps of the
-//! same place with different densities (more scans, more radars, other detection rates) agree.
-//!
-//! Sources. The text of Cen & Newman was not at hand; the DC-Loc authors' code (qqqGpe/DC-Loc,
-//! `SarahDescriptor` in `DCRML/registration.cpp`) keeps a radial histogram only: every other point of
-//! the submap, 1/3 m rings out to 133 m (400 bins), min-max normalised, matched by brute force with
-//! k = 1; an angular array is allocated but left unused. Another public implementation adds per-slice
-//! statistics (count, mean and harmonic mean of distances) rolled so that the densest slice comes
-//! first. Both readings are available here (`angular = none` / `spectrum` / `sectors`).
-//!
-//! Cost bounds. Only up to `max_keypoints` points per submap get a descriptor (a fixed pseudo-random
-//! subset; a submap stacks several scans, so nearly every reflector keeps a detection) and the
-//! statistics use up to `max_support` neighbours' points (a fixed pseudo-random subset).
-//!
-//! The defaults (10 radial rings and a 6-term bearing spectrum, Hellinger normalisation, 25 m) match the
-//! true partner more often than the radial histogram alone, most of all when the two submaps differ in
-//! density (docs/experiments.md has the comparison and its command).
 
 use super::grid::PointGrid;
 use crate::math::Vec2;

@@ -1,23 +1,15 @@
 //! Uncertainty-aware refinement (paper eq. 10) by Levenberg-Marquardt on SE(2), and the covariance of
 //! the result.
 //!
-//! Entry points: [`LmConfig`], [`refine`] (LM from an initial guess on given correspondences),
-//! [`LmResult`], [`CovarianceMode`]; [`pair_terms`] (one
+//! [`refine`] runs LM on eq. 10 with a robust loss from an initial guess on given correspondences,
+//! each pair weighted by its combined point covariance, or isotropically when the uncertainty is off.
+//! The step is on the right, `T <- T * Exp(delta)` in the source (query) body frame, and the returned
+//! covariance is over that `delta` (GTSAM's `Pose2` convention). docs/algorithm.md, "Registration"
+//! (step 4) and "Levenberg-Marquardt", has the problem, its weights and its derivatives.
+//!
+//! Entry points: [`LmConfig`], [`refine`], [`LmResult`], [`CovarianceMode`]; [`pair_terms`] (one
 //! residual's cost, gradient and Gauss-Newton block, public so that tests can check it against finite
 //! differences).
-//!
-//! Problem: `T* = argmin_T 1/2 sum_i rho(s_i)`, `s_i = d_i^T W_i d_i`, `d_i = y_i - T x_i`,
-//! `W_i = (Sigma_y,i + R Sigma_x,i R^T)^-1` (eq. 10), or `W_i = I / isotropic_sigma^2` when the
-//! uncertainty is switched off (the ablation's "no U.E." rows).
-//!
-//! Conventions:
-//! - Perturbation on the right, in the source (query) body frame: `T <- T * Exp(delta)`,
-//!   `delta = (dx, dy, dtheta)`. This is GTSAM's `Pose2` convention, so the returned 3x3 covariance is
-//!   over `delta` with `T_true = T_est * Exp(delta)` and can go straight into a `BetweenFactor<Pose2>`.
-//! - Derivatives: the *gradient* differentiates through the rotation inside `R Sigma_x R^T`, so LM
-//!   converges to a true stationary point of eq. 10 and its cost test and its step agree. The
-//!   Gauss-Newton *Hessian* leaves that term out (it is second order: it vanishes with the residuals);
-//!   this is the usual GICP approximation and keeps the normal matrix positive semi-definite.
 
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3, se2_exp};
 use crate::registration::robust::RobustLoss;

@@ -1,26 +1,14 @@
 //! Candidate correspondences: K nearest neighbours in descriptor space (paper section III-D: "we take
 //! the K-Nearest Neighbor algorithm to find coarse associations based on the RSD").
 //!
+//! Each queried source descriptor (at most `max_queries`, a fixed pseudo-random subset) takes its exact
+//! K nearest target descriptors, optionally thinned by a Lowe ratio test generalised to K. Two backends
+//! give the same neighbours ([`MatchingBackend`]): a blocked linear scan (the default) and a kiddo k-d
+//! tree. docs/algorithm.md, "Correspondences", has the cost, the backends' comparison and the choice
+//! of k.
+//!
 //! Entry points: [`MatchingConfig`], [`DescriptorIndex`] (built once per submap), [`select_queries`],
 //! [`match_descriptors`], [`MatchingBackend`].
-//!
-//! Search: exact K nearest neighbours (Euclidean) of each queried source descriptor among all target
-//! descriptors. Two backends give the same neighbours: a blocked linear scan (default) and a kiddo
-//! k-d tree. At 16 dimensions a k-d tree cannot prune (descriptor neighbours are not much closer
-//! than the descriptors' spread); on RSD descriptors of synthetic submaps kiddo 6.3 took 4x longer
-//! than the scan (1000 queries into 4572 targets: 44 ms vs 10 ms of thread CPU time on the
-//! development machine), so the scan is the default and the tree is kept for comparison.
-//! The scan stores the target descriptors in blocks of 8 (struct of arrays) so that the compiler
-//! vectorises the distance over 8 targets at a time.
-//!
-//! Cost control: the cost is `queries x targets x dimension`; the targets are the target submap's
-//! keypoints and at most `max_queries` of the source keypoints are queried (a fixed pseudo-random
-//! subset), which bounds the time for dense submaps while leaving RANSAC plenty of true matches.
-//! Optional Lowe ratio test generalised to K: keep the m-th neighbour only if its distance is below
-//! `ratio` times the distance of the (K+1)-th.
-//!
-//! The default is the paper's plain KNN with k = 3: k = 1 or a ratio test raise the share of true
-//! candidates but drop true matches that k = 3 keeps, with no consistent gain in accuracy.
 
 use crate::registration::descriptor::{DESCRIPTOR_DIM, Descriptor};
 use crate::registration::ransac::Correspondence;

@@ -1,22 +1,14 @@
 //! RANSAC on a planar rigid motion (Fischler & Bolles 1981) over candidate correspondences.
 //!
+//! Minimal sets of two correspondences are screened by cheap distance checks, scored by their support
+//! (source points with a candidate within the inlier radius) and drawn until the adaptive stopping rule
+//! is met; a motion that enters the kept set is locally optimised (LO-RANSAC). The random generator is
+//! seeded from the configuration: the same input gives the same output. docs/algorithm.md, "RANSAC",
+//! has the checks, the stopping rule and why support counts points.
+//!
 //! Entry points: [`RansacConfig`], [`ransac`] (RANSAC on given correspondences), [`ransac_hypotheses`]
-//! (the best distinct motions, [`Distinct`]), [`RansacResult`],
+//! (the best distinct motions, [`Distinct`], for the caller to judge geometrically), [`RansacResult`],
 //! [`fit_rigid`] (closed-form least-squares rigid fit, 2-D Procrustes / Umeyama 1991).
-//!
-//! Minimal sets are 2 correspondences. A drawn pair is rejected before any scoring when its two source
-//! points are closer than `min_sample_separation` (the rotation would be ill-defined) or when the
-//! distances `|x_a - x_b|` and `|y_a - y_b|` disagree by more than the two inlier radii (no rigid motion
-//! can make both inliers). Those checks cost a few flops and throw away most wrong pairs, so rejected
-//! draws are cheap; they still count as iterations in the adaptive stopping rule
-//! `N = ln(1 - p) / ln(1 - w^2)` (w = best inlier share so far), which is what that rule assumes.
-//! A motion's support is the number of source points with a candidate within the radius (not the
-//! number of pairs: with k > 1 candidates per point a facade slid along itself would collect several
-//! per point), as the final inliers are counted. Scoring stops early once a hypothesis can no longer
-//! enter the kept set. A motion that does is locally optimised (LO-RANSAC, Chum et al. 2003).
-//! [`ransac_hypotheses`] keeps the best distinct motions for the caller to judge geometrically. The
-//! random generator is seeded from the configuration: the same input gives the same output.
-//!
 //! Parts: `columns` (the inlier test and support count over blocks of pairs).
 
 mod columns;

@@ -1,37 +1,15 @@
 //! A common offset of the returns along their rays, estimated with the pose ([`fit_offset`]).
 //!
-//! The dense stage pairs where the two passes saw a surface, and a radar return does not lie where
-//! the surface's points average out: it comes from an object's near face, and with a skewed range
-//! noise the detections crowd on one side of the true range. Either moves every return of a pass
-//! along its ray by about the same distance `delta`. Two passes that saw the scene along the same rays
-//! move alike and the pose does not notice; passes that saw it from other sides (a reverse lap, the
-//! other carriageway) move apart, and the pose estimated without `delta` slides by
-//! `sensitivity * delta`.
+//! A return comes from an object's near face, and a skewed range noise crowds a pass's detections on
+//! one side of the true range: every return of a pass lies about the same distance `delta` along its
+//! ray from its surface, and passes that saw a scene from other sides pull the pose by `sensitivity *
+//! delta`. [`fit_offset`] takes the joint Gauss-Newton step of the pose and `delta` at fixed pairs, with
+//! the pose's own robust weights and a zero-mean prior on `delta`; [`OffsetFit`] holds `delta`, its
+//! variance and the pose's sensitivity, which enters the covariance as a consider parameter
+//! ([`OffsetFit::covariance`]). docs/algorithm.md, "The covariance reported", has the system, its
+//! Schur complement and why the offset is only considered.
 //!
-//! With pairs `(i, j)` fixed, returns that lie `delta` beyond their surfaces along their rays (source
-//! `u_i`, target `v_j`, unit, each in its own frame) are moved back onto them by the residual
-//! `d - delta (v_j - R u_i)` in place of `d = y - T x`, whose derivative in `delta` is
-//! `e = R u_i - v_j`. The Gauss-Newton system of the pose step `Delta` and `delta` together, with the
-//! robust weights `rho'` of the pose's own fit and a zero-mean prior of standard deviation
-//! `prior_std` on `delta`, is
-//!
-//! ```text
-//! [ A    b ] [ Delta ]     [ g_pose  ]     A = sum rho' J^T W J   b = sum rho' J^T W e
-//! [ b^T  c ] [ delta ] = - [ g_delta ],    c = sum rho' e^T W e + 1 / prior_std^2
-//! ```
-//!
-//! (`g` the gradients at the current pose). Eliminating `Delta` gives `delta`'s variance
-//! `1 / (c - b^T A^-1 b)` and `s = -A^-1 b`, the pose's sensitivity to `delta` (the Schur complement
-//! of the joint information): the pose fitted with `delta` held at zero lies `-s delta` from the one
-//! fitted with it.
-//!
-//! The returns of one pair are not offset alike: a pole's near face lies its radius before its
-//! centre, a parked car's strongest return is its corner nearest the radar (the rear one seen from
-//! behind, the front one seen from ahead), a wall seen from the street lies where it is. The pairs
-//! estimate the average of these offsets, precisely, while the pose is pulled by how they differ
-//! from reflector to reflector, which that average does not show. So the offset enters the
-//! covariance as a consider parameter: the pose's covariance grows by `s s^T prior_std^2`, the
-//! prior's share along the sensitivity, whatever the pairs made of the average.
+//! Entry points: [`fit_offset`], [`RaySide`], [`OffsetFit`].
 
 use super::lm::LmConfig;
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};

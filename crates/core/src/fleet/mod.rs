@@ -1,22 +1,14 @@
 //! Fleets: keyframes shared between robots' nodes so that each finds revisits of the others' streets.
 //!
 //! A node publishes each keyframe it makes ([`wire::encode`], `dc_loc/msg/Keyframe`) and takes the
-//! other robots' into its own map ([`crate::pipeline::Pipeline::push`] with
-//! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own,
-//! searched by place descriptor until a closure to a robot's session (held, then accepted) puts this
-//! robot in that robot's frame: the robots share no odometry frame. A pair of keyframes of two
-//! robots is registered by one node only: the one that held the other's keyframe when it made its own
-//! (the new keyframe's search), or, when both made theirs before receiving the other's, the one whose
-//! keyframe is the newer, when the other's arrives
+//! other robots' into its map ([`crate::pipeline::Pipeline::push`] with
+//! [`crate::input::Input::Keyframe`], decoded there by [`wire::decode`]) as sessions of their own: the
+//! robots share no odometry frame. A pair of two robots' keyframes is registered by one node only
 //! ([`crate::keyframe_db::KeyframeDb::registers_on_arrival`],
-//! [`crate::loop_closure::LoopCloser::search_arrival`]). Each keyframe on the wire says what its node
-//! had received of the others' (`heard_robots`, `heard_ids`) to make this decidable on both sides.
-//!
-//! Each keyframe also carries the alignments its node has accepted to the other robots' sessions
-//! ([`SharedAlignment`]). A receiver takes the one to its own session, inverted, as a prior for its
-//! closures to the sender: before it has an alignment of its own, a closure far beyond what the
-//! odometry drift along both robots' paths allows from it is refused
-//! ([`crate::loop_closure::LoopCloser::take_shared`]).
+//! [`crate::loop_closure::LoopCloser::search_arrival`]), decided alike on both sides from what each
+//! keyframe says its node had received (`heard_robots`, `heard_ids`). Each keyframe also carries its
+//! node's accepted alignments ([`SharedAlignment`]), a prior for the receiver's closures to the sender
+//! ([`crate::loop_closure::LoopCloser::take_shared`]). README_NODE.md, "Fleets", has the rules.
 //!
 //! Entry points: [`SharedKeyframe`], [`FleetState`], [`wire`].
 

@@ -1,25 +1,12 @@
 //! Point-to-point ICP in the plane (Besl & McKay 1992), the "ICP" row of the paper's Table 1.
 //!
+//! [`register_icp`] builds the target's k-d tree once and, from an initial guess `t_target_source`, for
+//! each maximum correspondence distance of the schedule (coarse to fine) pairs every transformed source
+//! point with its nearest target point and solves the rigid motion in closed form until the step is
+//! below the tolerances; the covariance comes from the final pairs at the optimum. docs/algorithm.md,
+//! "Baselines", has the closed form, the covariance and how far it can be trusted.
+//!
 //! Entry points: [`register_icp`], [`IcpConfig`].
-//!
-//! Steps, from an initial guess `t_target_source`:
-//! 1. the target's k-d tree (kiddo) is built once;
-//! 2. for each maximum correspondence distance of the schedule (coarse to fine), repeat: match every
-//!    transformed source point to its nearest target point, keep pairs closer than the distance, solve the
-//!    rigid motion in closed form (Umeyama 1991: in 2D the SVD solution is `theta = atan2(sum x'^T J y',
-//!    sum x'^T y')` on centred pairs, `t = y_bar - R x_bar`), until the step `T_old^-1 T_new` is below the
-//!    tolerances or the iteration limit is reached;
-//! 3. the covariance is computed at the optimum from the final pairs.
-//!
-//! Covariance: with the right perturbation `T Exp(delta)`, the residual `e_i = y_i - T x_i` has Jacobian
-//! `-R [I, J x_i]` (`J` the 90 degree rotation), so the Gauss-Newton information is
-//! `H = sum [I, J x_i]^T [I, J x_i]` and `Cov(delta) = s^2 H^-1` with the residual variance per axis
-//! `s^2 = sum |e_i|^2 / (2 n - 3)`. This is the classic point-to-point covariance (Censi 2007 discusses
-//! why it is optimistic): it treats the nearest-neighbour pairs as exact correspondences with isotropic
-//! errors. It is calibrated when they are (`tests/baselines.rs`: mean NEES 3 with points 2 m apart), and
-//! optimistic on street-like submaps where pole returns cluster and walls are resampled
-//! (`measure_covariance_consistency`, 60 cases: mean NEES 5.9 with the same samples, 13.8 with
-//! resampled surfaces, against 3).
 
 use super::{check_points, check_pose, spd_inverse};
 use dc_loc_core::math::{Iso2, Mat3, Vec2};

@@ -1,56 +1,15 @@
-//! MC-RANSAC's Doppler correction (Burnett et al., "Do we need to compensate for motion distortion and
-//! Doppler effects in spinning radar navigation?", RA-L 2021), the "MC-RANSAC" row of the paper's
-//! Table 1. As in the paper's comparison, only the Doppler part is used (automotive radars are not
-//! motion-distorted).
+//! MC-RANSAC's Doppler correction (Burnett et al., RA-L 2021), the "MC-RANSAC" row of the paper's
+//! Table 1: only its Doppler part, as in the paper's comparison (automotive radars are not motion-distorted).
+//!
+//! Each point moves along its ray by `beta (d . v_radar)`, yeti's `dopplerCorrection` generalised to any
+//! extrinsic, with `v_radar` implied by the body's forward speed (the yaw rate's lever arm ignored).
+//! That speed is the method's own estimate, ICP of uncorrected scans a few scans apart, and so biased.
+//! docs/algorithm.md, "Baselines", has the audit of yeti's code, the generalisation and the bias.
 //!
 //! Entry points: [`doppler_correct_point`], [`doppler_correct_detections`] (radar frame),
-//! [`doppler_correct_body`] (points already in the body frame, given their ray direction),
-//! [`radar_velocity_from_forward_speed`], [`estimate_forward_speed`] and the stateful
-//! [`ForwardSpeedEstimator`] (the speed the correction uses), [`McRansacConfig`], [`SpeedEstimate`].
-//!
-//! ## The correction
-//! yeti_radar_odometry (utiasASRL; read in its keenan-burnett/yeti_radar_odometry copy, commit 66018fd),
-//! `src/association.cpp`, `MotionDistortedRansac::dopplerCorrection(wbar, p)`:
-//! `v = |wbar(0)|; p(0) += beta v p(0)^2 / r^2; p(1) += beta v p(0) p(1) / r^2`, i.e.
-//!
-//! `p += beta * v * cos(theta) * [cos(theta), sin(theta)]`
-//!
-//! with `v` the forward speed of its motion estimate `wbar` and `theta` the azimuth. Two details of that
-//! code are not copied: its y line reads the already-corrected x (a relative error of order
-//! `beta v / r`), and it takes `|v|` (identical when driving forwards; we keep the sign).
-//!
-//! Generalised to a radar mounted with any extrinsic: a static point seen along the unit ray `d` has
-//! radial velocity `v_r = -d . v_radar` (positive = moving away), so the radar reads
-//! `r_hat = r - beta d . v_radar` and the correction is
-//!
-//! `p_radar += beta * (d . v_radar) * d`,   `v_radar = R_body_radar^T [v, 0, 0]`.
-//!
-//! `v_radar` is the radar's velocity in its own frame implied by the body's forward speed `v`; the lever
-//! arm term `omega x r_body_radar` of the yaw rate is ignored, as yeti does (its radar sits on the
-//! rotation axis). For a forward-facing radar `v_radar = [v, 0, 0]` and `d . v_radar = v cos(theta)`:
-//! exactly yeti's form. The correction moves points along their own ray, so `d` is the same before and
-//! after and a correction with the true speed inverts the distortion of a static point exactly.
-//!
-//! ## The speed
-//! `v` is what the method itself estimates from the motion between scans, never the measured per-point
-//! radial velocity and never ground truth. [`estimate_forward_speed`] registers the current *uncorrected*
-//! (Doppler-distorted) scan onto an earlier uncorrected scan with point-to-point ICP ([`register_icp`]),
-//! seeded with a constant-velocity prediction, and takes the forward component of the body twist:
-//!
-//! `[v, v_lateral, omega] = Log(t_ref_cur) / (t_cur - t_ref)`   (straight: `v = t_ref_cur.translation.x / dt`)
-//!
-//! Because both scans are distorted by a field that depends on each point's bearing, and the bearing of a
-//! static point changes as the vehicle passes it, the estimate is biased (low, for points ahead of the
-//! radar: a point at `(x, y)` seems to approach at `v (1 - 2 beta v x y^2 / r^4)`): that residual error is
-//! what the paper's comparison attributes to MC-RANSAC.
-//!
-//! [`ForwardSpeedEstimator`] runs this on a stream of scans, registering each scan onto the one
-//! `baseline_scans` back: consecutive sparse scans give a noisy speed (the noise comes from the sparse
-//! current scan), a longer baseline divides it. The default, 3 scans (0.23 s at 13 Hz), is also the
-//! interval yeti's spinning radar (4 Hz) estimates its motion over.
-//!
-//! yeti itself applies `dopplerCorrection` with the current velocity iterate inside its motion fit;
-//! estimating from uncorrected scans, as the paper's comparison describes, is the simpler variant. Both estimate the speed from distorted data.
+//! [`doppler_correct_body`] (body frame, given the ray), [`radar_velocity_from_forward_speed`],
+//! [`estimate_forward_speed`] and the stateful [`ForwardSpeedEstimator`] (the speed the correction
+//! uses), [`McRansacConfig`], [`SpeedEstimate`].
 
 use super::{IcpConfig, register_icp};
 use dc_loc_core::math::{Iso2, Iso3, Stamp, Vec2, Vec3, se2_exp, se2_log};

@@ -1,21 +1,15 @@
-//! The baselines the evaluation compares DC-Loc against (paper Table 1).
+//! The baselines the evaluation compares DC-Loc against (paper Table 1). Each registers
+//! [`PointSet2`](dc_loc_core::registration::PointSet2)s into a
+//! [`RegistrationResult`](dc_loc_core::registration::RegistrationResult) as DC-Loc does, without their
+//! per-point covariances; docs/algorithm.md, "Baselines", has the methods and their covariances.
 //!
 //! Entry points:
-//! - [`icp`]: point-to-point ICP (Besl & McKay 1992) with a coarse-to-fine correspondence distance,
-//!   [`register_icp`] / [`IcpConfig`].
-//! - [`ndt`]: 2D NDT (Biber & Strasser 2003) with four overlapping grids and Newton's method,
-//!   [`register_ndt`] / [`NdtConfig`] / [`NdtMap`].
-//! - [`mc_ransac`]: MC-RANSAC's Doppler correction (Burnett et al. 2021, yeti `dopplerCorrection`) driven
-//!   by a forward speed the method estimates itself from distorted scans, [`McRansacConfig`],
-//!   [`ForwardSpeedEstimator`], [`estimate_forward_speed`], [`doppler_correct_detections`],
-//!   [`doppler_correct_body`].
+//! - [`icp`]: point-to-point ICP, coarse to fine, [`register_icp`] / [`IcpConfig`].
+//! - [`ndt`]: 2D NDT on four overlapping grids, [`register_ndt`] / [`NdtConfig`] / [`NdtMap`].
+//! - [`mc_ransac`]: MC-RANSAC's Doppler correction with a forward speed the method estimates itself
+//!   from distorted scans, [`McRansacConfig`], [`ForwardSpeedEstimator`], [`estimate_forward_speed`],
+//!   [`doppler_correct_detections`], [`doppler_correct_body`].
 //! - [`BaselinesConfig`]: the three configurations, as the params YAML section `baselines`.
-//!
-//! All registrations take [`PointSet2`](dc_loc_core::registration::PointSet2) inputs (source = current submap,
-//! target = previous submap) and return [`RegistrationResult`](dc_loc_core::registration::RegistrationResult)
-//! with `t_target_source` and a covariance over the right perturbation `delta = (x, y, theta)`,
-//! `T_true = T_est * Exp(delta)`, embedded in ROS order. The per-point covariances of the inputs are not
-//! used: ICP and NDT in the paper's comparison are uncertainty-unaware.
 
 pub mod icp;
 pub mod mc_ransac;

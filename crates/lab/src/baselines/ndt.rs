@@ -1,42 +1,13 @@
 //! 2D Normal Distributions Transform (Biber & Strasser, IROS 2003), the "NDT" row of the paper's Table 1.
 //!
+//! [`register_ndt`] runs, per cell size of the schedule (coarse to fine, the coarse stages blurred),
+//! Newton's method with a trust region and a line search on the NDT score of four half-cell-shifted
+//! grids of Gaussians over the target ([`NdtMap`]), from an initial guess `t_target_source`, and takes
+//! the covariance from the Hessian at the optimum. docs/algorithm.md, "Baselines", has the steps, why
+//! the coarse stages are blurred and the covariance's derivation.
+//!
 //! Entry points: [`register_ndt`], [`NdtConfig`], [`NdtMap`] (the transform of the target and the
 //! objective with its analytic derivatives), [`NdtObjective`].
-//!
-//! Steps, per cell size of the schedule (coarse to fine), from an initial guess `t_target_source`:
-//! 1. [`NdtMap::new`]: four grids of square cells over the target, the second shifted by half a cell in
-//!    x, the third in y, the fourth in both (Biber & Strasser Sec. III). Each cell with at least
-//!    `min_points_per_cell` points (the paper: 3) gets a Gaussian: mean `q`, covariance
-//!    `Sigma = 1/n sum (x - q)(x - q)^T`; to keep it invertible, its smaller eigenvalue is raised to
-//!    `min_eigenvalue_ratio` (the paper: 0.001) times the larger. Cells whose points coincide are dropped.
-//!    Coarse stages (all but the last) add `(coarse_sigma_ratio * cell size)^2` to both eigenvalues
-//!    (not in the paper, see below).
-//! 2. The score of a pose `p = (t_x, t_y, phi)` is `sum_i sum_grids exp(-d^T Sigma^-1 d / 2)`,
-//!    `d = R(phi) x_i + t - q` over the cell of each grid the transformed source point falls in.
-//!    Newton's method minimises `f = -score` with the analytic gradient and Hessian of the paper
-//!    ([`NdtMap::objective`]); a Hessian that is not positive definite has its negative eigenvalues
-//!    flipped (the paper adds `lambda I` instead; see `make_positive_definite` for why), the step is
-//!    clipped to a trust region (`max_step_cells` cells, `max_step_rotation`), and a backtracking
-//!    (Armijo) line search guarantees descent on this piecewise-smooth objective.
-//! 3. Convergence: the accepted step is below the translation and rotation tolerances.
-//!
-//! Why the coarse stages are blurred: across a wall a cell's Gaussian is as thin as the point noise
-//! (0.2-0.25 m), whatever the cell size, so a point more than about 1 m off a wall contributes neither
-//! score nor gradient. Radar submaps are sparse (1 m cells rarely hold 3 points) and a guess off by 1-2 m
-//! and 5-10 degrees moves points 50 m out by up to 9 m. So the default runs coarse to fine (8, 4, 2 m
-//! cells) with the coarse stages blurred by half a cell, which widens the basin; one grid of fine cells
-//! loses most such guesses.
-//!
-//! Covariance: near the optimum `exp(-m/2) ~ 1 - m/2`, so `f ~ const + 1/2 sum d^T Sigma^-1 d`: the
-//! Hessian of `f` is the information of a point-to-distribution fit whose residual covariance is the cell
-//! covariance. Every point is counted once per grid it falls in, so the information is divided by the
-//! mean number of grids per contributing point (about 4): `Cov(p) = k H^-1`,
-//! `k = contributions / contributing points`, with `H` the full Hessian of `f` at the optimum, or its
-//! Gauss-Newton part `sum e J^T Sigma^-1 J` where the minimum sits on a cell border and `H` is indefinite.
-//! It is then mapped from the absolute parameters `p` to the right perturbation `delta`
-//! (`dp = diag(R, 1) delta`): `Cov(delta) = diag(R, 1)^T Cov(p) diag(R, 1)`.
-//! This covariance is optimistic: it contains the noise but not the bias of approximating the surfaces by
-//! Gaussians on a grid, which dominates the error: its NEES is far above 3.
 
 use super::{check_points, check_pose, spd_inverse};
 use dc_loc_core::math::{Iso2, Mat2, Mat3, Vec2, Vec3};

@@ -1,29 +1,15 @@
 //! Radar scenario simulator: a city loop driven in laps, seen by automotive radars with the FMCW Doppler
-//! range distortion, plus ground truth and drifting odometry. Every accuracy number of dc_loc is measured
-//! on its output (the paper's CARLA data cannot be fetched here).
+//! range distortion, plus ground truth and drifting odometry; every accuracy number of dc_loc is
+//! measured on its output. One seed gives one drive. docs/algorithm.md, "The simulator", has its
+//! physics, seeding and timing.
 //!
 //! Entry points: [`simulate`] (the whole drive in memory, [`SimDrive`]), [`Simulator`] (the same drive as a
 //! time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
 //! [`SimConfig::to_config`] for the pipeline's radar section), [`RevisitIndex`] (revisit ground truth).
 //! Parts: [`config`], [`families`] (kinds of street and the held-out protocol), [`fleet`] (robots on one
-//! world), [`route`] (centre line,
-//! trajectory), [`world`] (city generation), [`sensor`] (one
-//! scan), [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive
-//! as a rosbag2 bag with its params YAML.
-//!
-//! Physics (the FMCW model of the paper, section III-B): a detection at true range `r`, azimuth `phi` and radial velocity
-//! `v_r = d . (v_target - v_radar)` (with `v_radar = v_body + omega x t_body_radar`) is reported at range
-//! `r + beta v_r + n_r`, azimuth `phi + n_phi`, velocity `v_r + n_v`, `z = 0` in the radar frame, so
-//! `dc_loc_core::radar::doppler::compensate` with the true `v_r` restores `(r + n_r, phi + n_phi)` exactly.
-//!
-//! Determinism: the world comes from `seed`; each scan draws from its own generator seeded by
-//! `(seed, radar, scan index)` (its multipath ghosts from a second one) and the odometry from another, so
-//! two runs with one seed are identical and changing, say, the noise model leaves the world and the
-//! trajectory unchanged.
-//!
-//! Time: stamps are integer nanoseconds from `start_time`; ground truth and odometry at their rates from
-//! the start, each radar at `phase + k / rate` plus a small jitter. Events at one stamp come in the order
-//! ground truth, odometry, scans by radar index.
+//! world), [`route`] (centre line, trajectory), [`world`] (city generation), [`sensor`] (one scan),
+//! [`noise`] (the paper's noise models), [`odometry`] (drift), [`revisit`]; [`export`] writes a drive as
+//! a rosbag2 bag with its params YAML.
 
 pub mod config;
 pub mod export;

@@ -1,21 +1,11 @@
 //! The paper's three radar noise models (CARLA experiment) and their sampler.
 //!
+//! [`NoiseSampler`] draws zero-mean noise for range, azimuth and radial velocity: Gaussian, Student-t or
+//! of Gamma shape ([`NoiseModel`]), at the paper's scales ([`NoiseScales`]). docs/algorithm.md, "Noise
+//! models", has the paper's numbers and how its `Gamma(0, s)` is read.
+//!
 //! Entry points: [`NoiseModel`], [`NoiseScales`], [`NoiseConfig`] (with [`NoiseConfig::std_devs`]),
 //! [`NoiseSampler`].
-//!
-//! The paper adds to range, azimuth and radial velocity:
-//! - Gaussian: `N(0, 0.25^2)` m, `N(0, (0.5 deg)^2)`, `N(0, 0.1^2)` m/s;
-//! - Student-t: `0.25 t(100)` m, `0.5 deg t(100)`, `0.1 t(100)` m/s;
-//! - Gamma: written `Gamma(0, 0.25)`, `Gamma(0, 0.025 deg)`, `Gamma(0, 0.01)`.
-//!
-//! A Gamma distribution with shape 0 does not exist (numpy's `gamma(0, s)` returns 0 every time, which
-//! would make the "Gamma" data noise-free, contradicting the paper's distinct Gamma results). We read the
-//! notation like the Gaussian's `N(mean, .)`: a zero-mean noise of Gamma shape whose scale is the second
-//! number. The sample is `scale * (G - k) / sqrt(k)` with `G ~ Gamma(k, 1)`: mean 0, standard deviation
-//! `scale`, skewness `2 / sqrt(k)`. The default shape is `k = 1` (a shifted exponential), the one shape for
-//! which the two readings of the second number, Gamma *scale* and *standard deviation*, agree, so the
-//! paper's numbers keep their face value: 0.25 m, 0.025 deg and 0.01 m/s. Note that the azimuth and
-//! velocity noise of the Gamma data are then 20 and 10 times smaller than the Gaussian's, as printed.
 
 use dc_loc_core::validate::{ConfigError, Range, Validator};
 use rand::RngExt;

@@ -1,24 +1,12 @@
 //! Wheel/gyro odometry with drift: the true motion between two samples, distorted and integrated.
 //!
+//! [`OdometryIntegrator`] measures each step of the ground truth with a scale error, a yaw-rate bias,
+//! white noise and episodes of wheel slip, composes it onto the previous odometry pose (the odometry
+//! frame starts at the ground-truth start pose), and propagates the pose covariance to first order;
+//! slip is not in the covariance. docs/algorithm.md, "Odometry", has the model and the propagation.
+//!
 //! Entry points: [`OdometryIntegrator`], [`OdometrySample`], [`PoseSample`] (ground truth) and their
 //! `to_msg` conversions to `nav_msgs/Odometry`.
-//!
-//! Between consecutive samples the exact relative motion of the ground truth (translation `dp` in the
-//! previous body frame, heading change `dtheta`) is measured as
-//! `dp_odom = (1 + scale_error) dp + n_v dt dp/|dp|` and `dtheta_odom = dtheta + (bias + n_w) dt`
-//! (`n_v`, `n_w` white, per sample), and composed onto the previous odometry pose. During a wheel slip
-//! episode `dp_odom` and the reported speed are further multiplied by `1 + s` (episodes start as a Poisson
-//! process in distance driven, at `slip_rate` per km, each with its own `s` and duration, and draw from
-//! a random stream of their own, untouched when `slip_rate` is 0). So with all errors off
-//! the odometry is the ground truth seen from the odometry frame, with only a scale error it is the true
-//! path scaled about its start, and with only a bias its heading error is `bias * t`.
-//! The odometry frame starts at the ground-truth start pose (`t_map_odom`), the odometry at identity.
-//! The pose covariance is propagated to first order over the state (x, y, yaw, scale error, yaw-rate
-//! bias), the last two being unknown constants with standard deviations `|scale_error|` and
-//! `|yaw_rate_bias|` (their configured magnitudes) and white noise adding `(n_v dt)^2` along the path and
-//! `(n_w dt)^2` in heading per sample. So the covariance grows with distance and time as the actual drift
-//! does, and is of the size of the actual error; slip, which the odometry cannot tell from driving, is
-//! not in it.
 
 use crate::sim::config::OdometrySimConfig;
 use crate::sim::route::{EgoState, LapInfo};

@@ -1,20 +1,14 @@
 //! The road loop's centre line and the ego vehicle's drive along it.
 //!
+//! The centre line ([`centerline`]) joins the corners of the polygon of
+//! [`RouteConfig`](crate::sim::config::RouteConfig) by straights, each corner a clothoid, a circular arc
+//! and a clothoid; the ego drives its outermost lane on the right at a constant offset, with a speed
+//! profile bounded by the corner speeds and the acceleration limits. docs/algorithm.md, "The route", has
+//! the geometry and the speed profile.
+//!
 //! Entry points: [`Centerline`] (straights, clothoids and arcs; position, heading and curvature at an arc
 //! length), [`Trajectory`] (laps, U-turns, speed profile; [`Trajectory::state`] gives the exact ego state
 //! at a time), [`EgoState`], [`LapInfo`].
-//!
-//! The centre line ([`centerline`]) is built from the corner polygon of
-//! [`RouteConfig`](crate::sim::config::RouteConfig): each corner is a clothoid, a
-//! circular arc and a clothoid, placed so that it is tangent to both polygon edges; the straights fill the
-//! rest. Heading and curvature are analytic; positions are closed-form on straights and arcs and
-//! Gauss-Legendre integrated (with Hermite interpolation between 0.25 m nodes) on clothoids.
-//!
-//! The ego drives in the outermost lane on the right of its direction of travel, a constant offset `o`
-//! (positive left) from the centre line: `p = c(s) + o n(s)`. Its own arc length is
-//! `u = integral (1 - o kappa) ds`, its curvature `kappa / (1 - o kappa)` and its yaw rate curvature
-//! times speed. The speed profile is piecewise constant acceleration in `u` (forward-backward passes over
-//! the lap cruise speed, the corner speed `sqrt(a_lat / |kappa|)` and the acceleration limits).
 
 pub mod centerline;
 

@@ -1,36 +1,15 @@
 //! One radar scan: what an ARS408-like radar reports from the world at one instant.
 //!
+//! [`simulate_scan`] moves the radar with its lever arm, finds what it can see ([`occlusion_rays`]),
+//! draws candidate reflections (walls, cars, bushes, poles, corners, pedestrians; multipath ghosts and,
+//! with elevation, the road when configured), applies the FMCW physics, merges what one resolution cell
+//! holds, detects cells by their SNR margin, adds false alarms, the cap and dropouts, and measures with
+//! noise and the Doppler range shift. docs/algorithm.md, "A radar scan", has the steps 1-7 in detail.
+//!
 //! Entry points: [`simulate_scan`], [`occlusion_rays`], [`DetectionTruth`], [`Dropout`], [`RadarMotion`],
 //! [`Reflectivity`].
-//!
-//! Steps, in order:
-//! 1. Radar pose and velocity in the map frame: `v_radar = v_body + omega x t_body_radar` (lever arm).
-//! 2. Occlusion: a 1D depth buffer over azimuth (0.1 deg bins) of every wall and car box in range; a
-//!    reflection is visible when nothing nearer lies on its ray.
-//! 3. Candidate reflections, drawn afresh each scan: random points along visible walls (with surface
-//!    relief) and car sides, random points in bushes, the near side of poles and trunks, building corners,
-//!    pedestrians. Each gets a Swerling-1 RCS (`10 log10(Exp(1))` around its mean) and, on walls, an
-//!    incidence loss.
-//!    With `multipath_probability > 0`, a reflection that is not a wall point is also seen via a wall with
-//!    that probability: a ghost at its mirror image across the wall's line, moving as that image,
-//!    `multipath_loss` dB weaker, seen through the wall's specular point (so that wall does not hide it).
-//!    Ghosts draw from a random stream of their own: the other candidates do not depend on them, and
-//!    with the probability at 0 the scan is the one of a radar without the model.
-//! 4. Physics (docs/algorithm.md, Doppler range distortion): true range `r`, azimuth `phi`, radial velocity
-//!    `v_r = d . (v_target - v_radar)`.
-//! 5. Resolution: candidates in one (range, azimuth, Doppler) resolution cell merge into one detection at
-//!    their power-weighted mean; the cell is detected with a logistic probability of its SNR margin
-//!    `rcs - reference_rcs - 40 log10(r / r_max(phi))`.
-//! 6. False alarms (random range, azimuth and Doppler), the cap on detections (strongest kept), dropouts.
-//! 7. Measurement: `r_hat = r + beta v_r + n_r`, `phi_hat = phi + n_phi`, `v_hat = v_r + n_v`, `z = 0`.
-//!
-//! A radar that measures elevation (`elevation_fov` > 0) also sees returns from the road surface
-//! (step 3), sees each reflection at a height drawn within its object's vertical extent, at its slant
-//! range and only within the elevation field of view (step 4), resolves elevation as a fourth cell
-//! dimension (step 5) and reports the measured elevation, `z = r_hat sin(e_hat)` (step 7).
-//!
-//! Parts: `occlusion` (step 2), `reflections`, `multipath` and `elevation` (steps 3 and 4),
-//! `detection` (steps 4 to 7).
+//! Parts, by those steps: `occlusion` (2), `reflections`, `multipath` and `elevation` (3 and 4),
+//! `detection` (4 to 7).
 
 mod detection;
 mod elevation;

@@ -1,19 +1,9 @@
 //! Published closures judged against the simulator's ground truth: each closure's error, its NEES
 //! under the published covariance, the revisit opportunities closed and missed, and the table of
 //! [`RevisitReport`]s. One robot's laps ([`super::revisits`]) and a fleet's robots ([`super::fleet`])
-//! are judged alike, passes for laps.
-//!
-//! Definitions.
-//! - *Opportunity*: a keyframe of a later pass (a lap, or a robot of a fleet; not in a U-turn) whose
-//!   ground-truth nearest keyframe of an earlier pass lies within [`SAME_RADIUS`] (5 m, the paper's
-//!   pairing radius) when driven in the same direction, or within the reverse radius when driven in
-//!   the opposite direction (5 m plus twice the ego lane's offset from the centre line: a reverse lap
-//!   drives the other carriageway).
-//! - *Correct closure*: translation error of `T_match_query` against the ground truth at most
-//!   [`FALSE_CLOSURE_THRESHOLD`] (2 m, the paper's outlier threshold). Precision = correct / published;
-//!   recall = opportunities whose keyframe published at least one correct closure / opportunities.
-//! - *Drift* (measured): the odometry's position error at the end of the first lap over the path
-//!   driven.
+//! are judged alike, passes for laps. docs/algorithm.md, "The evaluation", defines the opportunities,
+//! the correct closures ([`FALSE_CLOSURE_THRESHOLD`], [`SAME_RADIUS`]), precision, recall and the
+//! measured drift.
 
 use crate::sim::{EgoState, SimDrive};
 use dc_loc_core::loop_closure::LoopClosure;

@@ -1,19 +1,10 @@
 //! The paper's evaluation protocol (its section IV) on any drive with ground truth.
 //!
 //! Steps, in order: drive the same [`Pipeline`] as the node over the input (revisit search off) and keep
-//! its keyframes ([`Collector`]); pair keyframes of different passes over the same place by ground truth
-//! ([`make_pairs`]: the nearest earlier keyframe at least `min_pass_gap` metres of path before, within
-//! `pair_radius`, heading within `max_heading_difference`); register every pair with every method and
-//! ablation row ([`Method`], [`evaluate`]); summarise over the inliers (translation error <= 2.0 m) and
-//! by ego-velocity difference ([`report`]).
-//!
-//! Methods. All DC-Loc rows use the same association (RSD + KNN + RANSAC) and eq. 10, switching the two
-//! parts of the paper's ablation: per-point uncertainty (U.E.) and Doppler compensation (D.C.), plus the
-//! dense refinement (beyond the paper; the row "DC-Loc (paper)" leaves it out). MC-RANSAC-style: the same
-//! registration without uncertainty on points corrected as yeti's `dopplerCorrection` with the forward speed
-//! the method estimates itself from scan-to-scan ICP of uncorrected scans ([`crate::baselines`]). ICP and
-//! NDT start from the identity (a place match gives no relative pose) on the uncorrected submaps. UTR
-//! (learned) is not reproduced.
+//! its keyframes ([`Collector`]); pair keyframes of different passes over one place by ground truth
+//! ([`make_pairs`]); register every pair with every method and ablation row ([`Method`], [`evaluate`]);
+//! summarise over the inliers and by ego-velocity difference ([`report`]). docs/algorithm.md, "The
+//! evaluation", has the pairing rule, the inlier threshold and what each method row runs.
 
 pub mod drives;
 pub mod export;

@@ -2,18 +2,11 @@
 //! offline runner reads a bag, so that the pipeline sees the same sequence whatever the order in which
 //! DDS delivers the topics.
 //!
-//! Entry point: [`StampMerger`]. An item is released when it is the oldest held and every other stream
-//! has passed its stamp, or when it has waited `timeout` (wall time), or when the other streams are idle
-//! (nothing for `idle`): a stalled or silent topic delays the others by at most `timeout`. Ties keep the
-//! arrival order.
-//!
-//! A stream has passed a stamp when a message stamped there or later arrived, or when its next message
-//! cannot be stamped that early: a sensor stamps its messages at its rate, so the next stamp is at least
-//! the newest plus [`GAP_MARGIN`] times the shortest of its last [`GAPS_KEPT`] stamp gaps. Without this
-//! an item of one radar waited for every other radar's next message, up to a whole period (77 ms at
-//! 13 Hz); with it, only for a message that is actually due (as message_filters' approximate-time
-//! policy bounds the next stamp by an inter-message lower bound). A stream whose stamps are irregular
-//! (a short gap among long ones) gets a bound to match; one that went backwards starts over.
+//! Entry point: [`StampMerger`]. It releases the oldest item held when every other stream has passed
+//! its stamp (by a message stamped there or later, or because the stream's recent stamp gaps,
+//! [`GAP_MARGIN`] and [`GAPS_KEPT`], say its next message cannot be that early), when the item has
+//! waited `timeout`, or when the other streams are idle; ties keep the arrival order.
+//! docs/algorithm.md, "Input order", has the rule in full and why the stamp gaps bound the wait.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};

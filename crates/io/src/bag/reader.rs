@@ -1,21 +1,16 @@
 //! [`BagReader`]: reads a rosbag2 MCAP bag directory or a single MCAP file, streaming.
 //!
 //! A file with a summary section (every finished rosbag2 or rosbags file) is read through its chunk
-//! indexes: one chunk at a time is loaded, messages come in log-time order even when chunks overlap.
-//! A file without a usable summary (a crashed recording, a truncated copy, `fastwrite` without chunks)
-//! is read from start to end, in file order; [`BagReader::open`] scans it once to list its topics.
-//! A bag of several files is read file after file in time order; only files whose time ranges overlap
-//! are open together, their messages merged by log time.
+//! indexes, one chunk at a time, in log-time order even when chunks overlap; one without a usable
+//! summary (a crashed recording, a truncated copy, `fastwrite` without chunks) from start to end, in
+//! file order, after one scan in [`BagReader::open`] lists its topics. A bag's files are read in time
+//! order, those whose time ranges overlap together, their messages merged by log time.
 //!
-//! Memory: nothing holds a whole file. One chunk of each open file is held decompressed, and a chunk or
-//! record that declares more than 64 MiB (compressed or not) is refused as damage, whatever the file
-//! claims: a 1 KB file that declares a 1 GiB chunk costs nothing. Files open together share 256 MiB:
-//! of n files, each takes chunks up to 256 MiB / n (64 MiB at most), so a directory of many small
-//! files whose chunks each expand to the limit cannot add up.
-//!
-//! The reader is not tied to ROS 2: every channel is listed with its message and schema encoding,
-//! and [`BagMessage::data`] gives the payload of any encoding (foxglove protobuf or JSON as well);
-//! only [`BagMessage::decode`] needs CDR.
+//! Memory: one decompressed chunk per open file, never a whole file. A chunk or record that declares
+//! more than 64 MiB (compressed or not) is refused as damage, whatever the file claims; files open
+//! together share 256 MiB (of n files, each at most 256 MiB / n, 64 MiB at most). Not tied to ROS 2:
+//! every channel is listed with its message and schema encoding and [`BagMessage::data`] gives any
+//! payload (foxglove protobuf or JSON too); only [`BagMessage::decode`] needs CDR.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;

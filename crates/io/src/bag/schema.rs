@@ -1,20 +1,16 @@
 //! ROS 2 message definitions (`.msg` texts) and the `ros2msg` schema text rosbag2 stores per type.
 //!
-//! Entry points: [`ros2msg_schema`] (full schema text of a type, as `ros2 bag record` writes it),
-//! [`type_hash`] (RIHS01 type description hash), [`is_known_type`], [`KNOWN_TYPES`] and the type-name
-//! constants ([`POINT_CLOUD2`], [`ODOMETRY`], [`TF_MESSAGE`], [`CLOCK`], [`LOOP_CLOSURE`]).
+//! Entry points: [`ros2msg_schema`] (a type's full schema text, as `ros2 bag record` writes it),
+//! [`type_hash`] (RIHS01 hash), [`is_known_type`], [`KNOWN_TYPES`], type names ([`POINT_CLOUD2`], ...).
 //!
-//! The `.msg` texts are kept verbatim (comments and all): rosbag2 copies the installed files, so these
-//! are the files of the ROS 2 Jazzy PyPI wheels `ros-{builtin-interfaces,rosgraph-msgs}==2.0.3` and
-//! `ros-{std,sensor,nav,geometry}-msgs==5.3.6`; `tf2_msgs/TFMessage` is its one-line file in geometry2;
-//! `dc_loc/LoopClosure` is this package's `msg/LoopClosure.msg`. The RIHS01 hashes were computed by
-//! rosbags 0.11.9 (`Typestore.hash_rihs01`, ROS2_JAZZY store); tests/bag.rs checks them against
-//! tests/fixtures/cdr_fixtures.json.
-//!
-//! Schema layout (rosbag2_cpp `LocalMessageDefinitionSource::get_full_text`): the root `.msg` text, then
-//! for each dependency not yet written, depth first, dependencies of one file in sorted order: `"\n"`,
-//! a line of 80 `=`, `MSG: pkg/Type` (the name as the `.msg` field spells it, package-relative names
-//! qualified with the file's package), and that file's text.
+//! The `.msg` texts are the installed files verbatim, comments and all, as rosbag2 copies them: those of
+//! the ROS 2 Jazzy PyPI wheels `ros-{builtin-interfaces,rosgraph-msgs}==2.0.3` and
+//! `ros-{std,sensor,nav,geometry}-msgs==5.3.6`, geometry2's one-line `tf2_msgs/TFMessage` and this
+//! package's `msg/LoopClosure.msg`. The RIHS01 hashes are rosbags 0.11.9's (`Typestore.hash_rihs01`,
+//! ROS2_JAZZY store), checked by tests/bag.rs against tests/fixtures/cdr_fixtures.json. A schema is laid
+//! out as rosbag2_cpp's `LocalMessageDefinitionSource::get_full_text` does: the root text, then each
+//! dependency not yet written (depth first, a file's in sorted order) after `"\n"`, a line of 80 `=` and
+//! `MSG: pkg/Type` (as the field spells it, package-relative names qualified with the file's package).
 
 use std::collections::{BTreeSet, HashSet};
 

@@ -1,22 +1,16 @@
 //! [`BagWriter`]: writes a rosbag2 bag directory with one MCAP file, as `ros2 bag record -s mcap` does.
 //!
-//! Layout of a finished bag `<dir>`:
-//! - `<dir>/<name>_0.mcap` (`<name>` = last component of `<dir>`): MCAP, profile `ros2`; one schema
-//!   per message type (encoding `ros2msg`, the `.msg` text with its dependencies, see
-//!   [`super::schema`]); one channel per topic (message encoding `cdr`, metadata
-//!   `offered_qos_profiles` and `topic_type_hash`); messages with log time = publish time = the stamp
-//!   given to [`BagWriter::write`]; zstd-compressed chunks of about 1 MiB with message indexes; a
-//!   metadata record `rosbag2` holding `serialized_metadata`; the summary section (schemas, channels,
-//!   statistics, chunk indexes).
-//! - `<dir>/metadata.yaml`: `rosbag2_bagfile_information`, version 9.
+//! A finished bag `<dir>` holds `metadata.yaml` (`rosbag2_bagfile_information`, version 9) and
+//! `<name>_0.mcap` (`<name>` the last component of `<dir>`), MCAP profile `ros2`: a schema per message
+//! type (encoding `ros2msg`, the `.msg` text with its dependencies, see [`super::schema`]), a channel per
+//! topic (message encoding `cdr`, metadata `offered_qos_profiles`, `topic_type_hash`), the messages
+//! (log time = publish time = the stamp given to [`BagWriter::write`]) in zstd chunks of about 1 MiB
+//! with message indexes, a metadata record `rosbag2` holding `serialized_metadata`, and the summary
+//! section (schemas, channels, statistics, chunk indexes).
 //!
-//! Crash safety: the MCAP file is written as `<name>_0.mcap.tmp` and renamed, then `metadata.yaml`
-//! written through `metadata.yaml.tmp` and renamed, each synced first; a bag directory with a
-//! `metadata.yaml` is therefore complete. A writer dropped without [`BagWriter::finish`] leaves the
-//! `.tmp` file only.
-//!
-//! Determinism: no wall-clock time or random state goes into either file, and zstd runs single
-//! threaded, so the same topics and messages give byte-identical files.
+//! Each file goes through `<file>.tmp`, synced and renamed, the MCAP file first: a bag directory with a
+//! `metadata.yaml` is complete; a writer dropped without [`BagWriter::finish`] leaves a `.tmp` file only.
+//! No wall-clock time or random state enters and zstd runs single threaded: same messages, same bytes.
 
 use std::collections::BTreeMap;
 use std::fs::File;

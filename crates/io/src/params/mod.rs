@@ -1,20 +1,15 @@
 //! ROS 2 parameters for dc_loc without ROS: the standard params YAML (`node: ros__parameters: ...`,
-//! wildcards `/**` and `/**/node`), `-p name:=value` overrides, and their mapping onto [`Config`].
+//! wildcards `/**` and `/**/node`) and `-p name:=value` overrides, mapped onto [`Config`] by the field
+//! paths joined by dots (`radars.front.beta`, `loop.search_radius`), as ROS 2 flattens nested YAML. Each
+//! name in `radar_names` gets the radar defaults, then its `radars.<name>.*` parameters. Unknown names
+//! and wrong types are refused with the parameter's name; nothing is silently ignored or clamped.
 //!
 //! Entry points: [`ParamSet`] (dotted name -> value, in application order), [`ParamSet::from_yaml`],
-//! [`ParamSet::set_override`], [`apply`] (defaults + params -> validated [`Config`]),
-//! [`flatten_config`] (a config as dotted parameters, for declaring them as ROS 2 parameters and for
-//! printing the effective configuration).
-//!
-//! Parameter names are the config field paths joined by dots (`radars.front.beta`, `loop.search_radius`),
-//! as ROS 2 flattens nested YAML. Radars are created from `radar_names`: each listed name gets the radar
-//! defaults, then its `radars.<name>.*` parameters. Unknown names and wrong types are refused with the
-//! parameter's name; nothing is silently ignored or clamped.
-//!
+//! [`ParamSet::set_override`], [`apply`] (defaults + params -> validated [`Config`]), [`flatten_config`]
+//! (a config as dotted parameters, to declare as ROS 2 parameters and to print the effective one).
 //! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`live`] (what changes at
-//! run time), [`file`] (params files written), [`reference`] (every
-//! parameter with its default, range and description: `dc_loc params`, README_NODE.md), [`tiers`]
-//! (sensor setup, tuning knobs, internal constants).
+//! run time), [`file`] (params files written), [`reference`] (every parameter's default, range and
+//! description: `dc_loc params`, README_NODE.md), [`tiers`] (sensor setup, tuning knobs, constants).
 
 pub mod file;
 pub mod live;

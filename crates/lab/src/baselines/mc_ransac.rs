@@ -1,5 +1,6 @@
 //! MC-RANSAC's Doppler correction (Burnett et al., RA-L 2021), the "MC-RANSAC" row of the paper's
-//! Table 1: only its Doppler part, as in the paper's comparison (automotive radars are not motion-distorted).
+//! Table 1: only its Doppler part, as in the paper's comparison (automotive radars are not
+//! motion-distorted).
 //!
 //! Each point moves along its ray by `beta (d . v_radar)`, yeti's `dopplerCorrection` generalised to any
 //! extrinsic, with `v_radar` implied by the body's forward speed (the yaw rate's lever arm ignored).

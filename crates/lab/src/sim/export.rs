@@ -1,16 +1,16 @@
 //! A simulated drive as a rosbag2 bag (what `dc_loc sim` writes), with the params YAML to run it.
 //!
 //! Entry points: [`export_drive`] (bag + `dc_loc.yaml` in one directory, an [`ExportSummary`]),
-//! [`write_bag`] (the bag alone), [`params_yaml`] (any [`dc_loc_core::pipeline::Config`] as a ROS 2 params
-//! file; also makes the shipped `params/*.yaml`), [`drive_description`].
+//! [`write_bag`] (the bag alone), [`params_yaml`] (any [`dc_loc_core::pipeline::Config`] as a ROS 2
+//! params file; also makes the shipped `params/*.yaml`), [`drive_description`].
 //!
-//! The bag, written by [`BagWriter`] with log time = stamp (one drive, byte-identical files), holds each
-//! radar's scans on its topic ([`SimDrive::to_config`]) as `PointCloud2` in its frame with FLOAT32 `x, y,
-//! z, v_r, rcs` ([`CloudLayout::radar_f32`]); the drifting odometry on `/odom` (`odom` -> `base_link`, the
-//! simulator's `odom_frame` and `body_frame`) and the true pose and twist on [`GROUND_TRUTH_TOPIC`] (frame
-//! `map`), both `nav_msgs/msg/Odometry`; and at the start, a `tf2_msgs/msg/TFMessage` on [`TF_STATIC_TOPIC`]
-//! with every radar's extrinsic `base_link -> <radar frame>`, offered transient local as tf2's static
-//! broadcaster does.
+//! The bag, written by [`BagWriter`] with log time = stamp (one drive, byte-identical files), holds
+//! each radar's scans on its topic ([`SimDrive::to_config`]) as `PointCloud2` in its frame with FLOAT32
+//! `x, y, z, v_r, rcs` ([`CloudLayout::radar_f32`]); the drifting odometry on `/odom` (`odom` ->
+//! `base_link`, the simulator's `odom_frame` and `body_frame`) and the true pose and twist on
+//! [`GROUND_TRUTH_TOPIC`] (frame `map`), both `nav_msgs/msg/Odometry`; at the start, a
+//! `tf2_msgs/msg/TFMessage` on [`TF_STATIC_TOPIC`] with every radar's extrinsic `base_link -> <radar
+//! frame>`, offered transient local as tf2's static broadcaster does.
 
 use std::path::{Path, PathBuf};
 

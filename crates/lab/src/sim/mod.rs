@@ -3,8 +3,8 @@
 //! measured on its output. One seed gives one drive. docs/algorithm.md, "The simulator", has its
 //! physics, seeding and timing.
 //!
-//! Entry points: [`simulate`] (the whole drive in memory, [`SimDrive`]), [`Simulator`] (the same drive as a
-//! time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
+//! Entry points: [`simulate`] (the whole drive in memory, [`SimDrive`]), [`Simulator`] (the same drive
+//! as a time-ordered iterator of [`SimEvent`]s, for streaming into a bag), [`SimConfig`] (with
 //! [`SimConfig::to_config`] for the pipeline's radar section), [`RevisitIndex`] (revisit ground truth).
 //! Parts: [`config`], [`families`] (kinds of street and the held-out protocol), [`fleet`] (robots on one
 //! world), [`route`] (centre line, trajectory), [`world`] (city generation), [`sensor`] (one scan),

@@ -1,21 +1,16 @@
 //! nuScenes tables and radar sweeps as drives: one scene = one drive with ground truth.
 //!
 //! Entry points: [`NuscenesDb::open`] (reads the tables `log`, `scene`, `sample`, `sample_data`,
-//! `ego_pose`, `calibrated_sensor`, `sensor` of `<dataroot>/<version>/`), [`NuscenesScene`] (every radar
-//! sweep of the five ARS408 radars of one scene, keyframes and the ~13 Hz sweeps in between, with its
-//! calibration and ego pose), [`SceneInputs`] (a scene as the runner's [`Input`](dc_loc_core::input::Input) stream: ground truth and
-//! odometry from the ego poses, radar clouds from the PCD files), [`nuscenes_config`] (the pipeline
-//! configuration of the five radars), [`RADAR_CHANNELS`].
+//! `ego_pose`, `calibrated_sensor`, `sensor` of `<dataroot>/<version>/`, streamed through a filter that
+//! keeps only the radar rows of `sample_data` and the ego poses they reference), [`NuscenesScene`]
+//! (every sweep of the five ARS408 radars of one scene, keyframes and the ~13 Hz sweeps between, with
+//! its calibration and ego pose), [`SceneInputs`] (a scene as the runner's
+//! [`Input`](dc_loc_core::input::Input) stream: ground truth and odometry from the ego poses, radar
+//! clouds from the PCD files, read one sweep at a time), [`nuscenes_config`] (the pipeline configuration
+//! of the five radars), [`RADAR_CHANNELS`]. Parts: `tables` (the tables into scenes), `inputs`.
 //!
-//! Memory: only radar rows of `sample_data` and the ego poses they reference are kept (the tables are
-//! streamed through a filter, never held whole); PCD files are read one sweep at a time while a scene is
-//! driven.
-//!
-//! Frames: nuScenes' ego frame (rear-axle midpoint, x forward, y left, z up) is the body frame; the
-//! global frame of a log's location is the map frame. Quaternions in the tables are w, x, y, z.
-//! Timestamps are microseconds since the epoch.
-//!
-//! Parts: `tables` (reading the tables into scenes), `inputs` ([`SceneInputs`]).
+//! Frames: nuScenes' ego frame (rear-axle midpoint, x forward, y left, z up) is the body frame, the
+//! global frame of a log's location the map frame. Quaternions are w, x, y, z; timestamps microseconds.
 
 mod inputs;
 mod tables;

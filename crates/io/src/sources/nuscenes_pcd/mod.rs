@@ -3,16 +3,14 @@
 //!
 //! Entry points: [`PcdHeader::parse`] (any PCD header), [`NuscenesRadarPcd::from_bytes`] /
 //! [`NuscenesRadarPcd::read`], [`NuscenesRadarPoint`] and [`NuscenesRadarPoint::to_detection`],
-//! [`NuscenesRadarFilter`], [`pcd_to_pointcloud2`], [`nuscenes_fields_config`].
+//! [`NuscenesRadarFilter`], [`pcd_to_pointcloud2`], [`nuscenes_fields_config`]. Parts: `pcd` (any PCD
+//! header and its records; [`PcdHeader`], [`PcdError`], [`pcd_to_pointcloud2`]).
 //!
-//! Layout (nuScenes v1.0, checked on real files): an ASCII header ending with `DATA binary`, then packed
-//! little-endian records, 43 bytes for the standard 18 fields. Files carry zero padding after the
-//! `POINTS` records, so exactly `POINTS` records are read and the rest is ignored.
-//!
-//! Velocity: `vx, vy` are the raw relative velocity in the radar frame and are what Doppler compensation
-//! needs (projected on the ray, docs/algorithm.md). `vx_comp, vy_comp` have the ego motion removed and
-//! are never used for it.//!
-//! Parts: `pcd` (any PCD header and its records; [`PcdHeader`], [`PcdError`], [`pcd_to_pointcloud2`]).
+//! Layout (nuScenes v1.0, checked on real files): an ASCII header ending with `DATA binary`, packed
+//! little-endian records, 43 bytes for the standard 18 fields, then zero padding: exactly `POINTS`
+//! records are read. `vx, vy`, the raw relative velocity in the radar frame, give the radial velocity
+//! Doppler compensation needs (projected on the ray, docs/algorithm.md, "Sign conventions"); `vx_comp,
+//! vy_comp` have the ego motion removed and are never used for it.
 
 mod pcd;
 

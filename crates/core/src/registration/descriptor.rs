@@ -53,7 +53,7 @@ pub enum Normalisation {
 
 /// Descriptor settings. Defaults: a 25 m neighbourhood in 10 rings plus the first 6 angular
 /// harmonics, Hellinger-normalised, at most 400 keypoints and 1500 support points per submap; the
-/// measurements behind them are in the module doc.
+/// measurements behind them are in docs/algorithm.md, "Descriptors".
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DescriptorConfig {

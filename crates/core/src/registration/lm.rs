@@ -121,7 +121,7 @@ pub struct PairTerms {
     pub cost: f64,
     /// Exact gradient of `1/2 rho(s)` w.r.t. the right perturbation `delta`, through the weight too.
     pub gradient: Vec3,
-    /// Gauss-Newton block `rho'(s) J^T W J` (weight derivative left out; see the module doc).
+    /// Gauss-Newton block `rho'(s) J^T W J` (weight derivative left out; docs/algorithm.md, "Levenberg-Marquardt").
     pub hessian_gn: Mat3,
     /// `J^T W d`, with `J = d(d)/d(delta) = -R [I | perp(x)]`; the score of this pair before `rho'`.
     pub jtwd: Vec3,

@@ -25,7 +25,7 @@ pub const MAX_K: usize = 16;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum MatchingBackend {
-    /// Blocked linear scan (default; faster at this dimension, see the module doc).
+    /// Blocked linear scan (default; faster at this dimension, docs/algorithm.md, "Correspondences").
     Scan,
     /// kiddo k-d tree.
     KdTree,

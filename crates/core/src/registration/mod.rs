@@ -1,16 +1,29 @@
 //! Submap-to-submap registration: DC-Loc's association and uncertainty-aware optimisation.
 //!
-//! [`register_detailed`] runs seven stages in order, each a module with its own header and its own
-//! section of [`RegistrationConfig`]: 1 [`matching`] (KNN over [`descriptor`]s), 2 `hypotheses`
-//! ([`ransac`], ranked by coverage), 3 `refine` ([`lm`], [`robust`], [`dense`]), 4 `beyond`
-//! ([`correlative`], slides), 5 `finishing`, 6 `covariance_probes` ([`offset`]), 7 `alternatives`.
-//! docs/algorithm.md, "Frames" and "Registration", has the steps and the naming of source and target.
+//! [`register_detailed`] runs the stages in order, each in its own module with its own settings
+//! (sections of [`RegistrationConfig`]):
+//! 1. matching: K nearest neighbours in descriptor space (RSD, [`descriptor`], [`matching`]);
+//! 2. hypotheses: RANSAC's distinct supported motions ranked by geometric coverage ([`ransac`],
+//!    `hypotheses`);
+//! 3. refinement: LM on eq. 10 ([`lm`], with a [`robust`] loss), inliers re-selected with the noise
+//!    model, the [`dense`] stage, and the covariance at the optimum (`refine`);
+//! 4. beyond the descriptors: the [`correlative`] search and slides along the street when the
+//!    winner is weak (`beyond`);
+//! 5. finishing: the winner polished, symmetrised and softened (`finishing`);
+//! 6. covariance probes: the association bias, the score's pull and a common [`offset`] along the
+//!    rays widen the covariance (`covariance_probes`);
+//! 7. alternatives: the other alignments and the runner-up overlap for the ambiguity gate
+//!    (`alternatives`).
 //!
-//! Entry points: [`register`], [`register_prepared`] (on [`PreparedSubmap`]s, built once per keyframe),
-//! [`register_detailed`] (with the correspondences and inliers), [`register_correspondences`] (stages
-//! 2-7 on given candidates, for the MC-RANSAC-style baseline); shared `types` ([`PointSet2`],
-//! [`RegistrationResult`], [`RegistrationError`]); [`overlap_near`], [`slide_overlap`] and
-//! [`common_view`] probe other alignments for the loop-closure gates.
+//! Entry points: [`register`], [`register_prepared`] (on [`PreparedSubmap`]s, built once per
+//! keyframe), [`register_detailed`] (with the correspondences and inliers) and
+//! [`register_correspondences`] (stages 2-7 on given candidates, as the MC-RANSAC-style baseline
+//! uses them). The types every method shares are in `types` ([`PointSet2`], [`RegistrationResult`],
+//! [`RegistrationError`]); [`overlap_near`], [`slide_overlap`] and [`common_view`] probe other
+//! alignments for the loop-closure gates.
+//!
+//! The source is the current (query) submap, the target the previous (match) one; docs/algorithm.md,
+//! "Frames" and "Registration", has the naming, the covariance convention and each stage's detail.
 
 mod alternatives;
 mod bearings;

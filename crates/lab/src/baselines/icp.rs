@@ -208,7 +208,7 @@ fn umeyama_2d(pairs: &[(Vec2, Vec2)]) -> Result<Iso2, RegistrationError> {
     Ok(Iso2::new(my - rot * mx, theta))
 }
 
-/// `(Cov(delta), mean squared residual)` of point-to-point pairs at `t` (see the module doc).
+/// `(Cov(delta), mean squared residual)` of point-to-point pairs at `t` (docs/algorithm.md, "Baselines").
 fn point_to_point_covariance(
     t: &Iso2,
     pairs: &[(Vec2, Vec2)],

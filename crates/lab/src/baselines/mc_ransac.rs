@@ -64,7 +64,7 @@ impl McRansacConfig {
 }
 
 /// The radar's velocity in its own frame, m/s, implied by the body's forward speed `forward_speed` (m/s):
-/// `R_body_radar^T [v, 0, 0]`. The yaw rate's lever-arm term is ignored (see the module doc).
+/// `R_body_radar^T [v, 0, 0]`. The yaw rate's lever-arm term is ignored (docs/algorithm.md, "Baselines").
 pub fn radar_velocity_from_forward_speed(forward_speed: f64, t_body_radar: &Iso3) -> Vec3 {
     t_body_radar.rotation.inverse() * Vec3::new(forward_speed, 0.0, 0.0)
 }
@@ -129,7 +129,7 @@ pub struct SpeedEstimate {
 
 /// Estimates the forward speed from two *uncorrected* scans (points in their body frames, m) taken `dt` s
 /// apart (consecutive, or a baseline of several scans), by ICP of the current scan onto the previous one
-/// seeded with `predicted_t_prev_cur` (e.g. constant velocity). See the module doc for why the result is
+/// seeded with `predicted_t_prev_cur` (e.g. constant velocity). See docs/algorithm.md, "Baselines", for why the result is
 /// biased.
 ///
 /// Errors: those of [`register_icp`], and [`RegistrationError::Numerical`] when `dt` is not positive.

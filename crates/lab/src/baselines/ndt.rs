@@ -49,7 +49,7 @@ pub struct NdtConfig {
 }
 
 impl Default for NdtConfig {
-    /// Cell sizes 8 m, 4 m, 2 m with the coarse stages blurred by half a cell (see the module doc); the paper's 3 points per cell and eigenvalue ratio 0.001; 50 Newton iterations per stage;
+    /// Cell sizes 8 m, 4 m, 2 m with the coarse stages blurred by half a cell (docs/algorithm.md, "Baselines"); the paper's 3 points per cell and eigenvalue ratio 0.001; 50 Newton iterations per stage;
     /// tolerances 1e-4 m and 1e-5 rad; steps of at most half a cell and 0.1 rad; at least 6 source points
     /// in cells.
     fn default() -> Self {
@@ -357,7 +357,7 @@ pub fn register_ndt(
     let Some(map) = map else {
         return Err(RegistrationError::Numerical("no NDT stage ran".into()));
     };
-    // Step 3: covariance from the Hessian at the optimum (see the module doc).
+    // Step 3: covariance from the Hessian at the optimum (docs/algorithm.md, "Baselines").
     ndt_result(&map, source, &p, config, converged, iterations)
 }
 
@@ -468,8 +468,8 @@ fn line_search(
     None
 }
 
-/// The registration result at the optimum `p` of the last stage's map, with the covariance of the
-/// module documentation.
+/// The registration result at the optimum `p` of the last stage's map, with the covariance of
+/// docs/algorithm.md, "Baselines".
 fn ndt_result(
     map: &NdtMap,
     source: &PointSet2,

@@ -29,6 +29,7 @@ use dc_loc::msgs::builtin_interfaces::Time;
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::output::ClosureRecord;
+use dc_loc::params::file::setup_yaml;
 use dc_loc::params::{ParamSet, apply};
 use dc_loc::pipeline::Config;
 use dc_loc::pipeline::Pipeline;
@@ -484,6 +485,8 @@ fn runner_reports_bad_messages_and_goes_on() {
     assert_eq!(std::fs::read(&out_file).unwrap(), b"");
 }
 
+/// The shipped params files hold the sensor setup and what differs from the defaults; read, each is
+/// exactly its configuration.
 #[test]
 fn shipped_params_files_equal_their_configs() {
     let bless = "Regenerate with DC_LOC_BLESS=1 cargo test --test cli shipped_params.";
@@ -497,7 +500,8 @@ fn shipped_params_files_equal_their_configs() {
             format!(
                 "dc_loc parameters for drives of `dc_loc sim --preset {what}` (Gaussian noise; other noise\n\
                  models change the radars' sigma_* values: use the dc_loc.yaml that `dc_loc sim` writes\n\
-                 into each bag directory). Equal to SimConfig::with_preset(..).to_config().\n{bless}"
+                 into each bag directory): the sensor setup and what differs from the defaults (`dc_loc\n\
+                 params`). Applied, equal to SimConfig::with_preset(..).to_config().\n{bless}"
             ),
         )
     };
@@ -507,9 +511,10 @@ fn shipped_params_files_equal_their_configs() {
             (
                 Config::default(),
                 format!(
-                    "dc_loc node parameters: the defaults, one forward radar `front` (PointCloud2 on\n\
-                     /radar/points, frame `radar`, fields x y z v_r rcs) and odometry on /odom.\n\
-                     Equal to Config::default(). {bless}"
+                    "dc_loc node parameters: the sensor setup of the defaults, one forward radar `front`\n\
+                     (PointCloud2 on /radar/points, frame `radar`, fields x y z v_r rcs) and odometry on\n\
+                     /odom; every other parameter keeps its default (`dc_loc params`). Applied, equal to\n\
+                     Config::default(). {bless}"
                 ),
             ),
         ),
@@ -534,7 +539,7 @@ fn shipped_params_files_equal_their_configs() {
                     "dc_loc node parameters for the five Continental ARS408-21 radars of nuScenes: extrinsics in\n\
                      the body frame from the dataset's calibration (docs/interfaces.md), radial velocity from the raw\n\
                      vx, vy fields, topics /radar_<name> and frames radar_<name> as nuscenes2mcap writes them\n\
-                     (remap to your own). Other sections: the defaults. {bless}"
+                     (remap to your own). Every other parameter keeps its default (`dc_loc params`). {bless}"
                 ),
             )
         }),
@@ -542,7 +547,7 @@ fn shipped_params_files_equal_their_configs() {
     for (file, (cfg, header)) in files {
         let path = Path::new(REPO).join(file);
         if std::env::var_os("DC_LOC_BLESS").is_some() {
-            std::fs::write(&path, params_yaml(&cfg, &header)).unwrap();
+            std::fs::write(&path, setup_yaml(&cfg, &header).unwrap()).unwrap();
         }
         let yaml = std::fs::read_to_string(&path).unwrap();
         let got = apply(&ParamSet::from_yaml(&yaml, "/", "dc_loc").unwrap()).unwrap();

@@ -1,12 +1,14 @@
 //! ROS 2 params files written by dc_loc: [`params_yaml`] (a [`Config`] as the params file of node
-//! [`NODE_NAME`], as `dc_loc sim` writes it beside each bag and as the shipped files in params/ are) and
+//! [`NODE_NAME`], every parameter, as `dc_loc sim` writes it beside each bag), [`setup_yaml`] (the
+//! sensor setup and what differs from the defaults, as the shipped files in params/ are) and
 //! [`params_file`] (any parameters, the node's own `node.*` too: `dc_loc params --yaml`).
 
 use std::fmt::Write as _;
 
 use serde_json::{Map, Value};
 
-use super::flatten_config;
+use super::tiers::{Tier, generic_name, tier};
+use super::{ParamError, ParamSet, apply, flatten_config};
 use dc_loc_core::pipeline::Config;
 
 /// Node name the params files are written for.
@@ -73,6 +75,27 @@ const GROUPS: &[(&str, &str)] = &[
 /// their shortest round-trip form).
 pub fn params_yaml(cfg: &Config, header: &str) -> String {
     params_file(&flatten_config(cfg), header)
+}
+
+/// A configuration as a ROS 2 params file that holds the sensor setup (every [`Tier::Setup`]
+/// parameter: what a user describes of a robot) and every other parameter whose value is not its
+/// default; the rest keeps its default when the file is read. Applying the file gives `cfg` exactly,
+/// as for [`params_yaml`].
+pub fn setup_yaml(cfg: &Config, header: &str) -> Result<String, ParamError> {
+    // The defaults for the same radars: every listed radar with the radar defaults.
+    let mut names = ParamSet::default();
+    names.set(
+        "radar_names",
+        serde_json::to_value(&cfg.radar_names).unwrap_or_default(),
+    );
+    let defaults: Map<String, Value> = flatten_config(&apply(&names)?).into_iter().collect();
+    let params: Vec<(String, Value)> = flatten_config(cfg)
+        .into_iter()
+        .filter(|(name, value)| {
+            tier(&generic_name(name)) == Tier::Setup || defaults.get(name) != Some(value)
+        })
+        .collect();
+    Ok(params_file(&params, header))
 }
 
 /// Parameters `(dotted name, value)` as a ROS 2 params file for node [`NODE_NAME`] (as

@@ -12,7 +12,7 @@ use serde_json::Value;
 
 use super::live::is_live;
 use super::node::{LOG_LEVELS, NODE_PARAMS, NodeSettings, all_params};
-use super::tiers::{Tier, guidance, tier};
+use super::tiers::{Tier, generic_name, guidance, tier};
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::validate::{Range, Validator};
 
@@ -35,14 +35,6 @@ pub struct ParamDoc {
     pub tier: Tier,
 }
 
-/// The name with a radar's own name replaced by `<name>`.
-fn generic(name: &str) -> String {
-    match name.strip_prefix("radars.").and_then(|r| r.split_once('.')) {
-        Some((_, field)) => format!("radars.<name>.{field}"),
-        None => name.to_string(),
-    }
-}
-
 /// Every parameter of the node, sorted by name.
 pub fn reference() -> Vec<ParamDoc> {
     let cfg = Config::default();
@@ -50,8 +42,11 @@ pub fn reference() -> Vec<ParamDoc> {
     let mut v = Validator::describing();
     cfg.check(&mut v);
     settings.check(&mut v);
-    let ranges: BTreeMap<String, Range> =
-        v.ranges().iter().map(|(n, r)| (generic(n), *r)).collect();
+    let ranges: BTreeMap<String, Range> = v
+        .ranges()
+        .iter()
+        .map(|(n, r)| (generic_name(n), *r))
+        .collect();
     let mut described = Described::default();
     let schema = schemars::schema_for!(Config);
     described.walk(schema.as_value(), "", schema.as_value());
@@ -63,7 +58,7 @@ pub fn reference() -> Vec<ParamDoc> {
     all_params(&cfg, &settings)
         .into_iter()
         .map(|(name, default)| {
-            let name = generic(&name);
+            let name = generic_name(&name);
             ParamDoc {
                 range: ranges.get(&name).copied(),
                 choices: described.choices.get(&name).cloned().unwrap_or_default(),

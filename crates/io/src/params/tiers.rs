@@ -127,6 +127,14 @@ pub const TUNING: &[(&str, &str)] = &[
     ),
 ];
 
+/// The name with a radar's own name replaced by `<name>` (`radars.front.beta` -> `radars.<name>.beta`).
+pub fn generic_name(name: &str) -> String {
+    match name.strip_prefix("radars.").and_then(|r| r.split_once('.')) {
+        Some((_, field)) => format!("radars.<name>.{field}"),
+        None => name.to_string(),
+    }
+}
+
 /// The tier of a parameter (per-radar parameters as `radars.<name>.field`).
 pub fn tier(name: &str) -> Tier {
     if SETUP.contains(&name) {

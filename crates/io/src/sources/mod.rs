@@ -2,7 +2,7 @@
 //! message it skips), in time order.
 //!
 //! Entry points:
-//! - [`rosbag`]: a rosbag2 bag ([`rosbag::BagInputs`]).
+//! - [`rosbag`]: a rosbag2 or ROS 1 bag ([`rosbag::BagInputs`]).
 //! - [`foxglove`]: a foxglove MCAP from nuscenes2mcap ([`foxglove::FoxgloveInputs`]).
 //! - [`nuscenes_pcd`]: nuScenes ARS408 radar PCD files ([`nuscenes_pcd::NuscenesRadarPcd`], all 18
 //!   fields per point, the devkit's default filter [`nuscenes_pcd::NuscenesRadarFilter`], conversion to

@@ -16,6 +16,9 @@
 //!   into poses, the keyframe into a record and into a pipeline of the robot its alignments name.
 //! - `bag_reader`: the input as an MCAP file read by `BagReader` (every message, a topic selection,
 //!   and the pipeline's `BagInputs`), each message decoded as its type.
+//! - `rosbag1`: the input as a ROS 1 bag read by `BagReader` (every message decoded as its type, a
+//!   topic selection, the pipeline's `BagInputs` with a PoseStamped or Odometry ground truth, the
+//!   `/tf_static` extrinsics).
 //! - `pcd`: the input as a PCD file: header, binary records, nuScenes radar points, PointCloud2.
 //! - `keyframe_map`: the input as a keyframe map file, framed with magic, version and a valid CRC-32
 //!   or taken as the raw file ([`map_file_from_bytes`]), loaded into a `KeyframeDb`.
@@ -33,8 +36,10 @@ use dc_loc::io::nuscenes_pcd::{
 use dc_loc::io::rosbag::BagInputs;
 use dc_loc::keyframe_db::{KeyframeDb, MAP_FORMAT_VERSION};
 use dc_loc::msgs::dc_loc::Keyframe;
+use dc_loc::msgs::geometry_msgs::PoseStamped;
 use dc_loc::msgs::nav_msgs::Odometry;
-use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
+use dc_loc::msgs::radar_msgs::RadarScan;
+use dc_loc::msgs::sensor_msgs::{Imu, PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::msgs::tf2_msgs::TFMessage;
 use dc_loc::pipeline::{Config, Pipeline};
@@ -46,10 +51,11 @@ use dc_loc::sim::export::GROUND_TRUTH_TOPIC;
 pub type Body = fn(&[u8]);
 
 /// Every target: its name (the directory under `fuzz/corpus/` and `fuzz/regressions/`) and its body.
-pub const TARGETS: [(&str, Body); 5] = [
+pub const TARGETS: [(&str, Body); 6] = [
     ("pointcloud2", pointcloud2),
     ("cdr", cdr),
     ("bag_reader", bag_reader),
+    ("rosbag1", rosbag1),
     ("pcd", pcd),
     ("keyframe_map", keyframe_map),
 ];
@@ -123,6 +129,67 @@ pub fn bag_reader(data: &[u8]) {
             for input in inputs.flatten() {
                 if let Input::Radar { cloud, .. } = input {
                     decode_cloud_as_radar(&cloud);
+                }
+            }
+        }
+    });
+}
+
+/// Target `rosbag1`: the input as a ROS 1 bag, every message read and decoded as its type.
+pub fn rosbag1(data: &[u8]) {
+    with_temp_file("input.bag", data, |path| {
+        let Ok(reader) = BagReader::open(path) else {
+            return;
+        };
+        let _ = (reader.message_count(), reader.time_range());
+        if let Ok(messages) = reader.messages() {
+            for message in messages.flatten() {
+                match message.type_name() {
+                    schema::POINT_CLOUD2 => {
+                        if let Ok(cloud) = message.decode::<PointCloud2>() {
+                            decode_cloud_as_radar(&cloud);
+                        }
+                    }
+                    schema::ODOMETRY => {
+                        if let Ok(odom) = message.decode::<Odometry>() {
+                            check_odometry(&odom);
+                        }
+                    }
+                    schema::POSE_STAMPED => {
+                        let _ = message.decode::<PoseStamped>();
+                    }
+                    schema::IMU => {
+                        let _ = message.decode::<Imu>();
+                    }
+                    schema::RADAR_SCAN => {
+                        let _ = message.decode::<RadarScan>();
+                    }
+                    _ => {
+                        let _ = message.decode::<TFMessage>();
+                    }
+                }
+            }
+        }
+        // A topic selection skips chunks through the index.
+        if let Some(topic) = reader.topics().last().map(|t| t.name.clone())
+            && let Ok(messages) = reader.messages_on(&[topic.as_str()])
+        {
+            messages.for_each(drop);
+        }
+        let _ =
+            dc_loc::bag::foxglove::bag_extrinsics(&reader, "base_link", &["radar_front".into()]);
+        // What `dc_loc run --bag` and `dc_loc eval --bag` read with the fixtures' topics.
+        let mut cfg = Config::default();
+        if let Some(radar) = cfg.radars.values_mut().next() {
+            radar.topic = "/radar_front".into();
+            radar.frame_id = String::new();
+        }
+        for gt in ["/ground_truth", "/odom"] {
+            if let Ok(inputs) = BagInputs::new(&reader, &cfg, Some(gt)) {
+                for input in inputs.flatten() {
+                    if let Input::Radar { cloud, .. } = input {
+                        decode_cloud_as_radar(&cloud);
+                    }
                 }
             }
         }

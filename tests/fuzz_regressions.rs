@@ -9,12 +9,15 @@
 //! messages...), so that a format change cannot silently turn the corpus into noise, and that the
 //! `pointcloud2` input format reads back what it writes.
 //!
-//! The seeds are made by the ignored test `write_seed_corpus`:
+//! The seeds are made by the ignored test `write_seed_corpus` (the `rosbag1` ones by
+//! tests/python/ros1_bags.py in the ROS 2 test venv, which it runs):
 //! `cargo test --test fuzz_regressions -- --ignored write_seed_corpus`.
 
 #[allow(dead_code)]
 #[path = "../fuzz/bodies.rs"]
 mod bodies;
+#[path = "python/venv.rs"]
+mod venv;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -295,6 +298,11 @@ fn bag_reader() {
 }
 
 #[test]
+fn rosbag1() {
+    check_target("rosbag1");
+}
+
+#[test]
 fn pcd() {
     check_target("pcd");
 }
@@ -371,6 +379,19 @@ fn seeds_reach_the_deep_paths() {
     assert!(
         bag_messages.len() >= 3 && bag_messages.iter().all(|&n| n > 0),
         "messages per bag seed: {bag_messages:?}"
+    );
+
+    let mut ros1_messages = Vec::new();
+    for (path, bytes) in files("corpus", "rosbag1") {
+        let n = bodies::with_temp_file("seed.bag", &bytes, |p| {
+            let reader = BagReader::open(p).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            reader.messages().unwrap().filter(|m| m.is_ok()).count()
+        });
+        ros1_messages.push(n);
+    }
+    assert!(
+        ros1_messages.len() >= 3 && ros1_messages.iter().all(|&n| n > 0),
+        "messages per ROS 1 bag seed: {ros1_messages:?}"
     );
 
     let pcds = files("corpus", "pcd")
@@ -834,6 +855,19 @@ fn write_seed_corpus() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/rosbags_bag/rosbags_bag.mcap"),
     )
     .unwrap();
+    // ROS 1 bags of every chunk compression, written by rosbags (tests/python/ros1_bags.py).
+    let ros1 = std::env::temp_dir().join("dc_loc_ros1_seeds");
+    let out = venv::python_script("ros1_bags.py")
+        .arg("fixtures")
+        .arg(&ros1)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ros1_seed = |c: &str| std::fs::read(ros1.join(format!("{c}.bag"))).unwrap();
     let seeds: Vec<(&str, Seeds)> = vec![
         ("pointcloud2", pointcloud2_seeds()),
         ("cdr", cdr_seeds()),
@@ -844,6 +878,14 @@ fn write_seed_corpus() {
                 ("uncompressed_chunks.mcap", raw_mcap(true)),
                 ("unchunked.mcap", raw_mcap(false)),
                 ("rosbags.mcap", rosbags),
+            ],
+        ),
+        (
+            "rosbag1",
+            vec![
+                ("none.bag", ros1_seed("none")),
+                ("bz2.bag", ros1_seed("bz2")),
+                ("lz4.bag", ros1_seed("lz4")),
             ],
         ),
         (

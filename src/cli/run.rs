@@ -1,5 +1,5 @@
-//! `dc_loc run`: the pipeline over any recorded source (a rosbag2 or foxglove MCAP bag, a nuScenes or
-//! View-of-Delft directory), loop closures to a JSON-lines file.
+//! `dc_loc run`: the pipeline over any recorded source (a rosbag2, ROS 1 or foxglove MCAP bag, a
+//! nuScenes or View-of-Delft directory), loop closures to a JSON-lines file.
 //!
 //! One loop for every source: each [`Segment`] of the data through a fresh [`Pipeline`]
 //! ([`run_inputs`]), one progress bar, one closure writer. The run is deterministic: the same data and

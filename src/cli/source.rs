@@ -1,5 +1,5 @@
-//! The data `dc_loc run` and `dc_loc eval` read, opened once ([`Dataset`]: a rosbag2 or foxglove MCAP
-//! bag, a nuScenes directory, a View-of-Delft directory) with its pipeline configuration, and its runs
+//! The data `dc_loc run` and `dc_loc eval` read, opened once ([`Dataset`]: a rosbag2, ROS 1 or foxglove
+//! MCAP bag, a nuScenes directory, a View-of-Delft directory) with its pipeline configuration, and its runs
 //! ([`Segment`]: a configuration and an input stream; nuScenes gives one per location, where the
 //! scenes share a map frame, everything else one).
 //!
@@ -29,7 +29,8 @@ use crate::pipeline::Config;
 /// Where the data comes from, as `dc_loc run` and `dc_loc eval` take it.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SourceArgs {
-    /// rosbag2 bag: directory or single .mcap file (also a foxglove MCAP from nuscenes2mcap).
+    /// Bag: a rosbag2 directory or single .mcap file, a ROS 1 .bag file (format 2.0), or a foxglove
+    /// MCAP from nuscenes2mcap.
     #[arg(
         long,
         value_name = "BAG",
@@ -98,7 +99,7 @@ impl SourceArgs {
 
 /// Opened data and the configuration it runs with.
 pub enum Dataset {
-    /// A rosbag2 bag, or a foxglove MCAP (`foxglove` true: radar as `foxglove.PointCloud`, odometry
+    /// A rosbag2 or ROS 1 bag, or a foxglove MCAP (`foxglove` true: radar as `foxglove.PointCloud`, odometry
     /// from the `map_frame -> body` transforms on `/tf`).
     Bag {
         /// The bag's path.
@@ -289,7 +290,7 @@ impl Dataset {
     }
 }
 
-/// The inputs of a rosbag2 bag for `cfg` (and a ground-truth topic), a configuration that does not
+/// The inputs of a rosbag2 or ROS 1 bag for `cfg` (and a ground-truth topic), a configuration that does not
 /// fit the bag being a usage error.
 pub fn bag_inputs(
     reader: &BagReader,

@@ -108,6 +108,15 @@ pub mod geometry_msgs {
         pub orientation: Quaternion,
     }
 
+    /// geometry_msgs/msg/PoseStamped (the ground truth of some datasets).
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct PoseStamped {
+        /// Stamp and the frame of the pose.
+        pub header: Header,
+        /// The pose.
+        pub pose: Pose,
+    }
+
     /// geometry_msgs/msg/PoseWithCovariance
     #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
     pub struct PoseWithCovariance {
@@ -249,6 +258,7 @@ pub mod geometry_msgs {
 
 /// sensor_msgs
 pub mod sensor_msgs {
+    use super::geometry_msgs::{Quaternion, Vector3};
     use super::std_msgs::Header;
     use serde::{Deserialize, Serialize};
 
@@ -306,6 +316,25 @@ pub mod sensor_msgs {
         pub data: Vec<u8>,
         /// True when no point is invalid.
         pub is_dense: bool,
+    }
+
+    /// sensor_msgs/msg/Imu (read from bags; the pipeline takes no IMU).
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct Imu {
+        /// Stamp and sensor frame.
+        pub header: Header,
+        /// Orientation.
+        pub orientation: Quaternion,
+        /// Row-major 3x3 covariance of the orientation (x, y, z axes); -1 in the first element: none.
+        pub orientation_covariance: [f64; 9],
+        /// rad/s
+        pub angular_velocity: Vector3,
+        /// Row-major 3x3 covariance.
+        pub angular_velocity_covariance: [f64; 9],
+        /// m/s^2
+        pub linear_acceleration: Vector3,
+        /// Row-major 3x3 covariance.
+        pub linear_acceleration_covariance: [f64; 9],
     }
 }
 

@@ -1,6 +1,6 @@
 //! MCAP files written by foxglove's nuscenes2mcap (and other foxglove-schema recorders): radar as
 //! `foxglove.PointCloud` protobuf, transforms as `foxglove.FrameTransform(s)`; plus the extrinsics of
-//! any bag's `/tf_static` or `/tf`.
+//! any bag's `/tf_static` or `/tf` (rosbag2, ROS 1 or foxglove).
 //!
 //! Entry points: the protobuf messages ([`PointCloud`], [`FrameTransform`], [`FrameTransforms`], with
 //! their `foxglove/schemas` field numbers), [`point_cloud_to_pointcloud2`], [`transforms_of`],
@@ -275,12 +275,12 @@ pub fn is_foxglove_cloud(reader: &BagReader, topic: &str) -> bool {
         .is_some_and(|t| t.type_name == POINT_CLOUD && t.message_encoding == "protobuf")
 }
 
-/// The transforms of one message of a transform topic (tf2 TFMessage in CDR, or foxglove
+/// The transforms of one message of a transform topic (tf2 TFMessage in CDR or ROS 1, or foxglove
 /// FrameTransform(s) in protobuf): (parent, child, stamp, pose); undecodable messages give none.
 pub fn transforms_of(msg: &super::BagMessage) -> Vec<(String, String, Stamp, Iso3)> {
     let mut out = Vec::new();
     match (msg.type_name(), msg.message_encoding()) {
-        (schema::TF_MESSAGE, "cdr") => {
+        (schema::TF_MESSAGE, "cdr" | "ros1") => {
             if let Ok(tf) = msg.decode::<TFMessage>() {
                 for t in tf.transforms {
                     if let Some(p) = t.transform.to_iso3() {
@@ -326,7 +326,13 @@ pub fn bag_extrinsics(
 ) -> Result<BTreeMap<String, Iso3>, BagError> {
     let mut found: BTreeMap<String, Iso3> = BTreeMap::new();
     for topic in ["/tf_static", "/tf"] {
-        if reader.topic(topic).is_none() {
+        let Some(info) = reader.topic(topic) else {
+            continue;
+        };
+        if info.message_encoding == "ros1"
+            && let Some(fault) = super::ros1::definition_fault(&info.type_name, &info.md5sum)
+        {
+            log::warn!("{topic}: {fault}; its transforms are not read");
             continue;
         }
         for msg in reader.messages_on(&[topic])? {

@@ -1,11 +1,13 @@
 //! rosbag2 bags in MCAP storage with CDR messages: what the simulator writes and `dc_loc run --bag`
-//! reads, compatible with `ros2 bag` (Jazzy) and the Python `rosbags` library.
+//! reads, compatible with `ros2 bag` (Jazzy) and the Python `rosbags` library; and ROS 1 bags
+//! (`.bag`, format 2.0), read through the same reader ([`ros1`]).
 //!
 //! Entry points:
 //! - [`BagWriter`] (`create`, `add_topic`, `write`, `finish`) writes a bag directory
 //!   (`<dir>/metadata.yaml` + `<dir>/<dir name>_0.mcap`; layout in [`writer`]).
-//! - [`BagReader`] (`open`, `topics`, `messages`, `messages_on`) reads a bag directory or a single
-//!   `.mcap` file; [`BagMessage::decode`] turns a message into a [`dc_loc_core::msgs`] struct.
+//! - [`BagReader`] (`open`, `topics`, `messages`, `messages_on`) reads a bag directory, a single
+//!   `.mcap` file or a ROS 1 `.bag` file; [`BagMessage::decode`] turns a message (CDR or ROS 1) into a
+//!   [`dc_loc_core::msgs`] struct.
 //! - [`decode`] / [`encode`]: ROS 2 CDR with its encapsulation header (`dc_loc_core::cdr`).
 //! - [`schema`]: the `.msg` definitions and `ros2msg` schema texts of the known types;
 //!   [`metadata`]: QoS profiles and `metadata.yaml`.
@@ -15,6 +17,7 @@
 pub mod foxglove;
 pub mod metadata;
 pub mod reader;
+pub mod ros1;
 pub mod schema;
 pub mod writer;
 
@@ -60,11 +63,29 @@ pub enum BagError {
         /// What is wrong.
         reason: String,
     },
-    /// The file does not start with the MCAP magic bytes.
-    #[error("{path}: not an MCAP file")]
+    /// The file starts with neither the MCAP magic bytes nor a ROS bag's `#ROSBAG V`.
+    #[error("{path}: neither an MCAP file nor a ROS 1 bag")]
     NotMcap {
         /// The file.
         path: PathBuf,
+    },
+    /// The ROS 1 bag is damaged or truncated (reported when reached; messages before it were read):
+    /// a length past its record or the file, a record or chunk over the reader's limit, a chunk that
+    /// does not decompress to its declared size, a record that does not belong where it stands.
+    #[error("{path}: damaged ROS 1 bag: {reason}")]
+    Ros1Damaged {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, and at which byte.
+        reason: String,
+    },
+    /// A ROS bag of a format other than 2.0 (ROS 1 bags since 2010 are 2.0).
+    #[error("{path}: ROS bag format {version:?} is not read (only 2.0)")]
+    Ros1Version {
+        /// The file.
+        path: PathBuf,
+        /// What follows `#ROSBAG V`.
+        version: String,
     },
     /// The MCAP file is damaged or truncated (reported when reached; messages before it were read),
     /// or the MCAP writer failed.
@@ -118,6 +139,28 @@ pub enum BagError {
         /// The CDR error.
         #[source]
         source: CdrError,
+    },
+    /// One ROS 1 message could not be decoded as the requested type. Concerns that message only.
+    #[error("topic {topic} ({type_name}) at {t_ns} ns: {source}", t_ns = .stamp.0)]
+    DecodeRos1 {
+        /// Topic name.
+        topic: String,
+        /// Message type, as ROS 1 names it.
+        type_name: String,
+        /// Record time of the message.
+        stamp: Stamp,
+        /// What does not fit.
+        #[source]
+        source: ros1::Ros1Error,
+    },
+    /// A ROS 1 connection whose type has no known layout, or whose md5sum names another definition
+    /// than the one its type's struct mirrors.
+    #[error("topic {topic}: {fault}")]
+    Ros1Definition {
+        /// Topic name.
+        topic: String,
+        /// Type, md5sum and what was expected.
+        fault: String,
     },
     /// A message could not be serialised to CDR.
     #[error("topic {topic} ({type_name}): {source}")]

@@ -1,4 +1,5 @@
-//! [`BagReader`]: reads a rosbag2 MCAP bag directory or a single MCAP file, streaming.
+//! [`BagReader`]: reads a rosbag2 MCAP bag directory, a single MCAP file, or a ROS 1 bag ([`super::ros1`]),
+//! streaming.
 //!
 //! A file with a summary section (every finished rosbag2 or rosbags file) is read through its chunk
 //! indexes, one chunk at a time, in log-time order even when chunks overlap; one without a usable
@@ -25,7 +26,7 @@ use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryRead
 use serde::de::DeserializeOwned;
 
 use super::metadata::read_metadata_yaml;
-use super::{BagError, cdr};
+use super::{BagError, cdr, ros1};
 use dc_loc_core::math::Stamp;
 
 /// Largest record or chunk (compressed or not) the reader accepts, bytes: the bound of what one file
@@ -67,16 +68,20 @@ pub struct TopicInfo {
     pub schema: Vec<u8>,
     /// Number of messages.
     pub message_count: u64,
+    /// ROS 1 bags: the connection's md5sum of the message definition; empty for MCAP channels.
+    pub md5sum: String,
 }
 
-/// What a message's channel says about it.
+/// What a message's channel (an MCAP channel, a ROS 1 connection) says about it.
 #[derive(Debug)]
-struct ChannelMeta {
-    topic: String,
-    type_name: String,
-    message_encoding: String,
-    schema_encoding: String,
-    schema: Vec<u8>,
+pub(crate) struct ChannelMeta {
+    pub(crate) topic: String,
+    pub(crate) type_name: String,
+    pub(crate) message_encoding: String,
+    pub(crate) schema_encoding: String,
+    pub(crate) schema: Vec<u8>,
+    /// A ROS 1 connection's md5sum; empty for MCAP.
+    pub(crate) md5sum: String,
 }
 
 /// One message read from a bag.
@@ -93,6 +98,17 @@ pub struct BagMessage {
 }
 
 impl BagMessage {
+    /// A ROS 1 message on `channel` recorded at `time` (ns).
+    pub(crate) fn ros1(channel: &Arc<ChannelMeta>, time: u64, data: Vec<u8>) -> Self {
+        BagMessage {
+            channel: channel.clone(),
+            log_time: stamp(time),
+            publish_time: stamp(time),
+            sequence: 0,
+            data,
+        }
+    }
+
     /// The message of `header` with payload `data` on `channel`.
     fn read(
         channel: &Arc<ChannelMeta>,
@@ -116,19 +132,37 @@ impl BagMessage {
     pub fn type_name(&self) -> &str {
         &self.channel.type_name
     }
-    /// Message encoding of the channel (`cdr` for ROS 2).
+    /// Message encoding of the channel (`cdr` for ROS 2, `ros1` for a ROS 1 bag).
     pub fn message_encoding(&self) -> &str {
         &self.channel.message_encoding
     }
-    /// The serialised message: CDR with its encapsulation header for ROS 2 channels.
+    /// The serialised message: CDR with its encapsulation header for ROS 2 channels, the ROS 1
+    /// serialisation for a ROS 1 bag.
     pub fn data(&self) -> &[u8] {
         &self.data
     }
-    /// Decodes the CDR payload as `T` (the Rust struct of [`Self::type_name`]).
+    /// Decodes the payload (CDR, or ROS 1 after the connection's md5sum is checked against the
+    /// definition the struct mirrors) as `T` (the Rust struct of [`Self::type_name`]).
     ///
     /// A failure names topic, type and time and concerns this message only: the caller skips it and
     /// goes on iterating.
     pub fn decode<T: DeserializeOwned>(&self) -> Result<T, BagError> {
+        if self.channel.message_encoding == "ros1" {
+            if let Some(fault) =
+                ros1::definition_fault(&self.channel.type_name, &self.channel.md5sum)
+            {
+                return Err(BagError::Ros1Definition {
+                    topic: self.channel.topic.clone(),
+                    fault,
+                });
+            }
+            return ros1::de::decode(&self.data).map_err(|source| BagError::DecodeRos1 {
+                topic: self.channel.topic.clone(),
+                type_name: ros1::ros1_type_name(&self.channel.type_name),
+                stamp: self.log_time,
+                source,
+            });
+        }
         if self.channel.message_encoding != "cdr" {
             return Err(BagError::UnsupportedEncoding {
                 topic: self.channel.topic.clone(),
@@ -145,14 +179,17 @@ impl BagMessage {
     }
 }
 
-/// An MCAP file of the bag, as opened.
+/// A file of the bag (MCAP, or a ROS 1 bag), as opened.
 #[derive(Debug)]
-struct McapFile {
+struct BagFile {
     path: PathBuf,
     /// The summary when the file is read through its indexes.
     summary: Option<mcap::Summary>,
-    /// Channels and their message counts (from the summary or the scan).
-    channels: BTreeMap<u16, (Arc<ChannelMeta>, u64)>,
+    /// What a ROS 1 bag's header and index say (`None`: an MCAP file).
+    ros1: Option<Arc<ros1::Layout>>,
+    /// Channels (MCAP channel or ROS 1 connection ids) and their message counts (from the summary,
+    /// the index or the scan).
+    channels: BTreeMap<u32, (Arc<ChannelMeta>, u64)>,
     /// Earliest and latest log time, ns.
     time_range: Option<(u64, u64)>,
 }
@@ -161,7 +198,7 @@ struct McapFile {
 #[derive(Debug)]
 pub struct BagReader {
     path: PathBuf,
-    files: Vec<Arc<McapFile>>,
+    files: Vec<Arc<BagFile>>,
     topics: Vec<TopicInfo>,
 }
 
@@ -195,6 +232,7 @@ fn channel_meta(channel: &mcap::Channel<'_>) -> ChannelMeta {
         message_encoding: channel.message_encoding.clone(),
         schema_encoding,
         schema,
+        md5sum: String::new(),
     }
 }
 
@@ -285,12 +323,23 @@ fn read_summary(file: &mut File, len: u64, path: &Path) -> Option<mcap::Summary>
     }
 }
 
-impl McapFile {
-    fn open(path: &Path) -> Result<McapFile, BagError> {
+impl BagFile {
+    fn open(path: &Path) -> Result<BagFile, BagError> {
         let mut file = File::open(path).map_err(io_err(path))?;
         let len = file.metadata().map_err(io_err(path))?.len();
-        let mut magic = [0u8; 8];
-        if file.read_exact(&mut magic).is_err() || magic != mcap::MAGIC {
+        let mut magic = [0u8; 9];
+        let got = file.read(&mut magic).map_err(io_err(path))?;
+        if magic[..got].starts_with(ros1::MAGIC_PREFIX) {
+            let (layout, channels, time_range) = ros1::open(path)?;
+            return Ok(BagFile {
+                path: path.to_path_buf(),
+                summary: None,
+                ros1: Some(Arc::new(layout)),
+                channels,
+                time_range,
+            });
+        }
+        if got < 8 || magic[..8] != *mcap::MAGIC {
             return Err(BagError::NotMcap {
                 path: path.to_path_buf(),
             });
@@ -309,14 +358,15 @@ impl McapFile {
                     .filter_map(|id| {
                         let c = summary.channels.get(&id)?;
                         let count = stats.channel_message_counts.get(&id).copied().unwrap_or(0);
-                        Some((id, (Arc::new(channel_meta(c)), count)))
+                        Some((u32::from(id), (Arc::new(channel_meta(c)), count)))
                     })
                     .collect();
                 let time_range = (stats.message_count > 0)
                     .then_some((stats.message_start_time, stats.message_end_time));
-                return Ok(McapFile {
+                return Ok(BagFile {
                     path: path.to_path_buf(),
                     summary: Some(summary),
+                    ros1: None,
                     channels,
                     time_range,
                 });
@@ -344,11 +394,15 @@ impl McapFile {
         let channels = source
             .channels
             .iter()
-            .map(|(id, meta)| (*id, (meta.clone(), counts.get(id).copied().unwrap_or(0))))
+            .map(|(id, meta)| {
+                let count = counts.get(id).copied().unwrap_or(0);
+                (u32::from(*id), (meta.clone(), count))
+            })
             .collect();
-        Ok(McapFile {
+        Ok(BagFile {
             path: path.to_path_buf(),
             summary: None,
+            ros1: None,
             channels,
             time_range,
         })
@@ -356,6 +410,14 @@ impl McapFile {
 
     /// Opens the file for reading, refusing chunks and records of more than `limit` bytes.
     fn source(&self, topics: Option<&[&str]>, limit: usize) -> Result<Source, BagError> {
+        if let Some(layout) = &self.ros1 {
+            return Ok(Source::Ros1(Box::new(ros1::Source::open(
+                &self.path,
+                layout.clone(),
+                topics,
+                limit,
+            )?)));
+        }
         match &self.summary {
             Some(summary) => Ok(Source::Indexed(Box::new(IndexedSource::open(
                 &self.path,
@@ -387,7 +449,7 @@ impl IndexedSource {
     fn open(
         path: &Path,
         summary: &mcap::Summary,
-        channels: &BTreeMap<u16, (Arc<ChannelMeta>, u64)>,
+        channels: &BTreeMap<u32, (Arc<ChannelMeta>, u64)>,
         topics: Option<&[&str]>,
         limit: usize,
     ) -> Result<Self, BagError> {
@@ -424,7 +486,7 @@ impl IndexedSource {
         let channels: HashMap<u16, Arc<ChannelMeta>> = channels
             .iter()
             .filter(|(_, (meta, _))| topics.is_none_or(|t| t.contains(&meta.topic.as_str())))
-            .map(|(id, (meta, _))| (*id, meta.clone()))
+            .filter_map(|(id, (meta, _))| Some((u16::try_from(*id).ok()?, meta.clone())))
             .collect();
         if let Some(topics) = topics {
             options = options.include_topics(topics.iter().copied());
@@ -507,10 +569,11 @@ impl IndexedSource {
     }
 }
 
-/// One open file's reader (boxed: the two differ much in size).
+/// One open file's reader (boxed: they differ much in size).
 enum Source {
     Indexed(Box<IndexedSource>),
     Linear(Box<LinearSource>),
+    Ros1(Box<ros1::Source>),
 }
 
 impl Source {
@@ -518,6 +581,7 @@ impl Source {
         match self {
             Source::Indexed(s) => s.next(),
             Source::Linear(s) => s.next(),
+            Source::Ros1(s) => s.next(),
         }
     }
 }
@@ -527,7 +591,7 @@ impl Source {
 /// item reports damage in one file; that file then ends and the others go on.
 pub struct Messages {
     /// The groups still to open, in time order.
-    groups: std::collections::VecDeque<Vec<Arc<McapFile>>>,
+    groups: std::collections::VecDeque<Vec<Arc<BagFile>>>,
     topics: Option<Vec<String>>,
     /// The open group's files (`None`: the file could not be opened; its error is its first item).
     sources: Vec<Option<Source>>,
@@ -538,11 +602,11 @@ pub struct Messages {
 }
 
 impl Messages {
-    fn new(files: &[Arc<McapFile>], topics: Option<&[&str]>) -> Self {
+    fn new(files: &[Arc<BagFile>], topics: Option<&[&str]>) -> Self {
         // Files in time order (by index among equals); those without messages come last.
         let mut order: Vec<usize> = (0..files.len()).collect();
         order.sort_by_key(|&i| (files[i].time_range.map_or(u64::MAX, |r| r.0), i));
-        let mut groups: std::collections::VecDeque<Vec<Arc<McapFile>>> = Default::default();
+        let mut groups: std::collections::VecDeque<Vec<Arc<BagFile>>> = Default::default();
         let mut end = 0u64;
         for i in order {
             let f = &files[i];
@@ -645,7 +709,8 @@ impl Messages {
 }
 
 impl BagReader {
-    /// Opens a bag directory (with or without `metadata.yaml`) or a single MCAP file.
+    /// Opens a bag directory (with or without `metadata.yaml`), a single MCAP file, or a ROS 1 bag
+    /// (a `.bag` file of format 2.0, told by its first bytes `#ROSBAG V2.0`).
     pub fn open(path: &Path) -> Result<Self, BagError> {
         if !path.exists() {
             return Err(BagError::NotFound {
@@ -659,7 +724,7 @@ impl BagReader {
         };
         let files = paths
             .iter()
-            .map(|p| McapFile::open(p).map(Arc::new))
+            .map(|p| BagFile::open(p).map(Arc::new))
             .collect::<Result<Vec<_>, _>>()?;
         // Topics summed over files, keyed by name, type and encoding; sorted by name.
         let mut topics: BTreeMap<(String, String, String), TopicInfo> = BTreeMap::new();
@@ -678,6 +743,7 @@ impl BagReader {
                     schema_encoding: meta.schema_encoding.clone(),
                     schema: meta.schema.clone(),
                     message_count: 0,
+                    md5sum: meta.md5sum.clone(),
                 })
                 .message_count += count;
         }

@@ -24,6 +24,12 @@ pub const TF_MESSAGE: &str = "tf2_msgs/msg/TFMessage";
 pub const CLOCK: &str = "rosgraph_msgs/msg/Clock";
 /// `dc_loc/msg/LoopClosure`.
 pub const LOOP_CLOSURE: &str = "dc_loc/msg/LoopClosure";
+/// `geometry_msgs/msg/PoseStamped` (read as ground truth; the writer has no schema for it).
+pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
+/// `sensor_msgs/msg/Imu` (read only; the writer has no schema for it).
+pub const IMU: &str = "sensor_msgs/msg/Imu";
+/// `radar_msgs/msg/RadarScan` (read only; the writer has no schema for it).
+pub const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
 
 /// One `.msg` file.
 struct MsgFile {

@@ -1,5 +1,6 @@
-//! A rosbag2 bag as the pipeline's input stream: [`BagInputs`] reads the radar and odometry topics of
-//! a configuration (and optionally a ground-truth `nav_msgs/Odometry` topic) in log-time order.
+//! A bag (rosbag2 MCAP or ROS 1) as the pipeline's input stream: [`BagInputs`] reads the radar and
+//! odometry topics of a configuration (and optionally a ground-truth topic, `nav_msgs/Odometry` or
+//! `geometry_msgs/PoseStamped`) in log-time order (a ROS 1 bag: in file order).
 //!
 //! Radar clouds (`sensor_msgs/PointCloud2`, or `radar_msgs/RadarScan` for a radar whose
 //! `radars.<name>.message` is `radar_scan`) come from `radars.<name>.topic` (radar index = position in
@@ -7,17 +8,20 @@
 //! `odometry.topic`. Bad messages never stop a run: a message that does not decode, an odometry pose
 //! that is not finite, a cloud whose `header.frame_id` is not the radar's configured `frame_id` (when
 //! that is not empty), or damage in the bag file itself come out as [`InputIssue`]s and the stream
-//! goes on. A configuration that does not fit the bag (a configured topic missing, or of another type)
-//! is refused up front by [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is
-//! replaced by the bag's log time.
+//! goes on. A configuration that does not fit the bag (a configured topic missing, or of another type,
+//! or in a ROS 1 bag of another definition than the type's standard one) is refused up front by
+//! [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is replaced by the bag's log
+//! time. A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
+//! over the time between them (0 for the first).
 
 use std::collections::BTreeMap;
 
-use crate::bag::{BagError, BagReader, Messages, schema};
+use crate::bag::{BagError, BagReader, Messages, ros1, schema};
 use dc_loc_core::input::{
     Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, radar_scan_input,
 };
-use dc_loc_core::math::Stamp;
+use dc_loc_core::math::{Iso3, Stamp};
+use dc_loc_core::msgs::geometry_msgs::PoseStamped;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
 use dc_loc_core::msgs::sensor_msgs::PointCloud2;
@@ -59,6 +63,16 @@ pub enum BagInputError {
         /// The type in the bag.
         got: String,
     },
+    /// A configured topic of a ROS 1 bag whose connection has another definition of its type.
+    #[error("parameter `{parameter}`: topic {topic}: {fault}")]
+    Definition {
+        /// The parameter naming the topic.
+        parameter: String,
+        /// The topic.
+        topic: String,
+        /// The type, its md5sum and the one expected.
+        fault: String,
+    },
 }
 
 /// What a topic is read as.
@@ -68,11 +82,14 @@ enum Route {
     /// topic's message type.
     Radar(Vec<(usize, String)>, RadarMessage),
     Odometry,
-    GroundTruth,
+    /// Ground truth as `nav_msgs/Odometry` (false) or `geometry_msgs/PoseStamped` (true).
+    GroundTruth(bool),
 }
 
-/// The type name of `radar_msgs/RadarScan` in a bag.
-const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
+use schema::RADAR_SCAN;
+
+/// What a ground-truth topic may carry.
+const GROUND_TRUTH_TYPES: &str = "nav_msgs/msg/Odometry or geometry_msgs/msg/PoseStamped";
 
 /// The radar of `radars` whose frame is `got` (an empty configured frame accepts any).
 fn radar_for(radars: &[(usize, String)], got: &str) -> Result<usize, IssueReason> {
@@ -96,14 +113,17 @@ pub struct BagInputs {
     routes: BTreeMap<String, Route>,
     /// Newest log time seen: the stamp of damage reports.
     last_log_time: Stamp,
+    /// The previous `PoseStamped` ground truth: its stamp and pose (for the speed).
+    last_pose: Option<(Stamp, Iso3)>,
     total: u64,
 }
 
 impl BagInputs {
     /// Prepares to read the radar and odometry topics of `cfg` (and `ground_truth_topic`, a
-    /// `nav_msgs/Odometry` topic, when given) from `reader`.
+    /// `nav_msgs/Odometry` or `geometry_msgs/PoseStamped` topic, when given) from `reader`.
     ///
-    /// Fails when a configured topic is missing from the bag or has another type, naming the parameter.
+    /// Fails when a configured topic is missing from the bag or has another type (in a ROS 1 bag: or
+    /// another definition of it), naming the parameter.
     pub fn new(
         reader: &BagReader,
         cfg: &Config,
@@ -136,12 +156,21 @@ impl BagInputs {
             .entry(cfg.odometry.topic.clone())
             .or_insert(Route::Odometry);
         if let Some(gt) = ground_truth_topic {
+            let pose_stamped = reader
+                .topic(gt)
+                .is_some_and(|t| t.type_name == schema::POSE_STAMPED);
             wanted.push((
                 "ground_truth_topic".into(),
                 gt.to_string(),
-                schema::ODOMETRY,
+                if pose_stamped {
+                    schema::POSE_STAMPED
+                } else {
+                    schema::ODOMETRY
+                },
             ));
-            routes.entry(gt.to_string()).or_insert(Route::GroundTruth);
+            routes
+                .entry(gt.to_string())
+                .or_insert(Route::GroundTruth(pose_stamped));
         }
         let mut total = 0;
         for (parameter, topic, expected) in &wanted {
@@ -162,8 +191,21 @@ impl BagInputs {
                 return Err(BagInputError::TopicType {
                     parameter: parameter.clone(),
                     topic: topic.clone(),
-                    expected,
+                    expected: if parameter == "ground_truth_topic" {
+                        GROUND_TRUTH_TYPES
+                    } else {
+                        expected
+                    },
                     got: info.type_name.clone(),
+                });
+            }
+            if info.message_encoding == "ros1"
+                && let Some(fault) = ros1::definition_fault(&info.type_name, &info.md5sum)
+            {
+                return Err(BagInputError::Definition {
+                    parameter: parameter.clone(),
+                    topic: topic.clone(),
+                    fault,
                 });
             }
         }
@@ -176,6 +218,7 @@ impl BagInputs {
             messages,
             routes,
             last_log_time: Stamp(0),
+            last_pose: None,
             total,
         })
     }
@@ -237,7 +280,31 @@ impl Iterator for BagInputs {
                         },
                     }
                 }
-                Route::Odometry | Route::GroundTruth => match msg.decode::<Odometry>() {
+                Route::GroundTruth(true) => match msg.decode::<PoseStamped>() {
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                    Ok(p) => match header_stamp(&p.header, msg.log_time) {
+                        Err(reason) => Err(issue(msg.log_time, reason)),
+                        Ok(stamp) => match p.pose.to_iso3() {
+                            None => Err(issue(stamp, IssueReason::NonFinitePose)),
+                            Some(pose) => {
+                                let speed = match self.last_pose {
+                                    Some((t, last)) if stamp > t => {
+                                        (pose.translation.vector - last.translation.vector).norm()
+                                            / stamp.secs_since(t)
+                                    }
+                                    _ => 0.0,
+                                };
+                                self.last_pose = Some((stamp, pose));
+                                Ok(Input::GroundTruth {
+                                    stamp,
+                                    t_map_body: pose,
+                                    speed,
+                                })
+                            }
+                        },
+                    },
+                },
+                Route::Odometry | Route::GroundTruth(false) => match msg.decode::<Odometry>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(odom) => {
                         let stamp = match header_stamp(&odom.header, msg.log_time) {

@@ -107,6 +107,7 @@ impl LinearSource {
                                     message_encoding: c.message_encoding,
                                     schema_encoding,
                                     schema,
+                                    md5sum: String::new(),
                                 }),
                             );
                             Step::Other

@@ -97,33 +97,7 @@ pub fn bag_reader(data: &[u8]) {
         let Ok(reader) = BagReader::open(path) else {
             return;
         };
-        let _ = (reader.message_count(), reader.time_range());
-        if let Ok(messages) = reader.messages() {
-            for message in messages.flatten() {
-                match message.type_name() {
-                    schema::POINT_CLOUD2 => {
-                        if let Ok(cloud) = message.decode::<PointCloud2>() {
-                            decode_cloud_as_radar(&cloud);
-                        }
-                    }
-                    schema::ODOMETRY => {
-                        if let Ok(odom) = message.decode::<Odometry>() {
-                            check_odometry(&odom);
-                        }
-                    }
-                    _ => {
-                        let _ = message.decode::<TFMessage>();
-                    }
-                }
-            }
-        }
-        // A topic selection reads indexed files through another path (chunks without the topic are
-        // skipped).
-        if let Some(topic) = reader.topics().first().map(|t| t.name.clone())
-            && let Ok(messages) = reader.messages_on(&[topic.as_str()])
-        {
-            messages.for_each(drop);
-        }
+        read_every_message(&reader);
         // What `dc_loc run --bag` does with the default configuration's topics.
         if let Ok(inputs) = BagInputs::new(&reader, &Config::default(), Some(GROUND_TRUTH_TOPIC)) {
             for input in inputs.flatten() {
@@ -141,41 +115,7 @@ pub fn rosbag1(data: &[u8]) {
         let Ok(reader) = BagReader::open(path) else {
             return;
         };
-        let _ = (reader.message_count(), reader.time_range());
-        if let Ok(messages) = reader.messages() {
-            for message in messages.flatten() {
-                match message.type_name() {
-                    schema::POINT_CLOUD2 => {
-                        if let Ok(cloud) = message.decode::<PointCloud2>() {
-                            decode_cloud_as_radar(&cloud);
-                        }
-                    }
-                    schema::ODOMETRY => {
-                        if let Ok(odom) = message.decode::<Odometry>() {
-                            check_odometry(&odom);
-                        }
-                    }
-                    schema::POSE_STAMPED => {
-                        let _ = message.decode::<PoseStamped>();
-                    }
-                    schema::IMU => {
-                        let _ = message.decode::<Imu>();
-                    }
-                    schema::RADAR_SCAN => {
-                        let _ = message.decode::<RadarScan>();
-                    }
-                    _ => {
-                        let _ = message.decode::<TFMessage>();
-                    }
-                }
-            }
-        }
-        // A topic selection skips chunks through the index.
-        if let Some(topic) = reader.topics().last().map(|t| t.name.clone())
-            && let Ok(messages) = reader.messages_on(&[topic.as_str()])
-        {
-            messages.for_each(drop);
-        }
+        read_every_message(&reader);
         let _ =
             dc_loc::bag::foxglove::bag_extrinsics(&reader, "base_link", &["radar_front".into()]);
         // What `dc_loc run --bag` and `dc_loc eval --bag` read with the fixtures' topics.
@@ -194,6 +134,45 @@ pub fn rosbag1(data: &[u8]) {
             }
         }
     });
+}
+
+/// Every message of a bag decoded as its type, then one topic read through a topic selection (which
+/// takes another path through indexed files: chunks without the topic are skipped).
+fn read_every_message(reader: &BagReader) {
+    let _ = (reader.message_count(), reader.time_range());
+    if let Ok(messages) = reader.messages() {
+        for message in messages.flatten() {
+            match message.type_name() {
+                schema::POINT_CLOUD2 => {
+                    if let Ok(cloud) = message.decode::<PointCloud2>() {
+                        decode_cloud_as_radar(&cloud);
+                    }
+                }
+                schema::ODOMETRY => {
+                    if let Ok(odom) = message.decode::<Odometry>() {
+                        check_odometry(&odom);
+                    }
+                }
+                schema::POSE_STAMPED => {
+                    let _ = message.decode::<PoseStamped>();
+                }
+                schema::IMU => {
+                    let _ = message.decode::<Imu>();
+                }
+                schema::RADAR_SCAN => {
+                    let _ = message.decode::<RadarScan>();
+                }
+                _ => {
+                    let _ = message.decode::<TFMessage>();
+                }
+            }
+        }
+    }
+    if let Some(topic) = reader.topics().last().map(|t| t.name.clone())
+        && let Ok(messages) = reader.messages_on(&[topic.as_str()])
+    {
+        messages.for_each(drop);
+    }
 }
 
 /// Target `pcd`: the input as a PCD file, through every reader of PCD bytes.

@@ -35,7 +35,7 @@ use dc_loc::pipeline::Config;
 use dc_loc::pipeline::Pipeline;
 use dc_loc::radar::Detection;
 use dc_loc::runner::run_inputs;
-use dc_loc::sim::export::{GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC, params_yaml};
+use dc_loc::sim::export::{GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC};
 use dc_loc::sim::{RadarPreset, SimConfig, SimDrive, simulate};
 use serde_json::json;
 

@@ -1,5 +1,5 @@
-//! Scratch: one revisit registration of a revisit scenario, with its RANSAC hypotheses against the truth.
-//! `one_pair nuscenes|carla gaussian|gamma|student-t DRIFT same|reverse QUERY MATCH`
+//! Scratch: one revisit registration of a revisit scenario, with its RANSAC hypotheses against the
+//! truth. `one_pair nuscenes|carla gaussian|gamma|student-t DRIFT same|reverse QUERY MATCH`
 use dc_loc::eval::revisits::{RevisitScenario, feed};
 use dc_loc::math::{Iso2, wrap_angle};
 use dc_loc::pipeline::Pipeline;
@@ -49,8 +49,8 @@ fn main() {
     // The RANSAC motions the registration screened, from its own descriptor candidates.
     let distinct = ransac::Distinct {
         keep: rcfg.screened_hypotheses,
-        translation: rcfg.ambiguity_translation,
-        rotation: rcfg.ambiguity_rotation,
+        translation: ransac::AMBIGUITY_TRANSLATION,
+        rotation: ransac::AMBIGUITY_ROTATION,
         min_support: rcfg.min_inliers,
     };
     let hs = ransac::ransac_hypotheses(

@@ -62,9 +62,10 @@ fn error3(est: &Iso2, truth: &Iso2) -> Vec3 {
 }
 
 /// Recovery of random transforms (yaw in +-pi, translation in +-10 m) from the same reflectors seen
-/// from both poses with the paper's noise, 1:1 correspondences. Each error must lie within 5 sigma of
-/// the covariance the method reports, and under absolute bounds: with >= 300 points whose noise
-/// is at most about 1 m, the estimate is good to a few centimetres and a few tenths of a milliradian.
+/// from both poses with the paper's noise, 1:1 correspondences. Each error must lie within 5 sigma
+/// of the covariance the method reports, and under absolute bounds: with >= 300 points whose noise
+/// is at most about 1 m, the estimate is good to a few centimetres and a few tenths of a
+/// milliradian.
 #[test]
 fn recovers_known_transforms_from_noisy_correspondences() {
     let mut rng = StdRng::seed_from_u64(11);
@@ -132,8 +133,8 @@ fn pipeline_registers_independently_resampled_submaps() {
 }
 
 /// Translation errors of two configurations on the same pairs, and their means: each of `pairs`
-/// (source, target, true motion) registered with `a` and with `b`; a result within `max_error` m and
-/// 1 degree of the truth counts with its translation error, anything else is left out. Prints
+/// (source, target, true motion) registered with `a` and with `b`; a result within `max_error` m
+/// and 1 degree of the truth counts with its translation error, anything else is left out. Prints
 /// both counts and means under `names`.
 fn compare_configs(
     names: [&str; 2],
@@ -179,8 +180,9 @@ fn street_pairs(rng: &mut StdRng, n: usize) -> Vec<(PointSet2, PointSet2, Iso2)>
         .collect()
 }
 
-/// The optional accelerated polish of the winning hypothesis (`registration.dense.polish_rounds`) on
-/// the same kind of pairs: against the known transforms, it registers as many and is no less accurate.
+/// The optional accelerated polish of the winning hypothesis (`registration.dense.polish_rounds`)
+/// on the same kind of pairs: against the known transforms, it registers as many and is no less
+/// accurate.
 #[test]
 fn polishing_the_winner_keeps_the_known_transforms() {
     let mut rng = StdRng::seed_from_u64(29);
@@ -195,9 +197,10 @@ fn polishing_the_winner_keeps_the_known_transforms() {
     assert!(m_polished <= 1.05 * m_plain + 0.002);
 }
 
-/// The symmetric dense stage (`registration.dense.symmetric`, off by default) against the forward stage
-/// alone on the same pairs: it registers as many against the known transforms and is more accurate on
-/// average (each direction's nearest-sample bias is its own; their mean halves what they do not share).
+/// The symmetric dense stage (`registration.dense.symmetric`, off by default) against the forward
+/// stage alone on the same pairs: it registers as many against the known transforms and is more
+/// accurate on average (each direction's nearest-sample bias is its own; their mean halves what
+/// they do not share).
 #[test]
 fn symmetric_dense_stage_is_more_accurate_on_known_transforms() {
     let mut rng = StdRng::seed_from_u64(37);
@@ -215,9 +218,9 @@ fn symmetric_dense_stage_is_more_accurate_on_known_transforms() {
 
 /// Two passes of a street whose parked cars moved in between: half of the car clusters of the
 /// target's scene stand up to 0.7 m further along the street (as a car replaced in its parking
-/// slot). The dense stage's tighter robust loss in its last rounds (`registration.dense.robust_scale`,
-/// default 1.0) weighs down those pairs and ends nearer the true motion on average than the LM's
-/// own scale (3.0) does.
+/// slot). The dense stage's tighter robust loss in its last rounds
+/// (`registration.dense.robust_scale`, default 1.0) weighs down those pairs and ends nearer the
+/// true motion on average than the LM's own scale (3.0) does.
 #[test]
 fn tight_dense_loss_resists_moved_cars() {
     let mut rng = StdRng::seed_from_u64(41);
@@ -258,9 +261,10 @@ fn tight_dense_loss_resists_moved_cars() {
     assert!(m_tight < m_loose);
 }
 
-/// The paper's steps alone (`RegistrationConfig::paper_steps`, the fast profile of the bench) on the
-/// same kind of pairs: it validates, registers nearly all of them against the known transforms, and
-/// is less accurate than the default pipeline with its dense stage (which is why that is the default).
+/// The paper's steps alone (`RegistrationConfig::paper_steps`, the fast profile of the bench) on
+/// the same kind of pairs: it validates, registers nearly all of them against the known transforms,
+/// and is less accurate than the default pipeline with its dense stage (which is why that is the
+/// default).
 #[test]
 fn paper_steps_profile_registers_known_transforms_less_accurately_than_the_default() {
     let paper = RegistrationConfig::paper_steps();
@@ -302,9 +306,9 @@ fn pipeline_registers_dense_submaps() {
 }
 
 /// The full pipeline's covariance (descriptor association, RANSAC, LM, re-selection, the default
-/// `covariance_scale`) on independently observed submaps: the mean NEES over 60 pairs lies in
-/// [1.8, 4.5]. Wider than the +-15 % of the LM test because about a quarter of the final inliers
-/// are neighbouring reflectors rather than the same one (see `RegistrationConfig::covariance_scale`);
+/// `covariance_scale`) on independently observed submaps: the mean NEES over 60 pairs lies in [1.8,
+/// 4.5]. Wider than the +-15 % of the LM test because about a quarter of the final inliers are
+/// neighbouring reflectors rather than the same one (see `RegistrationConfig::covariance_scale`);
 /// without the scale this seed set gives about 4.5. The covariance floor
 /// (`RegistrationConfig::covariance_floor`) is off here: these reflectors are points seen again,
 /// not surfaces sampled anew by another pass, so the error it models is absent (with it: 1.4); the
@@ -616,7 +620,7 @@ fn result_covariance_is_in_ros_order() {
     let err = register_detailed(&s, &g, &other).unwrap_err().to_string();
     assert!(err.contains("dense-stage"), "{err}");
     let mut rounds = cfg.clone();
-    rounds.dense.iterations = 3;
+    rounds.dense.gate = 2.5;
     assert!(g.fits(&rounds));
     assert!(register_detailed(&s, &g, &rounds).is_ok());
 }
@@ -753,8 +757,8 @@ fn the_common_offset_along_the_rays_holds_reverse_passes_to_the_known_transforms
     assert_eq!(m_rayless, m_unfitted);
 }
 
-/// Reflectors along a straight street: facades at y = +-12 m every 0.5 m and 140 small objects (poles,
-/// car corners) between them, over x in [-50, 300] m.
+/// Reflectors along a straight street: facades at y = +-12 m every 0.5 m and 140 small objects
+/// (poles, car corners) between them, over x in [-50, 300] m.
 fn straight_street(rng: &mut StdRng) -> Vec<Vec2> {
     let mut pts = Vec::new();
     for k in 0..=700 {
@@ -778,9 +782,9 @@ fn straight_street(rng: &mut StdRng) -> Vec<Vec2> {
     pts
 }
 
-/// The street as a submap at `origin` (heading 0) sees it: every reflector within 250 m three times,
-/// each with 0.25 m of Gaussian range noise along its ray and 0.025 deg of azimuth noise, with the
-/// radar covariance of that measurement and its ray, thinned at random to 4000 points.
+/// The street as a submap at `origin` (heading 0) sees it: every reflector within 250 m three
+/// times, each with 0.25 m of Gaussian range noise along its ray and 0.025 deg of azimuth noise,
+/// with the radar covariance of that measurement and its ray, thinned at random to 4000 points.
 fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2) -> PointSet2 {
     use dc_loc::radar::RadarNoise;
     use dc_loc::radar::doppler::polar_covariance;
@@ -820,11 +824,11 @@ fn street_submap(rng: &mut StdRng, street: &[Vec2], origin: Vec2) -> PointSet2 {
 
 /// Two submaps 150 m apart along a straight street, registered from returns 100 m and more away:
 /// against the known transform, range noise neither shortens nor lengthens the estimate (mean error
-/// along the street within 0.05 % of the distance over 12 streets, where a range scale error of 0.3 %
-/// in the submaps moves it by 0.3 %). The closures between keyframes this far apart in the simulator
-/// are 0.25-0.33 % too short (docs/experiments.md, "Covariance"): that shortening comes from which
-/// point of a reflector each keyframe sees (a parked car's nearest corner, a pole's near face), which
-/// these submaps share, not from the range noise.
+/// along the street within 0.05 % of the distance over 12 streets, where a range scale error of 0.3
+/// % in the submaps moves it by 0.3 %). The closures between keyframes this far apart in the
+/// simulator are 0.25-0.33 % too short (docs/experiments.md, "Covariance"): that shortening comes
+/// from which point of a reflector each keyframe sees (a parked car's nearest corner, a pole's near
+/// face), which these submaps share, not from the range noise.
 #[test]
 fn range_noise_does_not_shorten_a_long_baseline_registration() {
     let mut rng = StdRng::seed_from_u64(41);

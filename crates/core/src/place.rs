@@ -26,8 +26,6 @@ pub struct PlaceConfig {
     pub max_range: f64,
     /// Sectors (columns) over 360 degrees (default 60: 6 degrees each).
     pub sectors: usize,
-    /// Candidates retrieved by ring key before re-ranking (default 25).
-    pub retrieve: usize,
 }
 
 impl Default for PlaceConfig {
@@ -35,7 +33,6 @@ impl Default for PlaceConfig {
         PlaceConfig {
             max_range: 80.0,
             sectors: 60,
-            retrieve: 25,
         }
     }
 }
@@ -45,7 +42,6 @@ impl PlaceConfig {
     pub fn check(&self, v: &mut Validator) {
         v.range("max_range", self.max_range, Range::above(1.0));
         v.count("sectors", self.sectors, 8, 360);
-        v.at_least("retrieve", self.retrieve, 1);
     }
 }
 
@@ -100,8 +96,8 @@ impl PlaceDescriptor {
         }
     }
 
-    /// The grid's columns as bitmasks of occupied rings (what [`PlaceDescriptor::distance`] compares);
-    /// worth keeping when one descriptor is compared with many.
+    /// The grid's columns as bitmasks of occupied rings (what [`PlaceDescriptor::distance`]
+    /// compares); worth keeping when one descriptor is compared with many.
     pub fn columns(&self) -> Vec<u32> {
         let s = self.sectors as usize;
         (0..s)
@@ -113,9 +109,9 @@ impl PlaceDescriptor {
             .collect()
     }
 
-    /// Scan-Context distance (0 = identical, 1 = nothing in common) minimised over cyclic sector shifts,
-    /// and the yaw of `other` relative to `self` at the best shift (rad): the mean cosine distance of
-    /// occupied columns, with occupancy as binary.
+    /// Scan-Context distance (0 = identical, 1 = nothing in common) minimised over cyclic sector
+    /// shifts, and the yaw of `other` relative to `self` at the best shift (rad): the mean cosine
+    /// distance of occupied columns, with occupancy as binary.
     pub fn distance(&self, other: &PlaceDescriptor) -> (f64, f64) {
         if self.sectors == 0 || other.sectors != self.sectors {
             return (1.0, 0.0);
@@ -124,8 +120,9 @@ impl PlaceDescriptor {
     }
 }
 
-/// `1 - |x & y| / sqrt(|x| |y|)` for every (|x & y|, |x|, |y|) of two columns' ring counts: the term of
-/// one column pair in [`column_distance`], looked up instead of computed 3600 times per comparison.
+/// `1 - |x & y| / sqrt(|x| |y|)` for every (|x & y|, |x|, |y|) of two columns' ring counts: the
+/// term of one column pair in [`column_distance`], looked up instead of computed 3600 times per
+/// comparison.
 static COLUMN_TERMS: std::sync::LazyLock<Vec<f64>> = std::sync::LazyLock::new(|| {
     const N: usize = RING_KEY_DIM + 1;
     let mut t = vec![1.0; N * N * N];

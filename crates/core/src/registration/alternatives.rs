@@ -1,10 +1,16 @@
-//! Stage 7 of a registration, the alternatives the ambiguity gate compares the winner with: the other
-//! refined alignments, and the screened motions that were not refined, by their coverage relative to
-//! the winner's (a street slid along itself by metres covers the same cells).
+//! Stage 7 of a registration, the alternatives the ambiguity gate compares the winner with: the
+//! other refined alignments, and the screened motions that were not refined, by their coverage
+//! relative to the winner's (a street slid along itself by metres covers the same cells).
 
 use super::prepared::PairContext;
 use super::ransac::Screened;
 use super::types::RegistrationDetail;
+
+/// A screened motion farther than this from the result, m, whose coverage comes near the result's
+/// is a runner-up alignment too: `runner_up_overlap` is at least the result's overlap times that
+/// coverage ratio. Coarser than [`super::ransac::AMBIGUITY_TRANSLATION`] because coverage cannot
+/// resolve less.
+pub const SCREEN_AMBIGUITY_TRANSLATION: f64 = 3.0;
 use crate::math::Iso2;
 
 /// The winner `d` with its alternatives (farther than the ambiguity distances from it) and the best
@@ -31,7 +37,7 @@ pub(super) fn attach(
                     .translation
                     .vector
                     .norm()
-                    > cfg.screen_ambiguity_translation
+                    > SCREEN_AMBIGUITY_TRANSLATION
             })
             .map(|(c, h)| {
                 let scaled = overlap * (*c as f64 / win_cov as f64).min(1.0);

@@ -1,8 +1,8 @@
 //! Stage 4 of a registration, the search beyond the descriptors: when the descriptor stage found
-//! nothing or a weak alignment won, the correlative search proposes poses, and a weak winner's slides
-//! along its street (`correlative.slide_shifts`) compete too, each refined by the dense stage.
+//! nothing or a weak alignment won, the correlative search proposes poses, and a weak winner's
+//! slides along its street (`correlative.slide_shifts`) compete too, each refined by the dense
+//! stage.
 
-use super::config::RegistrationConfig;
 use super::hypotheses::correlative_applies;
 use super::prepared::{DenseSets, PairContext};
 use super::refine::Refined;
@@ -18,7 +18,7 @@ pub(super) fn search(refined: &mut Refined, ctx: &PairContext<'_>) {
         return;
     }
     if refined.best.as_ref().is_none_or(|b| weak_result(b, ctx)) {
-        refined.poses(ctx, &correlative_poses(&ctx.sets, cfg));
+        refined.poses(ctx, &correlative_poses(&ctx.sets));
     }
     let weak_winner = refined
         .best
@@ -38,15 +38,9 @@ pub(super) fn search(refined: &mut Refined, ctx: &PairContext<'_>) {
 
 /// The correlative search's candidate poses, scored where the votes put them (a cell and the
 /// histogram's resolution off), best first.
-fn correlative_poses(sets: &DenseSets<'_>, cfg: &RegistrationConfig) -> Vec<Iso2> {
-    let found = correlative::candidates(
-        sets.src_as_target,
-        sets.src_tree,
-        sets.tgt,
-        sets.tree,
-        &cfg.correlative,
-    );
-    let sigma = cfg.selection_sigma.max(0.35);
+fn correlative_poses(sets: &DenseSets<'_>) -> Vec<Iso2> {
+    let found = correlative::candidates(sets.src_as_target, sets.src_tree, sets.tgt, sets.tree);
+    let sigma = dense::SELECTION_SIGMA;
     let probes = PointSet2 {
         points: sets.probes.to_vec(),
         covs: Vec::new(),
@@ -62,22 +56,23 @@ fn correlative_poses(sets: &DenseSets<'_>, cfg: &RegistrationConfig) -> Vec<Iso2
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     scored
         .into_iter()
-        .take(cfg.correlative.candidates)
+        .take(correlative::CANDIDATES)
         .map(|(_, pose)| pose)
         .collect()
 }
 
-/// A result searched beyond (`registration.correlative`): its plain fit score below `below_score`,
-/// and fewer than `below_inliers` descriptor inliers unless its plain score is below
-/// `rich_below_score` or its common view ([`common_view`]) below `below_common_view`.
+/// A result searched beyond (`registration.correlative`): its plain fit score below
+/// [`correlative::BELOW_SCORE`], and fewer than `below_inliers` descriptor inliers unless its plain
+/// score is below [`correlative::RICH_BELOW_SCORE`] or its common view ([`common_view`]) below
+/// [`correlative::BELOW_COMMON_VIEW`].
 fn weak_result(d: &RegistrationDetail, ctx: &PairContext<'_>) -> bool {
     let (sets, cfg) = (&ctx.sets, ctx.cfg);
-    d.plain_score < cfg.correlative.below_score
+    d.plain_score < correlative::BELOW_SCORE
         && (d.result.inliers < cfg.correlative.below_inliers
-            || d.plain_score < cfg.correlative.rich_below_score
+            || d.plain_score < correlative::RICH_BELOW_SCORE
             || sets
                 .bearings
                 .0
                 .common(sets.bearings.1, d.result.t_target_source.rotation.angle())
-                < cfg.correlative.below_common_view)
+                < correlative::BELOW_COMMON_VIEW)
 }

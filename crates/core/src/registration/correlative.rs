@@ -3,9 +3,9 @@
 //!
 //! [`candidates`] takes candidate rotations from the circular correlation of the two submaps'
 //! histograms of local line directions and, per rotation, candidate translations from the votes of
-//! source probes into cells of `cell` metres. The caller refines the best with the dense stage and keeps
-//! one only under the conditions docs/algorithm.md, "Correlative search", gives (among them
-//! [`CorrelativeConfig::min_inliers`]); that section also says why the search is needed.
+//! source probes into cells of [`CELL`] metres. The caller refines the best with the dense stage
+//! and keeps one only under the conditions docs/algorithm.md, "Correlative search", gives (among
+//! them [`MIN_INLIERS`]); that section also says why the search is needed.
 //!
 //! Entry points: [`CorrelativeConfig`], [`candidates`].
 
@@ -13,94 +13,90 @@ use super::dense::TargetTree;
 use super::grid::finite_bounds;
 use super::types::PointSet2;
 use crate::math::{Iso2, Vec2};
-use crate::validate::{Range, Validator};
+use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
+
+/// Plain fit score ([`super::dense::SELECTION_SIGMA`], every point alike) under which a result with
+/// fewer than `below_inliers` descriptor inliers is searched beyond: the correlative search after
+/// the descriptor stage, and the slides (`slide_shifts`) of the winner. About half of a drive's
+/// pairs score below 0.6, so the search runs for about half of them.
+pub const BELOW_SCORE: f64 = 0.6;
+
+/// Plain fit score under which a result is searched beyond however many descriptor inliers back it:
+/// a street slid tens of metres along itself can gather a hundred descriptor inliers and still fit
+/// few of its points.
+pub const RICH_BELOW_SCORE: f64 = 0.4;
+
+/// Common view ([`super::common_view`]) under which a result is searched beyond however many
+/// descriptor inliers back it: two sides of a street look alike turned by half a turn, and the
+/// loop-closure gates would refuse that result for its common view anyway.
+pub const BELOW_COMMON_VIEW: f64 = 0.25;
+
+/// Peaks of the direction-histogram correlation tried, each with its half-turn.
+pub const ROTATION_PEAKS: usize = 3;
+
+/// Source points that vote.
+pub const PROBES: usize = 256;
+
+/// Vote cell, m.
+pub const CELL: f64 = 0.5;
+
+/// Rotations tried either side of each histogram peak, [`ROTATION_STEP_DEG`] apart.
+pub const ROTATION_STEPS: usize = 1;
+
+/// Spacing of those rotations, degrees.
+pub const ROTATION_STEP_DEG: f64 = 1.0;
+
+/// Best translations kept per candidate rotation.
+pub const PER_ROTATION: usize = 8;
+
+/// Candidates refined, best scored first.
+pub const CANDIDATES: usize = 4;
+
+/// Fewest descriptor candidates that must agree with a refined candidate (within the re-selection
+/// gate, one per point, not on a line) for its covariance to come from them as for a RANSAC
+/// hypothesis. With fewer, the covariance comes from the dense pairs ([`COVARIANCE_CLUSTER`],
+/// [`COVARIANCE_SCALE`]).
+pub const MIN_INLIERS: usize = 10;
+
+/// Smallest overlap (as `RegistrationResult::overlap`) of an alignment whose covariance comes from
+/// the dense pairs: without the descriptors' agreement the geometry alone must speak clearly.
+pub const MIN_OVERLAP: f64 = 0.4;
+
+/// Cluster size of that dense-pair covariance, m: pairs whose source points share a cell of this
+/// size count as one piece of evidence ([`super::lm::covariance_clustered`]).
+pub const COVARIANCE_CLUSTER: f64 = 5.0;
+
+/// Factor on that dense-pair covariance. Nearest-neighbour pairs of two passes that sampled the
+/// surfaces at other places err together beyond what their residuals show.
+pub const COVARIANCE_SCALE: f64 = 5.0;
 
 /// Settings of the correlative search.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CorrelativeConfig {
-    /// Run it (default true) when the descriptor stage gives no result or a weak one (`below_score`,
-    /// `below_inliers`); it needs the dense stage (`registration.dense.enabled`).
+    /// Run it (default true) when the descriptor stage gives no result or a weak one
+    /// ([`BELOW_SCORE`], `below_inliers`); it needs the dense stage (`registration.dense.enabled`).
     pub enabled: bool,
-    /// Plain fit score (`registration.selection_sigma`, every point alike) under which a result
-    /// with fewer than `below_inliers` descriptor inliers is searched beyond (default 0.6): the
-    /// correlative search after the descriptor stage, and the slides (`slide_shifts`) of the winner.
-    /// About half of a drive's pairs score below 0.6, so the search runs for about half of them.
-    pub below_score: f64,
-    /// Shifts along the winner's own x axis (the vehicle's heading), m, from which the dense stage is
-    /// run again when the winner is weak (`below_score`, `below_inliers`; default -3, 3, -6, 6, -12,
-    /// 12; empty = off); a refined slide that fits better wins. Along a street lined with parked cars
-    /// the descriptor stage and the correlative search can both land a slot or two (6 m) along it,
-    /// and the true alignment is then not among the alignments refined at all.
+    /// Shifts along the winner's own x axis (the vehicle's heading), m, from which the dense stage
+    /// is run again when the winner is weak ([`BELOW_SCORE`], `below_inliers`; default -3, 3, -6,
+    /// 6, -12, 12; empty = off); a refined slide that fits better wins. Along a street lined with
+    /// parked cars the descriptor stage and the correlative search can both land a slot or two (6
+    /// m) along it, and the true alignment is then not among the alignments refined at all.
     pub slide_shifts: Vec<f64>,
-    /// Descriptor inliers at and above which a result is not searched beyond, unless its plain score
-    /// is below `rich_below_score` or its common view below `below_common_view` (default 100): many
-    /// descriptor inliers are usually the descriptors' clear answer, and the search costs ten times
-    /// a registration.
+    /// Descriptor inliers at and above which a result is not searched beyond, unless its plain
+    /// score is below [`RICH_BELOW_SCORE`] or its common view below [`BELOW_COMMON_VIEW`] (default
+    /// 100): many descriptor inliers are usually the descriptors' clear answer, and the search
+    /// costs ten times a registration.
     pub below_inliers: usize,
-    /// Plain fit score under which a result is searched beyond however many descriptor inliers back
-    /// it (default 0.4): a street slid tens of metres along itself can gather a hundred descriptor
-    /// inliers and still fit few of its points.
-    pub rich_below_score: f64,
-    /// Common view ([`super::common_view`]) under which a result is searched beyond however many
-    /// descriptor inliers back it (default 0.25, as `loop.minimum_common_view`): two sides of a
-    /// street look alike turned by half a turn, and the loop-closure gates would refuse that result
-    /// for its common view anyway.
-    pub below_common_view: f64,
-    /// Peaks of the direction-histogram correlation tried, each with its half-turn (default 3).
-    pub rotation_peaks: usize,
-    /// Source points that vote (default 256).
-    pub probes: usize,
-    /// Vote cell, m (default 0.5).
-    pub cell: f64,
-    /// Rotations tried either side of each histogram peak (default 1), `rotation_step_deg` apart.
-    pub rotation_steps: usize,
-    /// Their spacing, degrees (default 1.0).
-    pub rotation_step_deg: f64,
-    /// Best translations kept per candidate rotation (default 8).
-    pub per_rotation: usize,
-    /// Candidates refined, best scored first (default 4).
-    pub candidates: usize,
-    /// Fewest descriptor candidates that must agree with a refined candidate (within
-    /// `registration.reselect_gate`, one per point, not on a line) for its covariance to come from
-    /// them as for a RANSAC hypothesis (default 10; the descriptor stage's own `min_inliers` is 30,
-    /// but here the geometry has already chosen the alignment and the pairs only measure its
-    /// uncertainty). With fewer, the covariance comes from the dense pairs (`covariance_cluster`,
-    /// `covariance_scale`).
-    pub min_inliers: usize,
-    /// Smallest overlap (as `RegistrationResult::overlap`) of an alignment whose covariance comes from
-    /// the dense pairs (default 0.4): without the descriptors' agreement the geometry alone must
-    /// speak clearly.
-    pub min_overlap: f64,
-    /// Cluster size of that dense-pair covariance, m (default 5.0): pairs whose source points share a
-    /// cell of this size count as one piece of evidence ([`super::lm::covariance_clustered`]).
-    pub covariance_cluster: f64,
-    /// Factor on that dense-pair covariance (default 5.0). Nearest-neighbour pairs of two passes
-    /// that sampled the surfaces at other places err together beyond what their residuals show.
-    pub covariance_scale: f64,
 }
 
 impl Default for CorrelativeConfig {
     fn default() -> Self {
         CorrelativeConfig {
             enabled: true,
-            below_score: 0.6,
             slide_shifts: vec![-3.0, 3.0, -6.0, 6.0, -12.0, 12.0],
             below_inliers: 100,
-            rich_below_score: 0.4,
-            below_common_view: 0.25,
-            rotation_peaks: 3,
-            probes: 256,
-            cell: 0.5,
-            rotation_steps: 1,
-            rotation_step_deg: 1.0,
-            per_rotation: 8,
-            candidates: 4,
-            min_inliers: 10,
-            min_overlap: 0.4,
-            covariance_cluster: 5.0,
-            covariance_scale: 5.0,
         }
     }
 }
@@ -117,20 +113,6 @@ impl CorrelativeConfig {
         v.require("slide_shifts", shifts_ok, || {
             "must be at most 32 finite shifts within +-200 m".into()
         });
-        v.unit("below_score", self.below_score);
-        v.unit("min_overlap", self.min_overlap);
-        v.unit("rich_below_score", self.rich_below_score);
-        v.unit("below_common_view", self.below_common_view);
-        v.positive("covariance_cluster", self.covariance_cluster);
-        v.positive("covariance_scale", self.covariance_scale);
-        v.positive("rotation_step_deg", self.rotation_step_deg);
-        v.range("cell", self.cell, Range::at_least(0.1));
-        v.count("rotation_peaks", self.rotation_peaks, 1, 16);
-        v.count("probes", self.probes, 10, 2000);
-        v.count("candidates", self.candidates, 1, 32);
-        v.count("per_rotation", self.per_rotation, 1, 64);
-        v.count("rotation_steps", self.rotation_steps, 0, 10);
-        v.count("min_inliers", self.min_inliers, 3, 10_000);
     }
 }
 
@@ -281,10 +263,11 @@ impl Occupancy {
 
 /// The best-voted translations for rotation `theta`: up to `top` (votes, motion), most votes first,
 /// no two within `separation` cells of each other. Each probe, turned by `theta`, votes once for
-/// every translation (in cells of the occupancy) that puts it into an occupied target cell: a cell's
-/// votes are the probes landing within about a cell of a target point there (an overlap count over
-/// every translation at once, a correlative scan match). A probe counts once per translation however
-/// many target points surround it, so dense facades outvote poles less than in a vote per point pair.
+/// every translation (in cells of the occupancy) that puts it into an occupied target cell: a
+/// cell's votes are the probes landing within about a cell of a target point there (an overlap
+/// count over every translation at once, a correlative scan match). A probe counts once per
+/// translation however many target points surround it, so dense facades outvote poles less than in
+/// a vote per point pair.
 pub fn vote_translations(
     probes: &[Vec2],
     occupancy: &Occupancy,
@@ -324,8 +307,8 @@ pub fn vote_translations(
         .collect()
 }
 
-/// The vote grid (`w` x `h` cells of the occupancy's size, cell (0, 0) the translation `t_lo`): each
-/// turned probe adds one to every translation that puts it into an occupied target cell.
+/// The vote grid (`w` x `h` cells of the occupancy's size, cell (0, 0) the translation `t_lo`):
+/// each turned probe adds one to every translation that puts it into an occupied target cell.
 fn tally(turned: &[Vec2], occupancy: &Occupancy, t_lo: Vec2, w: usize, h: usize) -> Vec<u16> {
     let cell = occupancy.cell;
     let mut grid = vec![0u16; w * h];
@@ -412,39 +395,35 @@ fn keep(
 }
 
 /// The search's candidate alignments (source -> target) with their votes, most votes first:
-/// [`rotation_candidates`] from the two sets' direction histograms (each set with its own tree), then
-/// the `cfg.per_rotation` best translations of each ([`vote_translations`], `cfg.probes` source
-/// points, cells of `cfg.cell`, at least 2 m apart).
+/// [`rotation_candidates`] from the two sets' direction histograms (each set with its own tree),
+/// then the [`PER_ROTATION`] best translations of each ([`vote_translations`], [`PROBES`] source
+/// points, cells of [`CELL`], at least 2 m apart).
 pub fn candidates(
     source: &PointSet2,
     source_tree: &TargetTree,
     target: &PointSet2,
     target_tree: &TargetTree,
-    cfg: &CorrelativeConfig,
 ) -> Vec<(u32, Iso2)> {
     if source.len() < 4 || target.len() < 4 {
         return Vec::new();
     }
-    let Some(occupancy) = Occupancy::new(&target.points, cfg.cell) else {
+    let Some(occupancy) = Occupancy::new(&target.points, CELL) else {
         return Vec::new();
     };
     let hs = direction_histogram(&source.points, source_tree);
     let ht = direction_histogram(&target.points, target_tree);
-    let probes: Vec<Vec2> = super::descriptor::subset_indices(source.len(), cfg.probes, PROBE_SEED)
+    let probes: Vec<Vec2> = super::descriptor::subset_indices(source.len(), PROBES, PROBE_SEED)
         .into_iter()
         .filter_map(|i| source.points.get(i as usize).copied())
         .collect();
-    let separation = (2.0 / cfg.cell).ceil() as usize;
-    let step = cfg.rotation_step_deg.to_radians();
-    let mut all: Vec<(u32, Iso2)> = rotation_candidates(&hs, &ht, cfg.rotation_peaks)
+    let separation = (2.0 / CELL).ceil() as usize;
+    let step = ROTATION_STEP_DEG.to_radians();
+    let mut all: Vec<(u32, Iso2)> = rotation_candidates(&hs, &ht, ROTATION_PEAKS)
         .into_iter()
         .flat_map(|theta| {
-            (-(cfg.rotation_steps as i64)..=cfg.rotation_steps as i64)
-                .map(move |k| theta + k as f64 * step)
+            (-(ROTATION_STEPS as i64)..=ROTATION_STEPS as i64).map(move |k| theta + k as f64 * step)
         })
-        .flat_map(|theta| {
-            vote_translations(&probes, &occupancy, theta, cfg.per_rotation, separation)
-        })
+        .flat_map(|theta| vote_translations(&probes, &occupancy, theta, PER_ROTATION, separation))
         .collect();
     all.sort_by_key(|c| std::cmp::Reverse(c.0));
     all
@@ -491,13 +470,7 @@ mod tests {
             .collect();
         let s = PointSet2::isotropic(source, 0.1);
         let t = PointSet2::isotropic(pts, 0.1);
-        let cands = candidates(
-            &s,
-            &target_tree(&s).unwrap(),
-            &t,
-            &target_tree(&t).unwrap(),
-            &CorrelativeConfig::default(),
-        );
+        let cands = candidates(&s, &target_tree(&s).unwrap(), &t, &target_tree(&t).unwrap());
         // The corner pins the translation: the best-voted candidate is the true motion (within a
         // cell and a rotation step).
         let (_, best) = cands.first().copied().expect("candidates");
@@ -517,8 +490,8 @@ mod tests {
     }
 
     /// A probe counts once per translation however many target points surround it: one probe
-    /// against a dense facade of 40 points and a single pole gets at most one vote anywhere, and the
-    /// translations that put it on the pole and on the facade get one each.
+    /// against a dense facade of 40 points and a single pole gets at most one vote anywhere, and
+    /// the translations that put it on the pole and on the facade get one each.
     #[test]
     fn a_probe_votes_once_per_translation() {
         let mut target: Vec<Vec2> = (0..40).map(|i| Vec2::new(i as f64 * 0.1, 0.0)).collect();
@@ -576,7 +549,7 @@ mod tests {
     fn too_few_points_give_nothing() {
         let s = PointSet2::isotropic(vec![Vec2::zeros(); 3], 0.1);
         let tree = target_tree(&s).unwrap();
-        assert!(candidates(&s, &tree, &s, &tree, &CorrelativeConfig::default()).is_empty());
+        assert!(candidates(&s, &tree, &s, &tree).is_empty());
         let occ = Occupancy::new(&[Vec2::zeros()], 1.0).unwrap();
         assert!(vote_translations(&[], &occ, 0.0, 2, 2).is_empty());
         assert!(Occupancy::new(&[], 1.0).is_none());
@@ -593,12 +566,12 @@ mod tests {
         };
         let mut c = CorrelativeConfig::default();
         assert!(validate(&c).is_ok());
-        c.cell = 0.0;
-        assert!(validate(&c).unwrap_err().to_string().contains("r.c.cell"));
-        let c = CorrelativeConfig {
-            probes: 0,
-            ..CorrelativeConfig::default()
-        };
-        assert!(validate(&c).unwrap_err().to_string().contains("r.c.probes"));
+        c.slide_shifts = vec![f64::NAN];
+        assert!(
+            validate(&c)
+                .unwrap_err()
+                .to_string()
+                .contains("r.c.slide_shifts")
+        );
     }
 }

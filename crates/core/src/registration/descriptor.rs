@@ -1,11 +1,11 @@
-//! Per-point, rotation-invariant neighbourhood descriptors: the Radial Statistics Descriptor (RSD) of
-//! Cen & Newman (ICRA 2019) as DC-Loc uses it for association (paper section III-D).
+//! Per-point, rotation-invariant neighbourhood descriptors: the Radial Statistics Descriptor (RSD)
+//! of Cen & Newman (ICRA 2019) as DC-Loc uses it for association (paper section III-D).
 //!
-//! Up to `max_keypoints` points of a submap each get a descriptor of their neighbours within `radius`
-//! (found in a [`super::grid::PointGrid`]): a soft radial histogram and, optionally, a rotation
-//! invariant statistic of their bearings ([`AngularStatistic`]), normalised by the neighbour count
-//! ([`Normalisation`]). docs/algorithm.md, "Descriptors", has the construction, the implementations
-//! it follows and the defaults.
+//! Up to `max_keypoints` points of a submap each get a descriptor of their neighbours within
+//! `radius` (found in a [`super::grid::PointGrid`]): a soft radial histogram and, optionally, a
+//! rotation invariant statistic of their bearings ([`AngularStatistic`]), normalised by the
+//! neighbour count ([`Normalisation`]). docs/algorithm.md, "Descriptors", has the construction, the
+//! implementations it follows and the defaults.
 //!
 //! Entry points: [`DescriptorConfig`], [`compute_descriptors`], [`keypoint_indices`],
 //! [`subset_indices`], [`Descriptor`], [`DESCRIPTOR_DIM`], [`AngularStatistic`], [`Normalisation`].
@@ -15,6 +15,9 @@ use crate::math::Vec2;
 use crate::registration::types::RegistrationError;
 use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
+
+/// Weight of the angular part relative to the radial part.
+pub const ANGULAR_WEIGHT: f64 = 1.0;
 
 /// Length of every descriptor; unused trailing entries are 0. A compile-time constant because the
 /// kiddo k-d tree is const-generic over its dimension.
@@ -65,13 +68,11 @@ pub struct DescriptorConfig {
     pub angular: AngularStatistic,
     /// Harmonics (`spectrum`) or sectors (`sectors`) of the angular part (default 6).
     pub angular_bins: usize,
-    /// Weight of the angular part relative to the radial part (default 1.0).
-    pub angular_weight: f64,
     /// Normalisation (default `hellinger`).
     pub normalisation: Normalisation,
     /// Most points used as neighbours (the "support"): above it the statistics are taken over a
-    /// fixed pseudo-random subset of this size (default 1500). Bounds the cost for dense submaps and,
-    /// with the normalisation, makes dense and sparse submaps of a place look alike.
+    /// fixed pseudo-random subset of this size (default 1500). Bounds the cost for dense submaps
+    /// and, with the normalisation, makes dense and sparse submaps of a place look alike.
     pub max_support: usize,
     /// Most points that get a descriptor (the "keypoints"): above it a fixed pseudo-random subset
     /// (default 400). A submap stacks several scans, so each reflector appears several times and
@@ -87,7 +88,6 @@ impl Default for DescriptorConfig {
             radial_bins: 10,
             angular: AngularStatistic::Spectrum,
             angular_bins: 6,
-            angular_weight: 1.0,
             normalisation: Normalisation::Hellinger,
             max_support: 1500,
             max_keypoints: 400,
@@ -125,7 +125,6 @@ impl DescriptorConfig {
         });
         v.at_least("max_support", self.max_support, 2);
         v.at_least("max_keypoints", self.max_keypoints, 2);
-        v.non_negative("angular_weight", self.angular_weight);
     }
 }
 
@@ -319,8 +318,8 @@ impl Neighbours {
 /// The radial histogram of the distances `rho` into the `radial.len()` equal rings over `[0,
 /// radius]`, soft-assigned between the two nearest ring centres: a neighbour adds the hat function
 /// `max(0, 1 - |f_q - b|)` to ring `b`, `f_q` its position in ring units (clamped to the first and
-/// last ring centres), i.e. `1 - w` to ring `floor(f_q)` and `w` to the next, `w = f_q - floor(f_q)`.
-/// One scatter per neighbour (a pass per ring costs the ring count).
+/// last ring centres), i.e. `1 - w` to ring `floor(f_q)` and `w` to the next, `w = f_q -
+/// floor(f_q)`. One scatter per neighbour (a pass per ring costs the ring count).
 #[inline]
 fn radial_rings(rho: &[f32], radial: &mut [f64], radius: f64) {
     let nr = radial.len();
@@ -362,7 +361,7 @@ fn finish(radial: &[f64], angular: &[f64], count: f64, cfg: &DescriptorConfig) -
     let mut d = [0.0f32; DESCRIPTOR_DIM];
     let nr = radial.len();
     let inv = if count > 0.0 { 1.0 / count } else { 0.0 };
-    let w = cfg.angular_weight;
+    let w = ANGULAR_WEIGHT;
     let spectrum = cfg.angular == AngularStatistic::Spectrum;
     match cfg.normalisation {
         Normalisation::None => {
@@ -432,8 +431,8 @@ mod tests {
             .collect()
     }
 
-    /// A rigid motion of the whole set leaves every descriptor unchanged (up to rounding), for every
-    /// variant: the invariance the association relies on.
+    /// A rigid motion of the whole set leaves every descriptor unchanged (up to rounding), for
+    /// every variant: the invariance the association relies on.
     #[test]
     fn descriptors_are_invariant_to_rigid_motion() {
         let pts = scatter(400, 1);

@@ -1,15 +1,15 @@
 //! Stage 2 of a registration, the hypotheses: RANSAC keeps up to `screened_hypotheses` distinct,
-//! well-supported motions of the descriptor candidates, and the screening ranks them by geometry (the
-//! coverage of the target by the motion's source probes): descriptor support does not tell a street
-//! slid along itself from the true alignment, geometry does.
+//! well-supported motions of the descriptor candidates, and the screening ranks them by geometry
+//! (the coverage of the target by the motion's source probes): descriptor support does not tell a
+//! street slid along itself from the true alignment, geometry does.
 
 use super::config::RegistrationConfig;
 use super::prepared::PairContext;
 use super::ransac::{self, Screened};
 use super::types::RegistrationError;
 
-/// RANSAC and the screening: the supported motions ranked by coverage, best first. Empty when RANSAC
-/// found nothing but the correlative search may still; an error when nothing can follow.
+/// RANSAC and the screening: the supported motions ranked by coverage, best first. Empty when
+/// RANSAC found nothing but the correlative search may still; an error when nothing can follow.
 pub(super) fn screen(ctx: &PairContext<'_>) -> Result<Screened, RegistrationError> {
     let PairContext {
         source,
@@ -22,8 +22,8 @@ pub(super) fn screen(ctx: &PairContext<'_>) -> Result<Screened, RegistrationErro
     let distinct = ransac::Distinct {
         // At least `hypotheses` (validated).
         keep: cfg.screened_hypotheses,
-        translation: cfg.ambiguity_translation,
-        rotation: cfg.ambiguity_rotation,
+        translation: ransac::AMBIGUITY_TRANSLATION,
+        rotation: ransac::AMBIGUITY_ROTATION,
         min_support: cfg.min_inliers,
     };
     // A RANSAC failure (too few candidates) still leaves the correlative search.

@@ -47,6 +47,14 @@ pub mod robust;
 mod types;
 
 pub use config::RegistrationConfig;
+
+/// The constants of the registration's own stages (those of the correlative search, the dense
+/// stage, the descriptors and RANSAC are in their modules).
+pub mod constants {
+    pub use super::MIN_POINTS;
+    pub use super::alternatives::SCREEN_AMBIGUITY_TRANSLATION;
+    pub use super::refine::{COVARIANCE_SCALE, RESELECT_GATE};
+}
 pub use prepared::PreparedSubmap;
 pub use probes::{SLIDE_SHIFTS, common_view, overlap_near, slide_overlap};
 pub use types::{
@@ -58,14 +66,14 @@ use prepared::{DenseSets, DenseSide, PairContext, check_point_set, checked_confi
 
 /// DC-Loc registration of the current submap (`source`) against a previous one (`target`).
 ///
-/// Prepares both (descriptors) and runs [`register_prepared`]. When the target is a keyframe matched
-/// many times, prepare it once with [`PreparedSubmap::new`] instead.
+/// Prepares both (descriptors) and runs [`register_prepared`]. When the target is a keyframe
+/// matched many times, prepare it once with [`PreparedSubmap::new`] instead.
 pub fn register(
     source: &PointSet2,
     target: &PointSet2,
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationResult, RegistrationError> {
-    check_sizes(source.len(), target.len(), cfg)?;
+    check_sizes(source.len(), target.len())?;
     let s = PreparedSubmap::new(source.clone(), cfg)?;
     let t = PreparedSubmap::new(target.clone(), cfg)?;
     register_prepared(&s, &t, cfg)
@@ -80,11 +88,16 @@ pub fn register_prepared(
     register_detailed(source, target, cfg).map(|d| d.result)
 }
 
-fn check_sizes(ns: usize, nt: usize, cfg: &RegistrationConfig) -> Result<(), RegistrationError> {
-    let need = cfg.min_points.max(2);
+/// Fewest points a submap must have for a registration.
+pub const MIN_POINTS: usize = 10;
+
+fn check_sizes(ns: usize, nt: usize) -> Result<(), RegistrationError> {
     for have in [ns, nt] {
-        if have < need {
-            return Err(RegistrationError::TooFewPoints { have, need });
+        if have < MIN_POINTS {
+            return Err(RegistrationError::TooFewPoints {
+                have,
+                need: MIN_POINTS,
+            });
         }
     }
     Ok(())
@@ -97,7 +110,7 @@ pub fn register_detailed(
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
     checked_config(cfg)?;
-    check_sizes(source.points().len(), target.points().len(), cfg)?;
+    check_sizes(source.points().len(), target.points().len())?;
     if !source.fits(cfg) || !target.fits(cfg) {
         return Err(RegistrationError::Numerical(
             "submaps were prepared with other descriptor, matching or dense-stage settings than `cfg`"
@@ -110,8 +123,8 @@ pub fn register_detailed(
     register_pair(source.points(), target.points(), sets, candidates, cfg)
 }
 
-/// Stages 2-7 on given candidate correspondences (everything after the matching; also what a baseline
-/// with its own association reuses).
+/// Stages 2-7 on given candidate correspondences (everything after the matching; also what a
+/// baseline with its own association reuses).
 pub fn register_correspondences(
     source: &PointSet2,
     target: &PointSet2,
@@ -119,7 +132,7 @@ pub fn register_correspondences(
     cfg: &RegistrationConfig,
 ) -> Result<RegistrationDetail, RegistrationError> {
     checked_config(cfg)?;
-    check_sizes(source.len(), target.len(), cfg)?;
+    check_sizes(source.len(), target.len())?;
     check_point_set(source)?;
     check_point_set(target)?;
     let (src, tgt) = (DenseSide::new(source, cfg)?, DenseSide::new(target, cfg)?);
@@ -127,8 +140,8 @@ pub fn register_correspondences(
     register_pair(source, target, sets, candidates, cfg)
 }
 
-/// Stage 1: K nearest neighbours in descriptor space for a bounded set of the source's keypoints, as
-/// point indices of the two submaps.
+/// Stage 1: K nearest neighbours in descriptor space for a bounded set of the source's keypoints,
+/// as point indices of the two submaps.
 fn descriptor_candidates(
     source: &PreparedSubmap,
     target: &PreparedSubmap,

@@ -1,6 +1,6 @@
-//! What a registration works on: a submap prepared once per keyframe ([`PreparedSubmap`]: descriptors,
-//! their index, and what the dense stage and the screening need, [`DenseSide`]), and one pair of
-//! submaps as every stage sees it ([`PairContext`]).
+//! What a registration works on: a submap prepared once per keyframe ([`PreparedSubmap`]:
+//! descriptors, their index, and what the dense stage and the screening need, [`DenseSide`]), and
+//! one pair of submaps as every stage sees it ([`PairContext`]).
 
 use super::bearings::Bearings;
 use super::config::RegistrationConfig;
@@ -38,7 +38,7 @@ impl DenseSide {
         let subset = dense::source_subset(&dense_points, &cfg.dense);
         let weights = dense::object_weights(
             &subset.as_ref().unwrap_or(&dense_points).points,
-            cfg.selection_object_radius,
+            dense::SELECTION_OBJECT_RADIUS,
         );
         Ok(DenseSide {
             coverage: dense::Coverage::new(&dense_points.points, SCREEN_CELL),
@@ -139,7 +139,6 @@ struct DenseBaked {
     surface_radius: f64,
     surface_smoothing: bool,
     max_source_points: usize,
-    object_radius: f64,
 }
 
 impl DenseBaked {
@@ -150,7 +149,6 @@ impl DenseBaked {
             surface_radius: d.surface_radius,
             surface_smoothing: d.surface_smoothing,
             max_source_points: d.max_source_points,
-            object_radius: cfg.selection_object_radius,
         }
     }
 }
@@ -217,8 +215,8 @@ impl PreparedSubmap {
         &self.dense
     }
     /// True when it was built with `cfg`'s descriptor, matching-backend and dense-stage preparation
-    /// settings (surface neighbours, radius and smoothing, most source points, the fit score's object
-    /// radius), i.e. registering it under `cfg` is the same as preparing it anew.
+    /// settings (surface neighbours, radius and smoothing, most source points, the fit score's
+    /// object radius), i.e. registering it under `cfg` is the same as preparing it anew.
     pub fn fits(&self, cfg: &RegistrationConfig) -> bool {
         self.descriptor_config == cfg.descriptor
             && self.backend == cfg.matching.backend

@@ -2,8 +2,8 @@
 //! RANSAC estimate, the inliers re-selected with the noise model, and the dense stage
 //! ([`refine_hypothesis`]); a pose from the search beyond the descriptors by the dense stage alone
 //! ([`refine_from_pose`]). Each refined alignment reports its overlap, fit score and covariance
-//! ([`conclude`]); the best fit score wins ([`Refined`]), and every other one stays an alternative for
-//! the ambiguity gate.
+//! ([`conclude`]); the best fit score wins ([`Refined`]), and every other one stays an alternative
+//! for the ambiguity gate.
 
 use super::config::RegistrationConfig;
 use super::prepared::{DenseSets, PairContext};
@@ -14,8 +14,8 @@ use super::types::{
 use super::{correlative, dense, lm, robust};
 use crate::math::{Iso2, Mat2, Mat3, Vec2, Vec3};
 
-/// The refined alignments so far: the best by fit score, every one (pose, overlap) for the runner-up,
-/// and the first error.
+/// The refined alignments so far: the best by fit score, every one (pose, overlap) for the
+/// runner-up, and the first error.
 #[derive(Default)]
 pub(super) struct Refined {
     /// The best so far.
@@ -72,8 +72,8 @@ impl Refined {
     }
 }
 
-/// One RANSAC hypothesis refined: LM on its inliers (eq. 10), re-selection of the inliers with the noise
-/// model, the dense stage, the covariance, the overlap.
+/// One RANSAC hypothesis refined: LM on its inliers (eq. 10), re-selection of the inliers with the
+/// noise model, the dense stage, the covariance, the overlap.
 pub(super) fn refine_hypothesis(
     ctx: &PairContext<'_>,
     mut inliers: Vec<usize>,
@@ -109,8 +109,8 @@ pub(super) fn refine_hypothesis(
     // The covariance comes from the descriptor pairs (evaluated at the final pose): they are distinct
     // physical matches whose scatter the sandwich estimator measures. Nearest-neighbour pairs share
     // target points and their residuals are not independent, so their information overstates the
-    // certainty (pipeline NEES about 20 instead of 3); `dense.covariance_scale` accounts for the dense
-    // pose being more accurate than that.
+    // certainty (pipeline NEES about 20 instead of 3); `dense::COVARIANCE_SCALE` accounts for the
+    // dense pose being more accurate than that.
     let mut dense_settled = None;
     if cfg.dense.enabled
         && let Some(d) = dense::refine_dense(
@@ -143,8 +143,8 @@ pub(super) fn refine_hypothesis(
 }
 
 /// A correlative candidate refined: the dense stage from `pose`, then the descriptor candidates
-/// within `reselect_gate` of where it ends (one per point; at least `correlative.min_inliers`, not on
-/// a line) give the covariance, as the descriptor inliers do for a RANSAC hypothesis.
+/// within [`RESELECT_GATE`] of where it ends (one per point; at least [`correlative::MIN_INLIERS`],
+/// not on a line) give the covariance, as the descriptor inliers do for a RANSAC hypothesis.
 pub(super) fn refine_from_pose(
     ctx: &PairContext<'_>,
     pose: Iso2,
@@ -167,11 +167,11 @@ pub(super) fn refine_from_pose(
     )?
     .ok_or(RegistrationError::TooFewInliers {
         have: 0,
-        need: cfg.dense.min_pairs,
+        need: dense::MIN_PAIRS,
     })?;
     let inliers = reselect(ctx, &d.t_target_source);
     let relaxed = RegistrationConfig {
-        min_inliers: cfg.correlative.min_inliers,
+        min_inliers: correlative::MIN_INLIERS,
         ..cfg.clone()
     };
     // Too few descriptor pairs agree (or they lie on a line): the covariance comes from the dense pairs.
@@ -190,10 +190,10 @@ pub(super) fn refine_from_pose(
     let have = inliers.len();
     let d = conclude(ctx, inliers, pose, fit)?;
     // Without the descriptors' vote the geometry alone must speak clearly.
-    if d.dense_covariance && d.result.overlap < cfg.correlative.min_overlap {
+    if d.dense_covariance && d.result.overlap < correlative::MIN_OVERLAP {
         return Err(RegistrationError::TooFewInliers {
             have,
-            need: cfg.correlative.min_inliers,
+            need: correlative::MIN_INLIERS,
         });
     }
     Ok(d)
@@ -211,8 +211,8 @@ pub(super) struct Fit {
     pub(super) overlap: Option<f64>,
     /// The fit scores likewise (weighted, plain).
     pub(super) score: Option<(f64, f64)>,
-    /// The covariance comes from the dense pairs ([`correlative::CorrelativeConfig::covariance_scale`])
-    /// instead of the descriptor inliers.
+    /// The covariance comes from the dense pairs
+    /// ([`correlative::CorrelativeConfig::covariance_scale`]) instead of the descriptor inliers.
     pub(super) dense_covariance: bool,
 }
 
@@ -253,24 +253,20 @@ pub(super) fn conclude(
             / src.len().max(1) as f64
     });
     let (score, plain_score) = fit.score.unwrap_or_else(|| {
-        if cfg.selection_sigma > 0.0 {
-            dense::fit_score(
-                src,
-                Some(weights),
-                tgt,
-                tree,
-                &fit.t_target_source,
-                cfg.selection_sigma,
-            )
-        } else {
-            (overlap, overlap)
-        }
+        dense::fit_score(
+            src,
+            Some(weights),
+            tgt,
+            tree,
+            &fit.t_target_source,
+            dense::SELECTION_SIGMA,
+        )
     });
     // Covariance at the optimum; also refuses an unobservable pose (singular information).
     let covariance_se2 = if fit.dense_covariance {
         let dense_pairs = dense::associate(src, tgt, tree, &fit.t_target_source, &cfg.dense);
         let labels =
-            correlative::cluster_labels(src, &dense_pairs, cfg.correlative.covariance_cluster);
+            correlative::cluster_labels(src, &dense_pairs, correlative::COVARIANCE_CLUSTER);
         lm::covariance_clustered(
             &fit.t_target_source,
             src,
@@ -278,13 +274,13 @@ pub(super) fn conclude(
             &dense_pairs,
             &labels,
             &cfg.lm,
-        )? * cfg.correlative.covariance_scale
+        )? * correlative::COVARIANCE_SCALE
     } else {
         let covariance = lm::covariance_at(&fit.t_target_source, source, target, &pairs, &cfg.lm)?;
         let scale = if fit.dense_settled.is_some() {
-            cfg.covariance_scale * cfg.dense.covariance_scale
+            COVARIANCE_SCALE * dense::COVARIANCE_SCALE
         } else {
-            cfg.covariance_scale
+            COVARIANCE_SCALE
         };
         covariance * scale
     };
@@ -345,8 +341,19 @@ pub(super) fn check_inliers(
     Ok(())
 }
 
-/// Candidates within `reselect_gate` sigma of `t` (LM weights), one per source point (the closest),
-/// as ascending indices into `candidates`.
+/// Factor on the covariance of a descriptor-stage result: descriptor association also accepts
+/// neighbouring reflectors within the gate, whose offsets bias the estimate beyond what the
+/// residual scatter shows.
+pub const COVARIANCE_SCALE: f64 = 1.3;
+
+/// After LM, the candidates within this many sigma of the estimate (Mahalanobis with the LM
+/// weights) become the inliers, one per source and per target point, and LM runs again: 99.8 % of
+/// 2-D Gaussian residuals. RANSAC's metric threshold keeps residuals that agree with its own noisy
+/// estimate, the noise model does not.
+pub const RESELECT_GATE: f64 = 3.5;
+
+/// Candidates within [`RESELECT_GATE`] sigma of `t` (LM weights), one per source point (the
+/// closest), as ascending indices into `candidates`.
 pub(super) fn reselect(ctx: &PairContext<'_>, t: &Iso2) -> Vec<usize> {
     let PairContext {
         source,
@@ -355,7 +362,7 @@ pub(super) fn reselect(ctx: &PairContext<'_>, t: &Iso2) -> Vec<usize> {
         cfg,
         ..
     } = *ctx;
-    let gate2 = cfg.reselect_gate * cfg.reselect_gate;
+    let gate2 = RESELECT_GATE * RESELECT_GATE;
     let iso_var = cfg.lm.isotropic_sigma * cfg.lm.isotropic_sigma;
     let plain = robust::RobustLoss::none();
     // (source, target, candidate index) of the candidates within the gate.

@@ -1,14 +1,16 @@
 //! The types every registration method shares: the input ([`PointSet2`]), the output
-//! ([`RegistrationResult`], and DC-Loc's [`RegistrationDetail`] with its [`Correspondence`]s), the failure ([`RegistrationError`]),
-//! and the embedding of a planar covariance in ROS order ([`covariance_ros_from_se2`]).
+//! ([`RegistrationResult`], and DC-Loc's [`RegistrationDetail`] with its [`Correspondence`]s), the
+//! failure ([`RegistrationError`]), and the embedding of a planar covariance in ROS order
+//! ([`covariance_ros_from_se2`]).
 
 use crate::math::{Iso2, Mat2, Mat3, Mat6, Vec2};
 use serde::{Deserialize, Serialize};
 
-/// Variance (m^2 or rad^2) reported for the axes a planar registration does not observe (z, roll, pitch).
+/// Variance (m^2 or rad^2) reported for the axes a planar registration does not observe (z, roll,
+/// pitch).
 ///
-/// Large enough that a pose-graph back end gives those axes no weight, small enough to stay finite in
-/// single precision after inversion: 1e6 (a 1 km / 1000 rad standard deviation).
+/// Large enough that a pose-graph back end gives those axes no weight, small enough to stay finite
+/// in single precision after inversion: 1e6 (a 1 km / 1000 rad standard deviation).
 pub const UNOBSERVED_VARIANCE: f64 = 1e6;
 
 /// A candidate match: source (current submap) point index, target (previous submap) point index.
@@ -71,8 +73,8 @@ impl PointSet2 {
 pub struct RegistrationResult {
     /// Source (current) frame in the target (previous) frame.
     pub t_target_source: Iso2,
-    /// Covariance of `t_target_source`, 6x6 in ROS order (x, y, z, rot x, rot y, rot z), row-major when
-    /// flattened; unobserved axes carry [`UNOBSERVED_VARIANCE`].
+    /// Covariance of `t_target_source`, 6x6 in ROS order (x, y, z, rot x, rot y, rot z), row-major
+    /// when flattened; unobserved axes carry [`UNOBSERVED_VARIANCE`].
     pub covariance: Mat6,
     /// The optimiser met its convergence criterion (not just the iteration limit).
     pub converged: bool,
@@ -84,19 +86,20 @@ pub struct RegistrationResult {
     pub candidates: usize,
     /// Final cost (method specific; lower is better).
     pub cost: f64,
-    /// Share of source points with a partner in the target at the final pose (0..1), a geometric check
-    /// of the alignment independent of the descriptors (DC-Loc: nearest neighbours inside the dense
-    /// stage's gates; ICP: pairs within the last distance; NDT: points scored by a cell).
+    /// Share of source points with a partner in the target at the final pose (0..1), a geometric
+    /// check of the alignment independent of the descriptors (DC-Loc: nearest neighbours inside the
+    /// dense stage's gates; ICP: pairs within the last distance; NDT: points scored by a cell).
     pub overlap: f64,
     /// Overlap of the best other alignment (a refined RANSAC hypothesis farther than
-    /// `ambiguity_translation` / `ambiguity_rotation` from the result), 0 when there was none: close to
+    /// [`super::ransac::AMBIGUITY_TRANSLATION`] / [`super::ransac::AMBIGUITY_ROTATION`] from the
+    /// result), 0 when there was none: close to
     /// `overlap` means the scene aliases (a street sliding along itself) and the result may be the
     /// wrong one of two. Only DC-Loc registration fills it; the baselines report 0.
     pub runner_up_overlap: f64,
-    /// The other alignments behind `runner_up_overlap`, each with the overlap it counts with (a refined
-    /// hypothesis: its own; a screened motion: the result's overlap scaled by its coverage ratio):
-    /// a prior (an accepted alignment of the session) can tell them from the result where the
-    /// submaps alone cannot. Empty for the baselines.
+    /// The other alignments behind `runner_up_overlap`, each with the overlap it counts with (a
+    /// refined hypothesis: its own; a screened motion: the result's overlap scaled by its coverage
+    /// ratio): a prior (an accepted alignment of the session) can tell them from the result where
+    /// the submaps alone cannot. Empty for the baselines.
     pub alternatives: Vec<(Iso2, f64)>,
     /// The share of `covariance` over `(x, y, theta)` that the score probe added
     /// (`registration.dense.score_probe`): the pull of the objects that gave many points. The loop
@@ -129,8 +132,8 @@ pub enum RegistrationError {
     Numerical(String),
 }
 
-/// Embeds a planar covariance over (x, y, theta) into the 6x6 ROS-order covariance
-/// (x, y, z, rot x, rot y, rot z); z, roll and pitch get [`UNOBSERVED_VARIANCE`] and no correlation.
+/// Embeds a planar covariance over (x, y, theta) into the 6x6 ROS-order covariance (x, y, z, rot x,
+/// rot y, rot z); z, roll and pitch get [`UNOBSERVED_VARIANCE`] and no correlation.
 pub fn covariance_ros_from_se2(cov_xy_theta: &Mat3) -> Mat6 {
     let mut c = Mat6::zeros();
     let idx = [0usize, 1, 5];
@@ -168,16 +171,16 @@ pub struct RegistrationDetail {
     pub t_ransac: Iso2,
     /// RANSAC draws.
     pub ransac_iterations: usize,
-    /// `None` when the dense stage did not run; else whether its last round moved the pose less than
-    /// its stopping step.
+    /// `None` when the dense stage did not run; else whether its last round moved the pose less
+    /// than its stopping step.
     pub dense_settled: Option<bool>,
     /// The fit score the hypotheses competed with ([`dense::fit_score`], each point weighted by
-    /// `registration.selection_object_radius`).
+    /// [`dense::SELECTION_OBJECT_RADIUS`]).
     pub score: f64,
-    /// The same with every point weighing alike: what `correlative.below_score` compares.
+    /// The same with every point weighing alike: what [`super::correlative::BELOW_SCORE`] compares.
     pub plain_score: f64,
-    /// The covariance came from the dense pairs (an alignment of the correlative search that too few
-    /// descriptor pairs agree with), not from the descriptor inliers.
+    /// The covariance came from the dense pairs (an alignment of the correlative search that too
+    /// few descriptor pairs agree with), not from the descriptor inliers.
     pub dense_covariance: bool,
 }
 

@@ -1,16 +1,19 @@
 //! ROS 2 parameters for dc_loc without ROS: the standard params YAML (`node: ros__parameters: ...`,
-//! wildcards `/**` and `/**/node`) and `-p name:=value` overrides, mapped onto [`Config`] by the field
-//! paths joined by dots (`radars.front.beta`, `loop.search_radius`), as ROS 2 flattens nested YAML. Each
-//! name in `radar_names` gets the radar defaults, then its `radars.<name>.*` parameters. Unknown names
-//! and wrong types are refused with the parameter's name; nothing is silently ignored or clamped.
+//! wildcards `/**` and `/**/node`) and `-p name:=value` overrides, mapped onto [`Config`] by the
+//! field paths joined by dots (`radars.front.beta`, `loop.search_radius`), as ROS 2 flattens nested
+//! YAML. Each name in `radar_names` gets the radar defaults, then its `radars.<name>.*` parameters.
+//! Unknown names and wrong types are refused with the parameter's name; nothing is silently ignored
+//! or clamped.
 //!
-//! Entry points: [`ParamSet`] (dotted name -> value, in application order), [`ParamSet::from_yaml`],
-//! [`ParamSet::set_override`], [`apply`] (defaults + params -> validated [`Config`]), [`flatten_config`]
-//! (a config as dotted parameters, to declare as ROS 2 parameters and to print the effective one).
-//! Parts: [`node`] (the node's own settings, `use_sim_time` and `node.*`), [`live`] (what changes at
-//! run time), [`file`] (params files written), [`reference`] (every parameter's default, range and
-//! description: `dc_loc params`, README_NODE.md), [`tiers`] (sensor setup, tuning knobs, constants).
+//! Entry points: [`ParamSet`] (dotted name -> value, in application order),
+//! [`ParamSet::from_yaml`], [`ParamSet::set_override`], [`apply`] (defaults + params -> validated
+//! [`Config`]), [`flatten_config`] (a config as dotted parameters, to declare as ROS 2 parameters
+//! and to print the effective one). Parts: [`node`] (the node's own settings, `use_sim_time` and
+//! `node.*`), [`live`] (what changes at run time), [`file`] (params files written), [`reference`]
+//! (every parameter's default, range and description: `dc_loc params`, README_NODE.md), [`tiers`]
+//! (sensor setup, tuning knobs, constants).
 
+pub mod constants;
 pub mod file;
 pub mod live;
 pub mod node;
@@ -41,6 +44,18 @@ pub enum ParamError {
         name: String,
         /// Expected type.
         expected: &'static str,
+        /// The value given.
+        got: String,
+    },
+    /// The name is a constant of the method, given another value than the constant's.
+    #[error(
+        "`{name}` is a constant of the method ({value}), not a parameter, and cannot be set to `{got}`: remove it from the params file"
+    )]
+    Constant {
+        /// Its name.
+        name: String,
+        /// The constant's value.
+        value: f64,
         /// The value given.
         got: String,
     },
@@ -84,8 +99,8 @@ impl ParamSet {
     }
 
     /// Reads the sections of a ROS 2 params YAML that apply to the node `/namespace/node_name`
-    /// (`/ns/node`, `node` meaning `/node`, `/**`, `/**/node`), in file order, flattening nested maps
-    /// under `ros__parameters` into dotted names.
+    /// (`/ns/node`, `node` meaning `/node`, `/**`, `/**/node`), in file order, flattening nested
+    /// maps under `ros__parameters` into dotted names.
     pub fn from_yaml(text: &str, namespace: &str, node_name: &str) -> Result<Self, ParamError> {
         let doc: Value = yaml_serde::from_str(text).map_err(|e| ParamError::Yaml(e.to_string()))?;
         let mut set = ParamSet::default();
@@ -214,8 +229,8 @@ fn coerce(name: &str, default: &Value, given: &Value) -> Result<Value, ParamErro
     })
 }
 
-/// Applies parameters to the defaults and validates: `Config::default()` -> radars from `radar_names`
-/// -> every parameter in order -> [`Config::validate`].
+/// Applies parameters to the defaults and validates: `Config::default()` -> radars from
+/// `radar_names` -> every parameter in order -> [`Config::validate`].
 pub fn apply(params: &ParamSet) -> Result<Config, ParamError> {
     let mut tree =
         serde_json::to_value(Config::default()).map_err(|e| ParamError::Yaml(e.to_string()))?;
@@ -250,7 +265,7 @@ pub fn apply(params: &ParamSet) -> Result<Config, ParamError> {
     }
     // 2. Every parameter onto the tree, refusing unknown names and wrong types.
     for (name, value) in &params.entries {
-        if name == "radar_names" {
+        if name == "radar_names" || constants::is_constant(name, value)? {
             continue;
         }
         let mut node = &mut tree;

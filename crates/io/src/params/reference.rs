@@ -348,7 +348,7 @@ mod tests {
     #[test]
     fn every_parameter_has_a_description_and_every_number_a_range() {
         let reference = reference();
-        assert!(reference.len() > 150, "{} parameters", reference.len());
+        assert!(reference.len() > 120, "{} parameters", reference.len());
         let mut missing = Vec::new();
         for p in &reference {
             if p.description.is_empty() {

@@ -1,6 +1,6 @@
-//! Association: each source point paired with its nearest target point under the current pose (behind
-//! a distance cap and a Mahalanobis gate), remembering nearest neighbours across rounds; and the soft
-//! rounds' virtual partners, likelihood-weighted means of several target points.
+//! Association: each source point paired with its nearest target point under the current pose
+//! (behind a distance cap and a Mahalanobis gate), remembering nearest neighbours across rounds;
+//! and the soft rounds' virtual partners, likelihood-weighted means of several target points.
 
 use super::{DenseConfig, PointSet2, TargetTree};
 use crate::math::{Iso2, Mat2, Vec2};
@@ -16,12 +16,12 @@ pub fn associate(
     associate_with(source, target, tree, t, cfg, None)
 }
 
-/// What the rounds remember of each source point's nearest neighbours: the nearest target point, the
-/// distance of the second nearest, and where the source point was when they were found. A later round
-/// that has moved the point by `delta` keeps the nearest without a tree query when the nearest is
-/// still closer than `second - delta`: no other target point can have come that close (triangle
-/// inequality), so the pairs are exactly those of a fresh query. The rounds move points by
-/// millimetres, so most of a round's queries are saved.
+/// What the rounds remember of each source point's nearest neighbours: the nearest target point,
+/// the distance of the second nearest, and where the source point was when they were found. A later
+/// round that has moved the point by `delta` keeps the nearest without a tree query when the
+/// nearest is still closer than `second - delta`: no other target point can have come that close
+/// (triangle inequality), so the pairs are exactly those of a fresh query. The rounds move points
+/// by millimetres, so most of a round's queries are saved.
 #[derive(Default)]
 pub(super) struct NearestMemory {
     /// Per source point: (nearest target index, second-nearest distance, position at the query).
@@ -90,9 +90,9 @@ pub(super) fn associate_with(
     pairs
 }
 
-/// Virtual partners of the soft rounds (see [`DenseConfig::soft_rounds`]) under `t`: for each source
-/// point, the likelihood-weighted mean of its `cfg.soft_neighbours` nearest target points within
-/// `cfg.max_distance`, with the weighted covariance plus the partners' weighted scatter, as
+/// Virtual partners of the soft rounds (see [`DenseConfig::soft_rounds`]) under `t`: for each
+/// source point, the likelihood-weighted mean of its `super::SOFT_NEIGHBOURS` nearest target points
+/// within `cfg.max_distance`, with the weighted covariance plus the partners' weighted scatter, as
 /// `(virtual targets, pairs)`. A point whose partners' total likelihood is below one partner's at
 /// the gate (`cfg.gate`) gets none.
 pub(super) fn soft_partners(
@@ -141,11 +141,11 @@ pub(super) fn soft_partners(
             let m = d.dot(&(s_inv * d));
             (m <= gate_sq).then_some((j, m))
         }));
-        if near.len() > cfg.soft_neighbours {
-            near.select_nth_unstable_by(cfg.soft_neighbours - 1, |a, b| {
+        if near.len() > super::SOFT_NEIGHBOURS {
+            near.select_nth_unstable_by(super::SOFT_NEIGHBOURS - 1, |a, b| {
                 a.1.total_cmp(&b.1).then(a.0.cmp(&b.0))
             });
-            near.truncate(cfg.soft_neighbours);
+            near.truncate(super::SOFT_NEIGHBOURS);
         }
         let (mut total, mut sum) = (0.0, Vec2::zeros());
         for w in near.iter_mut() {
@@ -173,8 +173,8 @@ mod tests {
     use super::super::target_tree;
     use super::*;
 
-    /// Remembered nearest neighbours give exactly the pairs of fresh queries, pose after pose (small
-    /// moves, where most are kept, and a jump, where most are queried again).
+    /// Remembered nearest neighbours give exactly the pairs of fresh queries, pose after pose
+    /// (small moves, where most are kept, and a jump, where most are queried again).
     #[test]
     fn remembered_nearest_neighbours_give_the_pairs_of_fresh_queries() {
         use rand::{RngExt, SeedableRng};

@@ -1,15 +1,16 @@
 //! Dense refinement: eq. 10 again, over nearest-neighbour pairs instead of descriptor pairs.
 //!
 //! Descriptor matching pairs a source point with a *similar-looking* target point. Two radar passes
-//! sample a facade at different places, so those pairs join different points of the same surface and
-//! the pose they give is off by a fraction of the sampling spacing (decimetres). Once RANSAC and LM have
-//! brought the submaps within that distance, every source point is paired with its nearest target point
-//! under the current estimate, pairs beyond a Mahalanobis gate on the combined covariance
-//! `Sigma_y + R Sigma_x R^T` (and a distance cap) are dropped, and eq. 10 is solved again, a few times
-//! (iterative closest point with the paper's residuals and loss, as in GICP). Beyond the paper.
+//! sample a facade at different places, so those pairs join different points of the same surface
+//! and the pose they give is off by a fraction of the sampling spacing (decimetres). Once RANSAC
+//! and LM have brought the submaps within that distance, every source point is paired with its
+//! nearest target point under the current estimate, pairs beyond a Mahalanobis gate on the combined
+//! covariance `Sigma_y + R Sigma_x R^T` (and a distance cap) are dropped, and eq. 10 is solved
+//! again, a few times (iterative closest point with the paper's residuals and loss, as in GICP).
+//! Beyond the paper.
 //!
-//! Entry points: [`DenseConfig`], [`target_tree`], [`refine_dense`] ([`Rounds`]).//!
-//! Parts: `associate` (nearest-neighbour pairs and the soft rounds' partners), `rounds` (the rounds of
+//! Entry points: [`DenseConfig`], [`target_tree`], [`refine_dense`] ([`Rounds`]).//! Parts:
+//! `associate` (nearest-neighbour pairs and the soft rounds' partners), `rounds` (the rounds of
 //! [`refine_dense`] and [`soften`]), `screening` ([`Coverage`], [`fit_score`], [`object_weights`]).
 
 mod associate;
@@ -18,12 +19,34 @@ mod screening;
 
 pub use associate::associate;
 pub use rounds::{DenseResult, Rounds, refine_dense, soften};
-pub use screening::{Coverage, fit_score, object_weights, probes, score_peak};
+pub use screening::{
+    Coverage, SELECTION_OBJECT_RADIUS, SELECTION_SIGMA, fit_score, object_weights, probes,
+    score_peak,
+};
 
 use super::types::{PointSet2, RegistrationError};
 use crate::math::{Mat2, Vec2};
 use crate::validate::Validator;
 use serde::{Deserialize, Serialize};
+
+/// Re-association rounds at most; stops earlier when the pose moves less than 1 mm and 0.01 mrad.
+pub const ITERATIONS: usize = 8;
+
+/// Rounds before the [`ITERATIONS`] ones with `max_distance` and `gate` doubled. A descriptor-stage
+/// estimate can be a few metres off along a street, where only poles and corners say where along it
+/// the submaps sit: beyond `max_distance` they pair with nothing and the facades hold the pose
+/// where it is.
+pub const COARSE_ROUNDS: usize = 4;
+
+/// Fewest pairs, else the descriptor-stage estimate is kept.
+pub const MIN_PAIRS: usize = 30;
+
+/// Factor on the covariance (from the descriptor pairs at the refined pose) when this stage ran:
+/// the dense pose is more accurate than the descriptor pairs' own scatter says.
+pub const COVARIANCE_SCALE: f64 = 0.35;
+
+/// Target points behind each virtual partner of the soft rounds, the likeliest.
+pub const SOFT_NEIGHBOURS: usize = 16;
 
 /// The target points' neighbour index (item = point index): a uniform grid ([`super::grid`]).
 pub type TargetTree = super::grid::PointGrid;
@@ -38,16 +61,8 @@ const GRID_CELL: f64 = 2.0;
 pub struct DenseConfig {
     /// Run it (default true; off reproduces the paper's descriptor-pairs-only estimate).
     pub enabled: bool,
-    /// Re-association rounds at most (default 8); stops earlier when the pose moves less than 1 mm and
-    /// 0.01 mrad.
-    pub iterations: usize,
     /// Largest Mahalanobis distance of a pair under the combined covariance (default 3.0).
     pub gate: f64,
-    /// Rounds before the `iterations` ones with `max_distance` and `gate` doubled (default 4). A
-    /// descriptor-stage estimate can be a few metres off along a street, where only poles and corners
-    /// say where along it the submaps sit: beyond `max_distance` they pair with nothing and the
-    /// facades hold the pose where it is.
-    pub coarse_rounds: usize,
     /// Largest Euclidean distance of a pair, m (default 1.5).
     pub max_distance: f64,
     /// Scale of the robust loss (`registration.lm.robust.kind`) in the rounds after the coarse
@@ -55,23 +70,22 @@ pub struct DenseConfig {
     /// `registration.lm.robust.scale`). Two passes do not see the same scene (parked cars come and
     /// go); once the pose has been pulled in, a tighter loss weighs such pairs down.
     pub robust_scale: f64,
-    /// Fewest pairs, else the descriptor-stage estimate is kept (default 30).
-    pub min_pairs: usize,
-    /// Neighbours whose scatter is added to each point's covariance in this stage (default 8; 0 = off).
-    /// Two passes sample a surface at different places, so a nearest neighbour is the same surface, not
-    /// the same point: the scatter of the local neighbourhood (long along a facade, thin across it)
-    /// models where along the surface the partner may lie, as GICP's surface covariances do (Segal et
-    /// al., RSS 2009), on top of the measurement covariance of eq. 7-8.
+    /// Neighbours whose scatter is added to each point's covariance in this stage (default 8; 0 =
+    /// off). Two passes sample a surface at different places, so a nearest neighbour is the same
+    /// surface, not the same point: the scatter of the local neighbourhood (long along a facade,
+    /// thin across it) models where along the surface the partner may lie, as GICP's surface
+    /// covariances do (Segal et al., RSS 2009), on top of the measurement covariance of eq. 7-8.
     pub surface_neighbours: usize,
     /// Radius of that neighbourhood, m (default 2.0).
     pub surface_radius: f64,
-    /// Move each point to the mean of that neighbourhood (default true): one step of local averaging
-    /// (zeroth-order moving least squares), so nearest neighbours of two passes pair on the surface
-    /// instead of on each other's noise. The covariances stay those of single points plus the scatter.
+    /// Move each point to the mean of that neighbourhood (default true): one step of local
+    /// averaging (zeroth-order moving least squares), so nearest neighbours of two passes pair on
+    /// the surface instead of on each other's noise. The covariances stay those of single points
+    /// plus the scatter.
     pub surface_smoothing: bool,
-    /// Accelerated rounds ([`Rounds::Accelerated`]) that continue the winning hypothesis's rounds when
-    /// they have not settled (default 0 = off: with it on, a street-slid alignment can pass the
-    /// consistency gate).
+    /// Accelerated rounds ([`Rounds::Accelerated`]) that continue the winning hypothesis's rounds
+    /// when they have not settled (default 0 = off: with it on, a street-slid alignment can pass
+    /// the consistency gate).
     pub polish_rounds: usize,
     /// Average the winner's pose with this stage run the other way round (default false): the
     /// target's points paired with their nearest source points, from the inverse pose, which halves
@@ -80,51 +94,43 @@ pub struct DenseConfig {
     /// slide gate (`loop.maximum_slide_ratio`).
     pub symmetric: bool,
     /// Widen the reported covariance by the association bias (default true): this stage runs once
-    /// more the other way round (target points paired with their nearest source points) and half the
-    /// outer product of the two poses' difference is added (docs/algorithm.md, "The covariance
+    /// more the other way round (target points paired with their nearest source points) and half
+    /// the outer product of the two poses' difference is added (docs/algorithm.md, "The covariance
     /// reported"). Costs one more run of this stage per registration.
     pub bias_probe: bool,
     /// Widen the reported covariance by the pull of the objects that gave many points (default
     /// true): the translation from the pose to the nearest local maximum of the fit score, which
-    /// counts every object once (`registration.selection_sigma`, `selection_object_radius`), adds half
-    /// its outer product (docs/algorithm.md, "The covariance reported"); the loop closure gates judge
+    /// counts every object once ([`SELECTION_SIGMA`], [`SELECTION_OBJECT_RADIUS`]), adds half its
+    /// outer product (docs/algorithm.md, "The covariance reported"); the loop closure gates judge
     /// without it. Costs about 20 evaluations of the fit score per registration.
     pub score_probe: bool,
     /// Prior standard deviation of a common offset of the returns along their rays, m (default
-    /// 0.25, the ARS408's range noise; 0 = not estimated). The winner's pose is fitted once more with
-    /// the offset (an object's near face, a skewed range noise) at its dense pairs; where the pair
-    /// shows one at the 5 % level the pose takes the joint fit, and the offset's prior widens the
-    /// covariance along the direction it moves the pose (docs/algorithm.md, "The covariance
-    /// reported"). Two passes that saw the scene along the same rays cannot tell it, and are left as
-    /// they were.
+    /// 0.25, the ARS408's range noise; 0 = not estimated). The winner's pose is fitted once more
+    /// with the offset (an object's near face, a skewed range noise) at its dense pairs; where the
+    /// pair shows one at the 5 % level the pose takes the joint fit, and the offset's prior widens
+    /// the covariance along the direction it moves the pose (docs/algorithm.md, "The covariance
+    /// reported"). Two passes that saw the scene along the same rays cannot tell it, and are left
+    /// as they were.
     pub range_offset_std: f64,
-    /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random subset
-    /// (the target keeps all its points). A submap stacks several scans, so 2000 points still hold
-    /// every reflector several times.
+    /// Most source points paired in this stage (default 2000): above it a fixed pseudo-random
+    /// subset (the target keeps all its points). A submap stacks several scans, so 2000 points
+    /// still hold every reflector several times.
     pub max_source_points: usize,
-    /// Factor on the covariance (from the descriptor pairs at the refined pose) when this stage ran
-    /// (default 0.35): the dense pose is more accurate than the descriptor pairs' own scatter says.
-    pub covariance_scale: f64,
     /// Soft-association rounds that finish the winning hypothesis's pose (default 0 = off): each
-    /// pairs every source point with the likelihood-weighted mean of its `soft_neighbours` nearest
-    /// target points within `max_distance` and `gate` (EM-ICP, Granger & Pennec, ECCV 2002), one
-    /// Gauss-Newton step per round; kept when it ends within the ambiguity distances. Slightly more
-    /// accurate, about 15 % slower per registration, so off by default.
+    /// pairs every source point with the likelihood-weighted mean of its [`SOFT_NEIGHBOURS`]
+    /// nearest target points within `max_distance` and `gate` (EM-ICP, Granger & Pennec, ECCV
+    /// 2002), one Gauss-Newton step per round; kept when it ends within the ambiguity distances.
+    /// Slightly more accurate, about 15 % slower per registration, so off by default.
     pub soft_rounds: usize,
-    /// Target points behind each virtual partner of the soft rounds, the likeliest (default 16).
-    pub soft_neighbours: usize,
 }
 
 impl Default for DenseConfig {
     fn default() -> Self {
         DenseConfig {
             enabled: true,
-            iterations: 8,
             gate: 3.0,
-            coarse_rounds: 4,
             max_distance: 1.5,
             robust_scale: 1.0,
-            min_pairs: 30,
             surface_neighbours: 8,
             surface_radius: 2.0,
             surface_smoothing: true,
@@ -134,9 +140,7 @@ impl Default for DenseConfig {
             score_probe: true,
             range_offset_std: 0.25,
             max_source_points: 2000,
-            covariance_scale: 0.35,
             soft_rounds: 0,
-            soft_neighbours: 16,
         }
     }
 }
@@ -144,20 +148,15 @@ impl Default for DenseConfig {
 impl DenseConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
-        v.at_least("iterations", self.iterations, 1);
         v.positive("gate", self.gate);
         v.positive("max_distance", self.max_distance);
         v.positive("surface_radius", self.surface_radius);
-        v.positive("covariance_scale", self.covariance_scale);
         v.non_negative("robust_scale", self.robust_scale);
         v.non_negative("range_offset_std", self.range_offset_std);
-        v.count("coarse_rounds", self.coarse_rounds, 0, 100);
         v.count("polish_rounds", self.polish_rounds, 0, 100);
         v.count("soft_rounds", self.soft_rounds, 0, 100);
-        v.count("soft_neighbours", self.soft_neighbours, 1, 64);
         v.count("surface_neighbours", self.surface_neighbours, 0, 64);
-        v.at_least("max_source_points", self.max_source_points, self.min_pairs);
-        v.at_least("min_pairs", self.min_pairs, 3);
+        v.at_least("max_source_points", self.max_source_points, MIN_PAIRS);
     }
 }
 
@@ -253,8 +252,9 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
 
-    /// A noisy facade (points along x, noise across it): smoothing moves the points to neighbourhood
-    /// means, which lie much nearer the facade; the tree indexes the moved points; off leaves them.
+    /// A noisy facade (points along x, noise across it): smoothing moves the points to
+    /// neighbourhood means, which lie much nearer the facade; the tree indexes the moved points;
+    /// off leaves them.
     #[test]
     fn smoothing_pulls_facade_points_onto_the_surface_and_the_tree_follows() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(3);

@@ -1,5 +1,5 @@
-//! The rounds of the dense stage: re-association and one Gauss-Newton step per round ([`refine_dense`],
-//! plain or Anderson-accelerated), and the soft rounds ([`soften`]).
+//! The rounds of the dense stage: re-association and one Gauss-Newton step per round
+//! ([`refine_dense`], plain or Anderson-accelerated), and the soft rounds ([`soften`]).
 
 use super::associate::{NearestMemory, associate_with, soft_partners};
 use super::{DenseConfig, PointSet2, RegistrationError, TargetTree};
@@ -23,7 +23,7 @@ pub fn soften(
     let mut iterations = 0;
     for _ in 0..cfg.soft_rounds {
         let (virt, pairs) = soft_partners(source, target, tree, &t, cfg);
-        if pairs.len() < cfg.min_pairs {
+        if pairs.len() < super::MIN_PAIRS {
             break;
         }
         let p = lm::gauss_newton_step(source, &virt, &pairs, &t, &fine_cfg)?;
@@ -66,9 +66,10 @@ pub struct DenseResult {
     pub settled: bool,
 }
 
-/// The rounds stop when one moves the pose less than this, m (and a hundredth of it in rad). 2 or 3 mm
-/// changed nothing on the demo drive or the five-radar revisit drive: their rounds rarely get that small
-/// within `iterations`; on the synthetic pairs of the benchmark the rounds hover around 1.3 mm.
+/// The rounds stop when one moves the pose less than this, m (and a hundredth of it in rad). 2 or 3
+/// mm changed nothing on the demo drive or the five-radar revisit drive: their rounds rarely get
+/// that small within [`super::ITERATIONS`]; on the synthetic pairs of the benchmark the rounds
+/// hover around 1.3 mm.
 const STOP_STEP: f64 = 1e-3;
 
 /// A round's move `step` (the new pose relative to the old) is below the stopping step.
@@ -79,8 +80,8 @@ fn settled(step: &Iso2) -> bool {
 /// The LM settings of this stage, from `lm_cfg`: `(round, fine, last)`. The pairs change from round
 /// to round, so a round takes one Gauss-Newton step (`round`'s tolerances only mark it converged);
 /// the rounds after the coarse ones (`fine`) and the solve of the last pairs (`last`, `lm_cfg`'s
-/// tolerances) weigh residuals with their own robust scale (`DenseConfig::robust_scale`); the coarse
-/// rounds keep `lm_cfg`'s, wide enough to pull in.
+/// tolerances) weigh residuals with their own robust scale (`DenseConfig::robust_scale`); the
+/// coarse rounds keep `lm_cfg`'s, wide enough to pull in.
 fn round_configs(cfg: &DenseConfig, lm_cfg: &LmConfig) -> (LmConfig, LmConfig, LmConfig) {
     let round = LmConfig {
         step_tolerance: lm_cfg.step_tolerance.max(1e-4),
@@ -105,7 +106,8 @@ const COARSE_FACTOR: f64 = 2.0;
 /// translation of the points about 10 m out, a typical radius of a submap's reflectors).
 const AA_LENGTH: f64 = 10.0;
 
-/// Earlier rounds the Anderson mixing combines (3 parameters: at most 2 differences are independent).
+/// Earlier rounds the Anderson mixing combines (3 parameters: at most 2 differences are
+/// independent).
 const AA_DEPTH: usize = 2;
 
 /// `(x, y, L theta)` of `t`, the angle unwrapped next to `near` (same units).
@@ -120,8 +122,8 @@ fn aa_pose(v: &Vec3) -> Iso2 {
     Iso2::new(v.xy(), v.z / AA_LENGTH)
 }
 
-/// Anderson mixing (type II, Walker & Ni 2011) of the rounds' outputs `g` and residuals `f = g - u`,
-/// oldest first: `g_last - dG gamma` with `gamma = argmin |f_last - dF gamma|`. `None` when the
+/// Anderson mixing (type II, Walker & Ni 2011) of the rounds' outputs `g` and residuals `f = g -
+/// u`, oldest first: `g_last - dG gamma` with `gamma = argmin |f_last - dF gamma|`. `None` when the
 /// differences are degenerate.
 fn anderson(history: &[(Vec3, Vec3)]) -> Option<Vec3> {
     let n = history.len().checked_sub(1).filter(|&n| n > 0)?;
@@ -137,29 +139,30 @@ fn anderson(history: &[(Vec3, Vec3)]) -> Option<Vec3> {
 /// Which rounds [`refine_dense`] runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rounds {
-    /// At most `iterations` plain rounds.
+    /// At most [`super::ITERATIONS`] plain rounds.
     Plain,
-    /// At most `polish_rounds` Anderson-accelerated rounds, continuing plain ones that had not settled.
+    /// At most `polish_rounds` Anderson-accelerated rounds, continuing plain ones that had not
+    /// settled.
     Accelerated,
 }
 
 /// Re-associates and re-solves eq. 10 from `initial`; `None` when too few pairs pass the gates (the
 /// caller keeps its estimate).
 ///
-/// A round pairs every source point with its nearest target point and solves eq. 10 over those pairs:
-/// a fixed-point iteration (ICP). It converges slowly along a facade, where the radar's long
+/// A round pairs every source point with its nearest target point and solves eq. 10 over those
+/// pairs: a fixed-point iteration (ICP). It converges slowly along a facade, where the radar's long
 /// cross-range covariances leave the pose free to slide a little each round (on the demo drive the
 /// rounds' steps shrink by only 0.7-0.8 each).
 ///
 /// [`Rounds::Accelerated`] continues them with Anderson acceleration (AA-ICP, Pavlov et al., ICRA
-/// 2018): each next pose mixes the last rounds' outputs so as to cancel their residuals. The pairs are
-/// Euclidean nearest neighbours while eq. 10 is Mahalanobis, so no energy decreases from round to round
-/// that could safeguard the mixing (measured: the truncated robust energy rose while the rounds
-/// converged, and a safeguard on it refused useful mixes); the mixed pose is instead kept within ten
-/// round steps of the plain one. Registration polishes only the winning hypothesis with it:
-/// accelerating every hypothesis also slid wrong ones along a street to alignments fitting nearly as
-/// well, which the ambiguity gate then refused (revisit recall on the five-radar 1 % drive 96.0 ->
-/// 94.9 %).
+/// 2018): each next pose mixes the last rounds' outputs so as to cancel their residuals. The pairs
+/// are Euclidean nearest neighbours while eq. 10 is Mahalanobis, so no energy decreases from round
+/// to round that could safeguard the mixing (measured: the truncated robust energy rose while the
+/// rounds converged, and a safeguard on it refused useful mixes); the mixed pose is instead kept
+/// within ten round steps of the plain one. Registration polishes only the winning hypothesis with
+/// it: accelerating every hypothesis also slid wrong ones along a street to alignments fitting
+/// nearly as well, which the ambiguity gate then refused (revisit recall on the five-radar 1 %
+/// drive 96.0 -> 94.9 %).
 pub fn refine_dense(
     source: &PointSet2,
     target: &PointSet2,
@@ -170,7 +173,7 @@ pub fn refine_dense(
     mode: Rounds,
 ) -> Result<Option<DenseResult>, RegistrationError> {
     let (rounds, accelerate) = match mode {
-        Rounds::Plain => (cfg.iterations, false),
+        Rounds::Plain => (super::ITERATIONS, false),
         Rounds::Accelerated => (cfg.polish_rounds, true),
     };
     let mut out: Option<DenseResult> = None;
@@ -180,8 +183,8 @@ pub fn refine_dense(
     let mut t = *initial;
     let mut history: Vec<(Vec3, Vec3)> = Vec::with_capacity(AA_DEPTH + 1);
     let mut memory = NearestMemory::default();
-    // Plain rounds start with `coarse_rounds` at doubled gates (see `DenseConfig::coarse_rounds`).
-    let coarse_n = if accelerate { 0 } else { cfg.coarse_rounds };
+    // Plain rounds start with [`super::COARSE_ROUNDS`] at doubled gates.
+    let coarse_n = if accelerate { 0 } else { super::COARSE_ROUNDS };
     let wide = DenseConfig {
         max_distance: cfg.max_distance * COARSE_FACTOR,
         gate: cfg.gate * COARSE_FACTOR,
@@ -191,7 +194,7 @@ pub fn refine_dense(
         let coarse = round < coarse_n;
         let rcfg = if coarse { &wide } else { cfg };
         let pairs = associate_with(source, target, tree, &t, rcfg, Some(&mut memory));
-        if pairs.len() < cfg.min_pairs {
+        if pairs.len() < super::MIN_PAIRS {
             break;
         }
         // One Gauss-Newton step per round: the pairs change before the next step anyway (as in
@@ -252,9 +255,9 @@ mod tests {
     use super::*;
     use crate::math::{Mat3, Vec2};
 
-    /// On a slowly contracting linear map `G(u) = A u + b` (what the rounds look like near the solution:
-    /// steps shrinking by 0.8 along one direction), the mixing reaches the fixed point in a few rounds
-    /// where plain iteration crawls.
+    /// On a slowly contracting linear map `G(u) = A u + b` (what the rounds look like near the
+    /// solution: steps shrinking by 0.8 along one direction), the mixing reaches the fixed point in
+    /// a few rounds where plain iteration crawls.
     #[test]
     fn anderson_mixing_finds_the_fixed_point_of_a_slow_linear_map() {
         let a = Mat3::new(0.8, 0.05, 0.0, -0.05, 0.5, 0.1, 0.0, 0.02, 0.3);

@@ -5,8 +5,8 @@
 use super::{PointSet2, SUBSET_SEED, TargetTree};
 use crate::math::{Iso2, Vec2, Vec3, se2_exp};
 
-/// The grid cells a point set covers, widened by one cell: a cheap overlap for screening many candidate
-/// motions before the few best are refined ([`Coverage::count`]).
+/// The grid cells a point set covers, widened by one cell: a cheap overlap for screening many
+/// candidate motions before the few best are refined ([`Coverage::count`]).
 #[derive(Debug, Clone)]
 pub struct Coverage {
     origin: Vec2,
@@ -20,8 +20,8 @@ pub struct Coverage {
 const COVERAGE_MAX_CELLS: usize = 1 << 22;
 
 impl Coverage {
-    /// The cells of `points` (finite) and their eight neighbours, at `cell` metres (or coarser when the
-    /// points spread too far for [`COVERAGE_MAX_CELLS`]).
+    /// The cells of `points` (finite) and their eight neighbours, at `cell` metres (or coarser when
+    /// the points spread too far for [`COVERAGE_MAX_CELLS`]).
     pub fn new(points: &[Vec2], cell: f64) -> Self {
         let Some((lo, hi)) = crate::registration::grid::finite_bounds(points) else {
             return Coverage {
@@ -91,13 +91,13 @@ pub fn probes(set: &PointSet2, n: usize) -> Vec<Vec2> {
         .collect()
 }
 
-/// How well `source` moved by `t` lies on `target`: the mean over the source points of
-/// `exp(-d^2 / (2 sigma^2))`, `d` the distance to the nearest target point (0..1), as `(weighted,
-/// plain)`: weighted by `weights` (one per source point, [`object_weights`]; `None` or a wrong length
-/// weighs all alike) and with every point alike. Unlike the overlap (the share of points with a
-/// partner inside the gates) it rewards a close fit more than a loose one, so a street slid along
-/// itself, whose facade samples pair within a metre, scores below the true alignment, whose poles
-/// and corners fit within decimetres.
+/// How well `source` moved by `t` lies on `target`: the mean over the source points of `exp(-d^2 /
+/// (2 sigma^2))`, `d` the distance to the nearest target point (0..1), as `(weighted, plain)`:
+/// weighted by `weights` (one per source point, [`object_weights`]; `None` or a wrong length weighs
+/// all alike) and with every point alike. Unlike the overlap (the share of points with a partner
+/// inside the gates) it rewards a close fit more than a loose one, so a street slid along itself,
+/// whose facade samples pair within a metre, scores below the true alignment, whose poles and
+/// corners fit within decimetres.
 pub fn fit_score(
     source: &PointSet2,
     weights: Option<&[f64]>,
@@ -144,9 +144,10 @@ fn score_by(
     (weighted, plain)
 }
 
-/// The translation `(x, y, 0)` (source frame, right perturbation: `t Exp(v)`) from `t` to the nearest
-/// local maximum of the weighted [`fit_score`] at `sigma`, within `max_offset` of `t`: a compass
-/// search whose step halves from [`PEAK_STEPS`]`.0` to `.1` m each time no neighbour scores higher.
+/// The translation `(x, y, 0)` (source frame, right perturbation: `t Exp(v)`) from `t` to the
+/// nearest local maximum of the weighted [`fit_score`] at `sigma`, within `max_offset` of `t`: a
+/// compass search whose step halves from [`PEAK_STEPS`]`.0` to `.1` m each time no neighbour scores
+/// higher.
 pub fn score_peak(
     source: &PointSet2,
     weights: &[f64],
@@ -228,17 +229,30 @@ impl Neighbourhoods {
     }
 }
 
-/// The first and the finest step of [`score_peak`]'s search, m: the finest is a sixth of the fit
-/// score's default 0.35 m kernel (`registration.selection_sigma`).
+/// Width of the fit score that picks the winner among a registration's refined hypotheses, m: the
+/// mean over the source points of `exp(-d^2 / 2 sigma^2)`, `d` the distance to the nearest target
+/// point at the hypothesis ([`fit_score`]).
+pub const SELECTION_SIGMA: f64 = 0.35;
+
+/// Radius of the objects the fit score counts once, m: each source point weighs 1 / (the source
+/// points near it, itself included), so that a pole or a building corner weighs as much as a parked
+/// car or a stretch of facade. Two passes of a street see its facades, poles and corners again but
+/// not all its parked cars: counted by points, a street slid by a parking slot or two can fit
+/// better than the truth. The weighted score only chooses;
+/// [`super::super::correlative::BELOW_SCORE`] compares the plain one.
+pub const SELECTION_OBJECT_RADIUS: f64 = 2.5;
+
+/// The first and the finest step of [`score_peak`]'s search, m: the finest is a sixth of
+/// [`SELECTION_SIGMA`].
 const PEAK_STEPS: (f64, f64) = (0.5, 0.0625);
 
 /// Weights of `points` in [`fit_score`]: 1 / (the points near it, itself included), so that every
 /// object of about `radius` weighs about as much in total, however many detections it gave (see
-/// `RegistrationConfig::selection_object_radius`); all 1 when `radius` is 0. "Near" is counted from
-/// a grid of `radius / 2` cells: the points of the cells within `radius` (a square of 2.5 radii on
-/// average; [`crate::registration::grid::PointGrid::count_near`]), which needs no distance per pair. (The dense
-/// stage's own 2 m grid, a 6 m square at 2.5 m, put 411 of the demo's 416 pairs inside 2 m against
-/// 412, at the same bench time.)
+/// [`SELECTION_OBJECT_RADIUS`]); all 1 when `radius` is 0. "Near" is counted from a grid of `radius
+/// / 2` cells: the points of the cells within `radius` (a square of 2.5 radii on average;
+/// [`crate::registration::grid::PointGrid::count_near`]), which needs no distance per pair. (The
+/// dense stage's own 2 m grid, a 6 m square at 2.5 m, put 411 of the demo's 416 pairs inside 2 m
+/// against 412, at the same bench time.)
 pub fn object_weights(points: &[Vec2], radius: f64) -> Vec<f64> {
     if radius <= 0.0 || points.is_empty() {
         return vec![1.0; points.len()];
@@ -313,7 +327,8 @@ mod tests {
     }
 
     /// The neighbourhood lists give [`fit_score`]'s weighted score to the bit at every translation
-    /// within their reach, however the points fall (points on and off the target, some beyond reach).
+    /// within their reach, however the points fall (points on and off the target, some beyond
+    /// reach).
     #[test]
     fn neighbourhood_lists_score_as_the_grid_does() {
         use rand::{RngExt, SeedableRng};
@@ -345,10 +360,10 @@ mod tests {
         }
     }
 
-    /// The fit score's peak against a known transform: twelve reflectors moved by 0.7 m along x, and a
-    /// facade sampled 400 times along x, which fits at any shift along itself. From the identity the
-    /// search finds the reflectors' alignment to the 1/16 m of its finest step; it stays within
-    /// `max_offset`; from the peak itself it does not move.
+    /// The fit score's peak against a known transform: twelve reflectors moved by 0.7 m along x,
+    /// and a facade sampled 400 times along x, which fits at any shift along itself. From the
+    /// identity the search finds the reflectors' alignment to the 1/16 m of its finest step; it
+    /// stays within `max_offset`; from the peak itself it does not move.
     #[test]
     fn the_score_peak_is_the_alignment_of_the_objects() {
         let reflectors: Vec<Vec2> = (0..12)

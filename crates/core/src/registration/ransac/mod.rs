@@ -1,15 +1,16 @@
 //! RANSAC on a planar rigid motion (Fischler & Bolles 1981) over candidate correspondences.
 //!
-//! Minimal sets of two correspondences are screened by cheap distance checks, scored by their support
-//! (source points with a candidate within the inlier radius) and drawn until the adaptive stopping rule
-//! is met; a motion that enters the kept set is locally optimised (LO-RANSAC). The random generator is
-//! seeded from the configuration: the same input gives the same output. docs/algorithm.md, "RANSAC",
-//! has the checks, the stopping rule and why support counts points.
+//! Minimal sets of two correspondences are screened by cheap distance checks, scored by their
+//! support (source points with a candidate within the inlier radius) and drawn until the adaptive
+//! stopping rule is met; a motion that enters the kept set is locally optimised (LO-RANSAC). The
+//! random generator is seeded from the configuration: the same input gives the same output.
+//! docs/algorithm.md, "RANSAC", has the checks, the stopping rule and why support counts points.
 //!
-//! Entry points: [`RansacConfig`], [`ransac`] (RANSAC on given correspondences), [`ransac_hypotheses`]
-//! (the best distinct motions, [`Distinct`], for the caller to judge geometrically), [`RansacResult`],
-//! [`fit_rigid`] (closed-form least-squares rigid fit, 2-D Procrustes / Umeyama 1991).
-//! Parts: `columns` (the inlier test and support count over blocks of pairs).
+//! Entry points: [`RansacConfig`], [`ransac`] (RANSAC on given correspondences),
+//! [`ransac_hypotheses`] (the best distinct motions, [`Distinct`], for the caller to judge
+//! geometrically), [`RansacResult`], [`fit_rigid`] (closed-form least-squares rigid fit, 2-D
+//! Procrustes / Umeyama 1991). Parts: `columns` (the inlier test and support count over blocks of
+//! pairs).
 
 mod columns;
 
@@ -22,6 +23,15 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
+/// Upper bound on drawn pairs, rejected or not.
+pub const MAX_ITERATIONS: usize = 20_000;
+
+/// Minimum distance between the two source points of a minimal set, m.
+pub const MIN_SAMPLE_SEPARATION: f64 = 2.0;
+
+/// Least-squares refits on the inlier set after the search.
+pub const REFIT_ROUNDS: usize = 3;
+
 /// RANSAC settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -29,18 +39,12 @@ pub struct RansacConfig {
     /// Inlier radius `|y - T x|`, m (default 1.0; the DC-Loc authors' code uses 0.75).
     pub inlier_threshold: f64,
     /// When > 0, inliers are judged by the Mahalanobis distance `sqrt(d^T (Sy + R Sx R^T)^-1 d)`
-    /// against this gate (in sigma) instead of `inlier_threshold`; 0 = off (default 0). During
-    /// the search a rotation-free bound is used (`|d|^2 <= gate^2 (lmax(Sx) + lmax(Sy))`), the exact
+    /// against this gate (in sigma) instead of `inlier_threshold`; 0 = off (default 0). During the
+    /// search a rotation-free bound is used (`|d|^2 <= gate^2 (lmax(Sx) + lmax(Sy))`), the exact
     /// test in the final refit.
     pub mahalanobis_gate: f64,
     /// Probability of having drawn at least one all-inlier pair when stopping (default 0.999).
     pub confidence: f64,
-    /// Upper bound on drawn pairs, rejected or not (default 20000).
-    pub max_iterations: usize,
-    /// Minimum distance between the two source points of a minimal set, m (default 2.0).
-    pub min_sample_separation: f64,
-    /// Least-squares refits on the inlier set after the search (default 3).
-    pub refit_rounds: usize,
     /// Seed of the random generator (default 0x5EED).
     pub seed: u64,
 }
@@ -51,9 +55,6 @@ impl Default for RansacConfig {
             inlier_threshold: 1.0,
             mahalanobis_gate: 0.0,
             confidence: 0.999,
-            max_iterations: 20_000,
-            min_sample_separation: 2.0,
-            refit_rounds: 3,
             seed: 0x5EED,
         }
     }
@@ -62,13 +63,10 @@ impl Default for RansacConfig {
 impl RansacConfig {
     /// Declares each field's range (see [`Validator`]).
     pub fn check(&self, v: &mut Validator) {
-        v.count("refit_rounds", self.refit_rounds, 0, 100);
         v.range("seed", self.seed as f64, Range::NON_NEGATIVE);
         v.positive("inlier_threshold", self.inlier_threshold);
         v.non_negative("mahalanobis_gate", self.mahalanobis_gate);
         v.range("confidence", self.confidence, Range::above(0.0).below(1.0));
-        v.at_least("max_iterations", self.max_iterations, 1);
-        v.non_negative("min_sample_separation", self.min_sample_separation);
     }
 }
 
@@ -124,11 +122,11 @@ fn lambda_max(c: &Mat2) -> f64 {
     0.5 * tr + (0.25 * tr * tr - det).max(0.0).sqrt()
 }
 
-/// RANSAC over `correspondences` between `source` and `target`: the motion explaining the most source
-/// points.
+/// RANSAC over `correspondences` between `source` and `target`: the motion explaining the most
+/// source points.
 ///
 /// Errors: [`RegistrationError::TooFewInliers`] when there are fewer than 2 correspondences or no
-/// usable minimal set (e.g. all source points within `min_sample_separation` of each other);
+/// usable minimal set (e.g. all source points within [`MIN_SAMPLE_SEPARATION`] of each other);
 /// [`RegistrationError::Numerical`] for an index out of range or a non-finite point.
 pub fn ransac(
     source: &PointSet2,
@@ -141,6 +139,13 @@ pub fn ransac(
         .next()
         .ok_or(RegistrationError::TooFewInliers { have: 0, need: 2 })
 }
+
+/// Two refined hypotheses farther apart than this, m, are different alignments (for
+/// `runner_up_overlap`, and for refining a hypothesis only once).
+pub const AMBIGUITY_TRANSLATION: f64 = 1.0;
+
+/// The same in rotation, rad.
+pub const AMBIGUITY_ROTATION: f64 = 0.05;
 
 /// `a` and `b` are within `translation` (m) and `rotation` (rad) of each other.
 pub fn same_motion(a: &Iso2, b: &Iso2, translation: f64, rotation: f64) -> bool {
@@ -176,10 +181,10 @@ impl Distinct {
     }
 }
 
-/// RANSAC keeping up to `distinct.keep` different motions, best supported first: the best one and the
-/// best other local maxima of the support (source points explained). Scene aliasing (a facade slid
-/// by a window spacing, a repeated block) can give a wrong motion more descriptor support than the
-/// true one; the caller then judges the kept motions by their geometric overlap.
+/// RANSAC keeping up to `distinct.keep` different motions, best supported first: the best one and
+/// the best other local maxima of the support (source points explained). Scene aliasing (a facade
+/// slid by a window spacing, a repeated block) can give a wrong motion more descriptor support than
+/// the true one; the caller then judges the kept motions by their geometric overlap.
 ///
 /// The stopping rule follows the best support; each kept motion is locally optimised (LO-RANSAC,
 /// Chum et al. 2003: refit on its inliers and rescore while the support grows) and finally refitted
@@ -216,7 +221,7 @@ pub fn ransac_hypotheses(
     };
     let mut out = Vec::with_capacity(search.kept.len());
     for (_, t) in search.kept {
-        let (t, inliers) = refit(t, &pairs, cfg, &inliers_of);
+        let (t, inliers) = refit(t, &pairs, &inliers_of);
         out.push(RansacResult {
             t_target_source: t,
             inliers,
@@ -227,8 +232,8 @@ pub fn ransac_hypotheses(
     Ok(out)
 }
 
-/// The correspondences' points gathered contiguously (cache-friendly scoring) with each pair's squared
-/// inlier radius.
+/// The correspondences' points gathered contiguously (cache-friendly scoring) with each pair's
+/// squared inlier radius.
 struct Pairs {
     xs: Vec<Vec2>,
     ys: Vec<Vec2>,
@@ -287,8 +292,9 @@ struct Search {
     hypotheses: usize,
 }
 
-/// The sampling loop: draws minimal sets until the adaptive stopping rule (or `max_iterations`) is met,
-/// scores each motion that passes the cheap checks, locally optimises those that enter the kept set.
+/// The sampling loop: draws minimal sets until the adaptive stopping rule (or `max_iterations`) is
+/// met, scores each motion that passes the cheap checks, locally optimises those that enter the
+/// kept set.
 fn search(
     pairs: &Pairs,
     correspondences: &[Correspondence],
@@ -312,9 +318,9 @@ fn search(
     let mut score = Scorer::new(&cols, &slots, slot_of.len());
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
-    let min_sep2 = cfg.min_sample_separation * cfg.min_sample_separation;
+    let min_sep2 = MIN_SAMPLE_SEPARATION * MIN_SAMPLE_SEPARATION;
     let log_fail = (1.0 - cfg.confidence).ln();
-    let mut needed = cfg.max_iterations;
+    let mut needed = MAX_ITERATIONS;
     // Kept motions (support, motion), best first.
     let mut kept: Vec<(usize, Iso2)> = Vec::with_capacity(distinct.keep + 1);
     let keep = distinct.keep.max(1);
@@ -341,7 +347,7 @@ fn search(
         let best_before = kept.first().map_or(0, |k| k.0);
         insert_distinct(&mut kept, (count, t), keep, distinct);
         if count > best_before {
-            needed = iterations_needed(count, n, log_fail, iterations, cfg);
+            needed = iterations_needed(count, n, log_fail, iterations);
         }
     }
     Search {
@@ -352,8 +358,8 @@ fn search(
 }
 
 /// The motion of the minimal set of pairs `a` and `b`, or `None` when the set is rejected before
-/// scoring: a point shared, source points closer than `min_sample_separation` (squared: `min_sep2`), or
-/// distances that no rigid motion can make both inliers.
+/// scoring: a point shared, source points closer than [`MIN_SAMPLE_SEPARATION`] (squared:
+/// `min_sep2`), or distances that no rigid motion can make both inliers.
 fn minimal_motion(
     pairs: &Pairs,
     correspondences: &[Correspondence],
@@ -383,9 +389,9 @@ fn minimal_motion(
     Some(Iso2::from_parts((mid_y - rot * mid_x).into(), rot))
 }
 
-/// Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points, which cuts
-/// far inliers off; refit on the inliers and rescore while the support grows. Returns the final
-/// (support, motion).
+/// Local optimisation (LO-RANSAC): a minimal sample's motion is as noisy as its two points, which
+/// cuts far inliers off; refit on the inliers and rescore while the support grows. Returns the
+/// final (support, motion).
 fn local_optimisation(
     cols: &Columns,
     score: &mut Scorer<'_>,
@@ -409,15 +415,10 @@ fn local_optimisation(
     (count, t)
 }
 
-/// The adaptive stopping rule `N = ln(1 - p) / ln(1 - w^2)` for a best support of `count` of `n` pairs,
-/// clamped to `1..=max_iterations` (`iterations`, the pairs drawn so far, when every pair is an inlier).
-fn iterations_needed(
-    count: usize,
-    n: usize,
-    log_fail: f64,
-    iterations: usize,
-    cfg: &RansacConfig,
-) -> usize {
+/// The adaptive stopping rule `N = ln(1 - p) / ln(1 - w^2)` for a best support of `count` of `n`
+/// pairs, clamped to `1..=`[`MAX_ITERATIONS`] (`iterations`, the pairs drawn so far, when every
+/// pair is an inlier).
+fn iterations_needed(count: usize, n: usize, log_fail: f64, iterations: usize) -> usize {
     let w = count as f64 / n as f64;
     let p_good = w * w;
     if p_good >= 1.0 {
@@ -425,23 +426,22 @@ fn iterations_needed(
     } else {
         let k = (log_fail / (1.0 - p_good).ln()).ceil();
         if k.is_finite() {
-            (k as usize).clamp(1, cfg.max_iterations)
+            (k as usize).clamp(1, MAX_ITERATIONS)
         } else {
-            cfg.max_iterations
+            MAX_ITERATIONS
         }
     }
 }
 
 /// Least-squares refits of motion `t` on its inliers (`inliers_of`) until they are stable, at most
-/// `refit_rounds`; a refit that loses inliers is not taken. Returns the motion and its inliers.
+/// [`REFIT_ROUNDS`]; a refit that loses inliers is not taken. Returns the motion and its inliers.
 fn refit(
     mut t: Iso2,
     pairs: &Pairs,
-    cfg: &RansacConfig,
     inliers_of: &dyn Fn(&Iso2) -> Vec<usize>,
 ) -> (Iso2, Vec<usize>) {
     let mut inliers = inliers_of(&t);
-    for _ in 0..cfg.refit_rounds {
+    for _ in 0..REFIT_ROUNDS {
         let Some(t_new) = fit_rigid(inliers.iter().map(|&k| (pairs.xs[k], pairs.ys[k]))) else {
             break;
         };

@@ -250,7 +250,7 @@ impl Collector {
                 t_map_body,
                 speed,
             } => self.push_ground_truth(*stamp, *t_map_body, *speed),
-            Input::Odometry { .. } | Input::Keyframe(_) => {}
+            Input::Odometry { .. } | Input::Imu { .. } | Input::Keyframe(_) => {}
         }
         let events = self.pipeline.push(input);
         for e in &events {

@@ -32,6 +32,8 @@ const COAST_ACCELERATION: f64 = 3.0;
 const COAST_YAW_ACCELERATION: f64 = 0.5;
 /// The previous twist is a prior for the next fit within this age, s.
 const PRIOR_AGE: f64 = 0.5;
+/// Weight of the newest step in the smoothed body acceleration (an exponential filter over steps).
+const ACCELERATION_GAIN: f64 = 0.3;
 /// Shortest window the gyro is averaged over around a step's scans, s.
 const MIN_GYRO_WINDOW: f64 = 0.04;
 
@@ -85,6 +87,8 @@ struct Previous {
     stamp: Stamp,
     twist: Vec3,
     covariance: Mat3,
+    /// The body's acceleration `d twist / dt`, smoothed over the steps.
+    acceleration: Vec3,
 }
 
 /// The gyro and what is known of it.
@@ -208,10 +212,11 @@ impl RadarOdometry {
         };
         self.stats.steps += 1;
         let start = self.integrator.map_or(first, |i| i.stamp());
-        let prior = self
+        let recent = self
             .previous
-            .filter(|p| last.secs_since(p.stamp) <= PRIOR_AGE)
-            .map(|p| p.twist);
+            .filter(|p| last.secs_since(p.stamp) <= PRIOR_AGE);
+        let prior = recent.map(|p| p.twist);
+        let acceleration = recent.map_or(Vec3::zeros(), |p| p.acceleration);
         let scans: Vec<StepScan<'_>> = group
             .iter()
             .map(|s| StepScan {
@@ -219,6 +224,7 @@ impl RadarOdometry {
                 t_body_radar: self.radars[s.radar].t_body_radar,
                 detections: &s.detections,
                 sigma_velocity: self.radars[s.radar].noise.sigma_velocity,
+                shift: acceleration * last.secs_since(s.stamp),
             })
             .collect();
         let info = doppler_information(&scans, prior, self.lateral_sigma, &self.ego);
@@ -253,13 +259,25 @@ impl RadarOdometry {
         }
         let integrator = self.integrator.as_mut().expect("set above");
         if dt > 0.0 {
+            // Trapezoids: the mean of the two ends' twists over the step (the twist alone would be
+            // a step late while the body accelerates: centimetres over 10 m). The white part stays
+            // the newest twist's, the variance each twist adds to a sum of steps.
+            let mean = recent.map_or(twist, |p| 0.5 * (p.twist + twist));
             let heading = gyro.map(|g| g.heading);
-            integrator.step(last, &step_motion(twist, covariance, dt, heading));
+            integrator.step(last, &step_motion(mean, covariance, dt, heading));
         }
+        let acceleration = match recent {
+            Some(p) if !coasting && last > p.stamp => {
+                let step = (twist - p.twist) / last.secs_since(p.stamp);
+                p.acceleration + (step - p.acceleration) * ACCELERATION_GAIN
+            }
+            _ => acceleration,
+        };
         self.previous = Some(Previous {
             stamp: last,
             twist,
             covariance,
+            acceleration,
         });
         let bias_variance = self.gyro.as_ref().map_or(0.0, |g| g.bias.variance);
         let integrator = self.integrator.expect("set above");

@@ -34,6 +34,10 @@ pub struct StepScan<'a> {
     /// The radar's radial-velocity noise, m/s (`radars.<name>.sigma_velocity`): the floor of the
     /// residual spread a fit's covariance is scaled by.
     pub sigma_velocity: f64,
+    /// How much the body twist changes from the scan's stamp to the step's, `(m/s, m/s, rad/s)`: the
+    /// radars of a step measure at different times, and between the left and the right radars a
+    /// speed change of a few cm/s reads as a yaw rate of a few hundredths of a rad/s.
+    pub shift: Vec3,
 }
 
 /// Why one radar's scan gave no velocity.
@@ -167,6 +171,7 @@ pub fn doppler_information(
     for s in scans {
         let a = radar_velocity_map(&s.t_body_radar);
         let result = fit_scan(s, prior.map(|x| a * x), cfg).map(|(u, c, n)| {
+            let u = u + a * s.shift;
             let w = c.try_inverse().unwrap_or_else(Mat3::zeros);
             let w2 = w.fixed_view::<2, 2>(0, 0).into_owned();
             info.information += a.transpose() * w2 * a;
@@ -308,6 +313,7 @@ mod tests {
                 t_body_radar: *m,
                 detections: d,
                 sigma_velocity: 0.1,
+                shift: Vec3::zeros(),
             })
             .collect()
     }

@@ -10,6 +10,7 @@ pub mod drives;
 pub mod export;
 pub mod fleet;
 pub mod judge;
+pub mod odometry;
 pub mod report;
 pub mod revisits;
 

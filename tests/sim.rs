@@ -195,6 +195,7 @@ fn scan_statistics_look_like_an_ars408() {
         dc_loc::sim::SimEventRef::GroundTruth(g) => g.stamp,
         dc_loc::sim::SimEventRef::Odometry(o) => o.stamp,
         dc_loc::sim::SimEventRef::Scan(s) => s.scan.stamp,
+        dc_loc::sim::SimEventRef::Imu(i) => i.stamp,
     };
     assert!(ev.windows(2).all(|w| stamp(&w[0]) <= stamp(&w[1])));
     assert!(matches!(ev[0], dc_loc::sim::SimEventRef::GroundTruth(_)));

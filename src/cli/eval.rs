@@ -124,7 +124,7 @@ pub fn collect(
                     Input::GroundTruth { .. } => ground_truth += 1,
                     Input::Radar { .. } | Input::Scan(_) => radar += 1,
                     Input::Odometry { .. } => odometry += 1,
-                    Input::Keyframe(_) => {}
+                    Input::Keyframe(_) | Input::Imu { .. } => {}
                 }
                 collector.push(&input);
             }

@@ -14,6 +14,7 @@ use crate::eval::judge::{RevisitReport, format_revisit_table};
 use crate::eval::revisits::{
     CalibrationError, DEFAULT_GAMMA_SHAPE, RevisitScenario, evaluate_scenario,
 };
+use crate::odometry::OdometrySource;
 use crate::params::{ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
 use crate::sim::families::{self, ProtocolWorld};
@@ -82,6 +83,11 @@ pub struct RevisitArgs {
     /// Parameter override applied to every scenario's pipeline configuration (repeatable).
     #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
     pub overrides: Vec<String>,
+    /// Where the pipeline's odometry comes from: `topic` (the simulated wheel odometry, drifting by
+    /// `--drift`), `radar` (the radars' Doppler), `radar_imu` (the radars' Doppler and a simulated
+    /// 100 Hz gyro).
+    #[arg(long, value_delimiter = ',', default_value = "topic")]
+    pub odometry: Vec<String>,
     /// Writes every judged closure as JSON lines here.
     #[arg(long, value_name = "FILE")]
     pub closures_out: Option<PathBuf>,
@@ -107,6 +113,17 @@ pub(super) fn parse_noise(s: &str) -> Result<NoiseModel, CliError> {
         "none" => Ok(NoiseModel::None),
         _ => Err(CliError::Usage(format!(
             "--noise: unknown noise model `{s}` (gaussian, gamma, student-t, none)"
+        ))),
+    }
+}
+
+pub(super) fn parse_odometry(s: &str) -> Result<OdometrySource, CliError> {
+    match s {
+        "topic" => Ok(OdometrySource::Topic),
+        "radar" => Ok(OdometrySource::Radar),
+        "radar_imu" | "radar-imu" => Ok(OdometrySource::RadarImu),
+        _ => Err(CliError::Usage(format!(
+            "--odometry: unknown source `{s}` (topic, radar, radar_imu)"
         ))),
     }
 }
@@ -207,6 +224,24 @@ fn scenarios_in(
     };
     for r in &args.radars {
         let radars = parse_preset(r)?;
+        for o in &args.odometry {
+            let odometry = parse_odometry(o)?;
+            scenarios_for(args, world, radars, odometry, noise_factors, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// The scenarios of one world, radar set and odometry source: every noise model, drift and direction.
+fn scenarios_for(
+    args: &RevisitArgs,
+    world: ProtocolWorld,
+    radars: RadarPreset,
+    odometry: OdometrySource,
+    noise_factors: [f64; 3],
+    out: &mut Vec<RevisitScenario>,
+) -> Result<(), CliError> {
+    {
         for n in &args.noise {
             let noise = parse_noise(n)?;
             for &d in &args.drift {
@@ -244,6 +279,7 @@ fn scenarios_in(
                         wheel_slip: args.wheel_slip,
                         gamma_shape: args.gamma_shape,
                         noise_factors,
+                        odometry,
                     });
                 }
             }

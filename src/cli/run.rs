@@ -32,6 +32,10 @@ pub struct RunArgs {
     /// Output: one JSON object per loop closure and line.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
+    /// Writes the radar odometry (`odometry.source: radar | radar_imu`) here as a TUM trajectory, one
+    /// `stamp x y z qx qy qz qw` line a sample (s, m, quaternion of `t_odom_body`).
+    #[arg(long, value_name = "FILE")]
+    pub odometry_out: Option<PathBuf>,
     /// Node namespace (for `/<ns>/<node>:` sections of the params file).
     #[arg(long, default_value = "/")]
     pub namespace: String,
@@ -57,11 +61,19 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         total,
         "{elapsed_precise} [{wide_bar}] {pos}/{len} radar messages, {msg} ({eta} left)",
     );
+    let odometry = match &args.odometry_out {
+        Some(p) => Some(BufWriter::new(File::create(p).map_err(|e| {
+            CliError::Runtime(format!("--odometry-out {}: {e}", p.display()))
+        })?)),
+        None => None,
+    };
     let mut sink = ClosureSink {
         out: &mut out,
         closures: 0,
         error: None,
         damaged: Vec::new(),
+        odometry,
+        odometry_samples: 0,
     };
     let mut reports = Vec::new();
     let mut radar_names = Vec::new();
@@ -70,6 +82,12 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
         reports.push(run_segment(segment, &node, &mut sink, &bar)?);
     }
     progress::clear(&bar);
+    if let Some(f) = &mut sink.odometry
+        && let Err(e) = f.flush()
+    {
+        sink.error.get_or_insert(e);
+    }
+    let odometry_samples = sink.odometry_samples;
     let (closures, error, damaged) = (sink.closures, sink.error, sink.damaged);
     if let Some(e) = error {
         return Err(CliError::Runtime(format!("--out {out_path}: {e}")));
@@ -79,7 +97,11 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
     println!("{}", data.describe());
     print_summary(&reports);
     print_doppler(&reports, &radar_names);
+    print_radar_odometry(&reports);
     println!("closures {closures} -> {}", args.out.display());
+    if let Some(p) = &args.odometry_out {
+        println!("odometry samples {odometry_samples} -> {}", p.display());
+    }
     if let Some(mb) = peak_memory_mb() {
         println!("peak memory: {mb} MB");
     }
@@ -98,6 +120,9 @@ struct ClosureSink<'a> {
     closures: u64,
     error: Option<std::io::Error>,
     damaged: Vec<String>,
+    /// The radar odometry's TUM trajectory, when asked for.
+    odometry: Option<BufWriter<File>>,
+    odometry_samples: u64,
 }
 
 /// One segment through a fresh pipeline, its closures into `sink`.
@@ -149,9 +174,33 @@ fn run_segment(
                     }
                 }
             }
+            RunItem::Event(Event::Odometry(o)) => {
+                sink.odometry_samples += 1;
+                if let Some(f) = &mut sink.odometry
+                    && let Err(e) = writeln!(f, "{}", tum_line(o.stamp, &o.t_odom_body))
+                {
+                    sink.error.get_or_insert(e);
+                }
+            }
             RunItem::Event(_) => {}
         },
     ))
+}
+
+/// A pose as a TUM trajectory line: `stamp x y z qx qy qz qw`.
+fn tum_line(stamp: crate::math::Stamp, t: &crate::math::Iso3) -> String {
+    let (p, q) = (t.translation.vector, t.rotation.coords);
+    format!(
+        "{:.9} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
+        stamp.as_secs_f64(),
+        p.x,
+        p.y,
+        p.z,
+        q.x,
+        q.y,
+        q.z,
+        q.w
+    )
 }
 
 fn counts<K: std::fmt::Display>(m: &BTreeMap<K, u64>) -> String {
@@ -220,6 +269,43 @@ fn print_summary(reports: &[RunReport]) {
 
 /// The radars' Doppler against the odometry, per segment: the scans that disagreed, and each radar
 /// flagged as misconfigured with the stamp of the scan that showed it and the likely cause.
+/// The radar odometry's counters of each segment that made its odometry from the radars.
+fn print_radar_odometry(reports: &[RunReport]) {
+    for s in reports
+        .iter()
+        .filter_map(|r| r.stats.radar_odometry.as_ref())
+    {
+        let refused: BTreeMap<&str, u64> = s.scans_refused.clone();
+        let coasted: BTreeMap<&str, u64> = s.coasted.clone();
+        println!(
+            "radar odometry: {} steps, coasted {}; scans fitted {}, refused {}; late scans {}; odometry topic samples ignored {}",
+            s.steps,
+            counts(&coasted),
+            s.scans_fitted,
+            counts(&refused),
+            s.late_scans,
+            s.topic_ignored
+        );
+        if let Some((bias, sigma)) = s.gyro_bias {
+            let g = s.gyro;
+            println!(
+                "gyro: {} samples, {} saturated, {} out of order, {} not finite; {} steps without gyro coverage; bias {:.5} +- {:.5} rad/s ({} updates, {} refused){}",
+                g.samples,
+                g.saturated,
+                g.out_of_order,
+                g.non_finite,
+                s.gyro_gaps,
+                bias,
+                sigma,
+                s.bias_updates.0,
+                s.bias_updates.1,
+                s.gyro_wrong_frame
+                    .map_or(String::new(), |k| format!("; wrong frame (slope {k:.2})"))
+            );
+        }
+    }
+}
+
 fn print_doppler(reports: &[RunReport], radar_names: &[Vec<String>]) {
     for (r, names) in reports.iter().zip(radar_names) {
         let name = |i: &usize| names.get(*i).map_or("?", String::as_str);

@@ -1,5 +1,5 @@
 //! What enters the pipeline: [`Input`] (a radar cloud, a decoded scan, an odometry or ground-truth
-//! sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft, the simulator, the
+//! sample, a gyro sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft, the simulator, the
 //! node's DDS subscriptions), the [`InputIssue`] a source reports for a message it skips, and the
 //! conversions of ROS messages into inputs ([`odometry_pose`], [`ground_truth_sample`],
 //! [`header_stamp`]).
@@ -35,6 +35,13 @@ pub enum Input {
         /// Body pose in the odometry frame.
         t_odom_body: Iso3,
     },
+    /// A gyro sample (`sensor_msgs/Imu`), read with `odometry.source: radar_imu`.
+    Imu {
+        /// Its stamp.
+        stamp: Stamp,
+        /// Angular velocity in the IMU frame, rad/s.
+        angular_velocity: Vec3,
+    },
     /// Another robot's keyframe, the message as its node shared it (`node.fleet`).
     Keyframe(Box<crate::msgs::dc_loc::Keyframe>),
     /// A ground-truth sample (not used by the pipeline; for evaluation).
@@ -55,7 +62,9 @@ impl Input {
             Input::Radar { cloud, .. } => cloud.header.stamp.into(),
             Input::Scan(scan) => scan.stamp,
             Input::Keyframe(k) => k.header.stamp.into(),
-            Input::Odometry { stamp, .. } | Input::GroundTruth { stamp, .. } => *stamp,
+            Input::Odometry { stamp, .. }
+            | Input::Imu { stamp, .. }
+            | Input::GroundTruth { stamp, .. } => *stamp,
         }
     }
 }
@@ -222,6 +231,15 @@ pub fn radar_scan_input(radar: usize, stamp: Stamp, msg: &RadarScanMsg) -> Input
 /// Stamp and body pose of an odometry message; `None` when the pose is not finite.
 pub fn odometry_pose(msg: &Odometry) -> Option<(Stamp, Iso3)> {
     Some((msg.header.stamp.into(), msg.pose.pose.to_iso3()?))
+}
+
+/// A `sensor_msgs/Imu` as a gyro input stamped `stamp`.
+pub fn imu_input(stamp: Stamp, msg: &crate::msgs::sensor_msgs::Imu) -> Input {
+    let w = &msg.angular_velocity;
+    Input::Imu {
+        stamp,
+        angular_velocity: Vec3::new(w.x, w.y, w.z),
+    }
 }
 
 /// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message; `None`

@@ -19,6 +19,7 @@ pub mod keyframe_db;
 pub mod loop_closure;
 pub mod math;
 pub mod msgs;
+pub mod odometry;
 pub mod output;
 pub mod pipeline;
 pub mod place;

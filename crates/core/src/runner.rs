@@ -26,6 +26,8 @@ pub struct RunReport {
     pub radar_inputs: u64,
     /// Odometry samples fed to the pipeline.
     pub odometry_inputs: u64,
+    /// Gyro samples fed to the pipeline.
+    pub imu_inputs: u64,
     /// Ground-truth samples read (not fed to the pipeline).
     pub ground_truth_inputs: u64,
     /// Stamp of the first radar or odometry input fed to the pipeline: where the drive starts.
@@ -57,10 +59,14 @@ where
                 match &input {
                     Input::Radar { .. } | Input::Scan(_) => report.radar_inputs += 1,
                     Input::Odometry { .. } => report.odometry_inputs += 1,
+                    Input::Imu { .. } => report.imu_inputs += 1,
                     Input::GroundTruth { .. } => report.ground_truth_inputs += 1,
                     Input::Keyframe(_) => {}
                 }
-                if !matches!(input, Input::GroundTruth { .. } | Input::Keyframe(_)) {
+                if !matches!(
+                    input,
+                    Input::GroundTruth { .. } | Input::Keyframe(_) | Input::Imu { .. }
+                ) {
                     report.first_stamp.get_or_insert(input.stamp());
                 }
                 on_item(RunItem::Input(&input));

@@ -367,6 +367,8 @@ impl Worker {
                     changed = true;
                 }
                 Event::Rejected { .. } => {}
+                // The radar odometry's samples are not published by the node.
+                Event::Odometry(_) => {}
                 // Counted in the pipeline's stats; warned here, rate-limited.
                 Event::Dropped { reason, detail } => self.shared.warn(reason.name(), &detail),
                 Event::EmptyScan { detail } => self.shared.warn("empty_cloud", &detail),

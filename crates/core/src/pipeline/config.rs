@@ -6,6 +6,7 @@
 use crate::keyframe_db::{MapConfig, MapShape, RadarMount};
 use crate::loop_closure::LoopConfig;
 use crate::math::Iso3;
+use crate::odometry::ImuConfig;
 use crate::place::PlaceConfig;
 use crate::radar::RadarConfig;
 use crate::radar::ego_motion::EgoMotionConfig;
@@ -56,8 +57,10 @@ pub struct Config {
     pub radar_names: Vec<String>,
     /// Per-radar settings by name.
     pub radars: BTreeMap<String, RadarConfig>,
-    /// Odometry buffering and interpolation.
+    /// Odometry: its source, buffering and interpolation.
     pub odometry: OdometryConfig,
+    /// The gyro read with `odometry.source: radar_imu`.
+    pub imu: ImuConfig,
     /// Doppler ego-motion and moving-object rejection.
     pub ego_motion: EgoMotionConfig,
     /// Submap stacking.
@@ -84,6 +87,7 @@ impl Default for Config {
             radar_names: vec!["front".into()],
             radars,
             odometry: OdometryConfig::default(),
+            imu: ImuConfig::default(),
             ego_motion: EgoMotionConfig::default(),
             submap: SubmapConfig::default(),
             keyframe: KeyframeConfig::default(),
@@ -211,6 +215,7 @@ impl Config {
             });
         }
         v.section("odometry", |v| self.odometry.check(v));
+        v.section("imu", |v| self.imu.check(v));
         v.section("ego_motion", |v| self.ego_motion.check(v));
         v.section("submap", |v| self.submap.check(v));
         v.section("keyframe", |v| self.keyframe.check(v));

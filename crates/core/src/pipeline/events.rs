@@ -8,6 +8,7 @@ use crate::fleet::FleetState;
 use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::{LoopClosure, RejectReason};
 use crate::math::{Iso3, Stamp};
+use crate::odometry::{OdometryEstimate, RadarOdometryStats};
 use crate::submap::Submap;
 
 /// Why an input was dropped.
@@ -89,6 +90,9 @@ pub enum Event {
     },
     /// A loop closure passed every gate.
     Closure(Box<LoopClosure>),
+    /// An odometry sample of the radar odometry (`odometry.source: radar | radar_imu`), emitted
+    /// before it enters the pipeline as a topic's sample would.
+    Odometry(Box<OdometryEstimate>),
     /// A candidate revisit was rejected.
     Rejected {
         /// Query keyframe.
@@ -175,6 +179,8 @@ pub struct PipelineStats {
     pub speed_scale_refused: u64,
     /// Per other robot (`node.robot_id`): its keyframes received and what became of them.
     pub robots: BTreeMap<i32, RobotCounts>,
+    /// The radar odometry's counters (`odometry.source: radar | radar_imu`).
+    pub radar_odometry: Option<RadarOdometryStats>,
 }
 
 /// Another robot's keyframes received, and what became of them.

@@ -10,6 +10,7 @@ use crate::cloud::decode_detections;
 use crate::input::InputLimits;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::PointCloud2;
+use crate::odometry::RadarOdometry;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{DopplerMonitor, Verdict};
 use crate::radar::doppler::RadarModel;
@@ -85,6 +86,8 @@ pub struct Ingest {
     limits: InputLimits,
     /// The radars' Doppler against the odometry.
     doppler: DopplerMonitor,
+    /// The odometry made from the radars, unless it comes from a topic.
+    radar_odometry: Option<RadarOdometry>,
 }
 
 impl Ingest {
@@ -95,6 +98,12 @@ impl Ingest {
             .into_iter()
             .map(|(_, r)| RadarModel::from(r))
             .collect();
+        let radar_odometry = RadarOdometry::new(
+            &cfg.odometry,
+            &cfg.imu,
+            radars.clone(),
+            cfg.ego_motion.clone(),
+        );
         Ingest {
             odom: OdometryBuffer::new(cfg.odometry.clone()),
             builder: SubmapBuilder::new(cfg.submap.clone(), cfg.ego_motion.clone(), radars),
@@ -108,7 +117,13 @@ impl Ingest {
             last_scan_stamp: BTreeMap::new(),
             limits: InputLimits::default(),
             doppler: DopplerMonitor::default(),
+            radar_odometry,
         }
+    }
+
+    /// The radar odometry, when `odometry.source` is not `topic`.
+    pub fn radar_odometry(&mut self) -> Option<&mut RadarOdometry> {
+        self.radar_odometry.as_mut()
     }
 
     /// See [`super::Pipeline::set_input_limits`].
@@ -201,6 +216,9 @@ impl Ingest {
         self.pending.clear();
         self.last_odom = None;
         self.last_scan_stamp.clear();
+        if let Some(r) = &mut self.radar_odometry {
+            r.reset();
+        }
         stats.time_resets += 1;
         out.push(Event::TimeReset {
             previous: prev,

@@ -28,6 +28,7 @@ use crate::keyframe_db::{ForeignRefusal, KeyframeDb, KeyframeRecord};
 use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
+use crate::odometry::OdometryEstimate;
 use crate::radar::RadarScan;
 use crate::registration::PreparedSubmap;
 use crate::submap::{SpeedScale, Submap};
@@ -170,7 +171,18 @@ impl Pipeline {
                     self.scan(scan.clone(), &mut out);
                 }
             }
-            Input::Odometry { stamp, t_odom_body } => self.odometry(*stamp, *t_odom_body, &mut out),
+            Input::Odometry { stamp, t_odom_body } => match self.ingest.radar_odometry() {
+                Some(r) => r.ignore_topic(),
+                None => self.odometry(*stamp, *t_odom_body, &mut out),
+            },
+            Input::Imu {
+                stamp,
+                angular_velocity,
+            } => {
+                if let Some(r) = self.ingest.radar_odometry() {
+                    r.push_imu(*stamp, *angular_velocity);
+                }
+            }
             Input::Keyframe(k) => self.foreign(k, &mut out),
             Input::GroundTruth { .. } => {}
         }
@@ -181,6 +193,10 @@ impl Pipeline {
     /// (`loop.backfill_per_keyframe`), drops the scans still waiting for odometry and counts them.
     pub fn finish(&mut self) -> Vec<Event> {
         let mut out = Vec::new();
+        if let Some(r) = self.ingest.radar_odometry() {
+            let estimates = r.finish();
+            self.radar_odometry(estimates, &mut out);
+        }
         let mut decisions = Decisions::default();
         self.loops
             .backfill(&mut self.db, usize::MAX, &mut decisions);
@@ -226,9 +242,22 @@ impl Pipeline {
         if !self.time(scan.stamp, "radar scan", out) {
             return;
         }
+        let estimates = self.ingest.radar_odometry().map(|r| r.push_scan(&scan));
         self.ingest
             .queue_scan(&self.cfg, scan, &mut self.stats, out);
         self.process_pending(out);
+        if let Some(estimates) = estimates {
+            self.radar_odometry(estimates, out);
+        }
+    }
+
+    /// The radar odometry's samples: each reported, then taken as a topic's sample is.
+    fn radar_odometry(&mut self, estimates: Vec<OdometryEstimate>, out: &mut Vec<Event>) {
+        for e in estimates {
+            out.push(Event::Odometry(Box::new(e)));
+            self.odometry(e.stamp, e.t_odom_body, out);
+        }
+        self.stats.radar_odometry = self.ingest.radar_odometry().map(|r| r.stats());
     }
 
     /// Stacks every waiting scan that odometry can place now, taking keyframes as the body moves.

@@ -10,6 +10,7 @@
 //! expressed in the body frame at the newest scan's stamp (its *anchor*).
 
 use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, interpolate_iso3};
+use crate::odometry::OdometrySource;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
@@ -63,8 +64,16 @@ pub enum OdometryError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
+    /// Where the odometry comes from: `topic` (default: `nav_msgs/Odometry` on `topic`), `radar` (the
+    /// radars' Doppler, two or more radars mounted apart) or `radar_imu` (the radars' Doppler and the
+    /// gyro on `imu.topic`).
+    pub source: OdometrySource,
     /// nav_msgs/Odometry topic (default `/odom`).
     pub topic: String,
+    /// With `radar` or `radar_imu`: standard deviation of the body's sideways velocity at the body
+    /// origin, m/s (default 0: not assumed). A car with its body frame on the rear axle does not
+    /// slide sideways (about 0.1 m/s); then one radar mounted ahead of the axle sees the yaw rate.
+    pub lateral_velocity_sigma: f64,
     /// How much odometry history to keep, s (default 30).
     pub buffer_duration: f64,
     /// Largest gap between two odometry samples that is still interpolated across, s (default 0.5).
@@ -82,7 +91,9 @@ pub struct OdometryConfig {
 impl Default for OdometryConfig {
     fn default() -> Self {
         OdometryConfig {
+            source: OdometrySource::Topic,
             topic: "/odom".into(),
+            lateral_velocity_sigma: 0.0,
             buffer_duration: 30.0,
             max_gap: 0.5,
             max_extrapolation: 0.05,
@@ -98,6 +109,7 @@ impl OdometryConfig {
         v.require("topic", !self.topic.is_empty(), || {
             "must not be empty".into()
         });
+        v.non_negative("lateral_velocity_sigma", self.lateral_velocity_sigma);
         v.positive("buffer_duration", self.buffer_duration);
         v.positive("max_gap", self.max_gap);
         v.non_negative("max_extrapolation", self.max_extrapolation);

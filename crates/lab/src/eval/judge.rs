@@ -114,6 +114,8 @@ pub struct RevisitReport {
     pub missed: BTreeMap<String, usize>,
     /// Ids of the missed opportunities (query keyframes).
     pub missed_ids: Vec<u64>,
+    /// The odometry's drift and the honesty of its covariance ([`super::odometry`]).
+    pub odometry: super::odometry::OdometryDrift,
 }
 
 /// The radius of a reverse revisit: [`SAME_RADIUS`] plus twice the ego lane's offset (the other
@@ -128,6 +130,8 @@ pub(crate) struct Collected {
     pub keyframes: Vec<(u64, Stamp)>,
     pub closures: Vec<LoopClosure>,
     pub rejections: Vec<(u64, String)>,
+    /// The radar odometry's samples (none with odometry from a topic).
+    pub odometry: Vec<super::odometry::OdometryTrackSample>,
 }
 
 impl Collected {
@@ -140,6 +144,10 @@ impl Collected {
                 Event::Rejected {
                     query_id, reason, ..
                 } => self.rejections.push((query_id, reason.name().to_string())),
+                Event::Odometry(o) => {
+                    self.odometry
+                        .push((o.stamp, iso2_from_iso3(&o.t_odom_body), o.covariance))
+                }
                 _ => {}
             }
         }
@@ -183,6 +191,7 @@ pub(crate) fn judge(
         nees: NeesSummary::default(),
         missed: BTreeMap::new(),
         missed_ids: Vec::new(),
+        odometry: Default::default(),
     };
     let closed = judge_closures(&mut report, &truth, &seen.closures);
     report.nees = NeesSummary::of(report.closures.iter().map(|c| c.nees));
@@ -443,8 +452,8 @@ pub(crate) fn measured_drift(drive: &SimDrive) -> f64 {
 /// The README table: one row per scenario.
 pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     let mut s = String::new();
-    s.push_str("| scenario | drift (measured) | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) / outside the bound (m) | NEES mean / above 99 % |\n");
-    s.push_str("|---|---|---|---|---|---|---|\n");
+    s.push_str("| scenario | drift (measured) | heading drift (deg/100 m) | odometry NEES (10 m) mean / above 99 % | keyframes | same: published / false / precision / recall | reverse: published / false / precision / recall | max error (m, rad) / outside the bound (m) | NEES mean / above 99 % |\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
     let dir = |c: &DirectionCounts| {
         if c.opportunities == 0 && c.published == 0 {
             "-".to_string()
@@ -462,9 +471,12 @@ pub fn format_revisit_table(reports: &[RevisitReport]) -> String {
     };
     for r in reports {
         s.push_str(&format!(
-            "| {} | {:.2} % | {} | {} | {} | {:.2}, {:.4} / {:.2} | {:.1} / {:.1} % |\n",
+            "| {} | {:.2} % | {:.2} | {:.1} / {:.1} % | {} | {} | {} | {:.2}, {:.4} / {:.2} | {:.1} / {:.1} % |\n",
             r.scenario,
             100.0 * r.measured_drift,
+            r.odometry.heading_deg_per_100m,
+            r.odometry.nees_mean,
+            100.0 * r.odometry.nees_above_99,
             r.keyframes,
             dir(&r.same),
             dir(&r.reverse),

@@ -10,6 +10,7 @@ pub mod drives;
 pub mod export;
 pub mod fleet;
 pub mod judge;
+pub mod odometry;
 pub mod report;
 pub mod revisits;
 
@@ -250,7 +251,7 @@ impl Collector {
                 t_map_body,
                 speed,
             } => self.push_ground_truth(*stamp, *t_map_body, *speed),
-            Input::Odometry { .. } | Input::Keyframe(_) => {}
+            Input::Odometry { .. } | Input::Imu { .. } | Input::Keyframe(_) => {}
         }
         let events = self.pipeline.push(input);
         for e in &events {

@@ -9,14 +9,22 @@
 use super::judge::{
     Collected, RevisitReport, judge, keyframe_truth, measured_drift, reverse_radius,
 };
+use super::odometry::{OdometryTrackSample, measure_odometry};
+use crate::sim::imu::ImuSimConfig;
 use crate::sim::inputs::{ScanEncoding, SimInputs};
 use crate::sim::{
     NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig, simulate,
 };
 use dc_loc_core::math::wrap_angle;
+use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::pipeline::{Event, Pipeline};
 use serde::Serialize;
+
+/// Standard deviation of a simulated car's sideways velocity on its rear axle, m/s
+/// (`odometry.lateral_velocity_sigma` of the radar odometry): the simulated cars do not slide, real
+/// ones slide by about this much in normal driving.
+pub const CAR_LATERAL_VELOCITY_SIGMA: f64 = 0.1;
 
 /// The simulator's Gamma noise shape, which the scenarios use unless told otherwise.
 pub const DEFAULT_GAMMA_SHAPE: f64 = 1.0;
@@ -54,6 +62,9 @@ pub struct RevisitScenario {
     pub gamma_shape: f64,
     /// Factors on the noise model's range, azimuth and radial-velocity scales (1: the model's own).
     pub noise_factors: [f64; 3],
+    /// Where the pipeline's odometry comes from: the simulated wheel odometry (`topic`, drifting by
+    /// `drift`), or the radar odometry (`radar`; `radar_imu` with a simulated 100 Hz gyro).
+    pub odometry: OdometrySource,
 }
 
 /// An extrinsic calibration error: each radar's extrinsic as the pipeline is told it is off from the
@@ -105,6 +116,7 @@ impl RevisitScenario {
             wheel_slip: 0.0,
             gamma_shape: DEFAULT_GAMMA_SHAPE,
             noise_factors: [1.0; 3],
+            odometry: OdometrySource::Topic,
         }
     }
 
@@ -129,6 +141,9 @@ impl RevisitScenario {
         c.odometry.scale_error = self.drift;
         c.odometry.yaw_rate_bias = (self.drift * 10.0).to_radians();
         c.odometry.slip_rate = self.wheel_slip;
+        if self.odometry == OdometrySource::RadarImu {
+            c.imu = ImuSimConfig::at_100_hz();
+        }
         if self.time_offset != 0.0 || self.multipath != 0.0 {
             c.radars = c.radar_list();
             c.radar_preset = RadarPreset::Custom;
@@ -193,16 +208,19 @@ impl RevisitScenario {
             let [r, a, v] = self.noise_factors;
             format!(" x{r},{a},{v}")
         };
+        let odometry = match self.odometry {
+            OdometrySource::Topic => format!("{}%", fmt_pct(self.drift)),
+            other => other.name().to_string(),
+        };
         let passes = match (self.fleet, self.reverse) {
             (0 | 1, false) => "same".to_string(),
             (0 | 1, true) => "reverse".to_string(),
             (n, _) => format!("fleet of {n}"),
         };
         format!(
-            "{world}{} {}{shape}{factors} {}% {passes}{calibration}{clock}{multipath}{slip}",
+            "{world}{} {}{shape}{factors} {odometry} {passes}{calibration}{clock}{multipath}{slip}",
             self.radars.name(),
             self.noise.name(),
-            fmt_pct(self.drift),
         )
     }
 }
@@ -233,6 +251,12 @@ pub fn evaluate_scenario(
     }
     let drive = simulate(&scenario.sim_config())?;
     let mut cfg = drive.to_config();
+    cfg.odometry.source = scenario.odometry;
+    if scenario.odometry != OdometrySource::Topic {
+        // The simulated vehicles are cars with their body frame on the rear axle: they do not
+        // slide sideways.
+        cfg.odometry.lateral_velocity_sigma = CAR_LATERAL_VELOCITY_SIGMA;
+    }
     scenario.calibration.apply(&mut cfg);
     tweak(&mut cfg);
     let mut r = evaluate_revisits(&drive, cfg)?;
@@ -251,13 +275,25 @@ pub fn evaluate_revisits(
     feed(drive, &mut p, |events| seen.take(events));
     seen.take(p.finish());
     let truth = keyframe_truth(drive, &seen.keyframes, |s| s.lap.lap);
-    Ok(judge(
-        truth,
-        reverse_radius(drive),
-        measured_drift(drive),
-        &seen,
-        p.stats(),
-    ))
+    let radar_odometry = !seen.odometry.is_empty();
+    let track: Vec<OdometryTrackSample> = if radar_odometry {
+        seen.odometry.clone()
+    } else {
+        drive
+            .odometry
+            .iter()
+            .map(|o| (o.stamp, o.t_odom_body, o.covariance))
+            .collect()
+    };
+    let odometry = measure_odometry(drive, &track).unwrap_or_default();
+    let drift = if radar_odometry {
+        odometry.share
+    } else {
+        measured_drift(drive)
+    };
+    let mut report = judge(truth, reverse_radius(drive), drift, &seen, p.stats());
+    report.odometry = odometry;
+    Ok(report)
 }
 
 /// Pushes a simulated drive's inputs through `p` in time order (its scans as decoded detections),

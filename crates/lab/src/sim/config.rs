@@ -49,6 +49,8 @@ pub struct SimConfig {
     pub noise: NoiseConfig,
     /// Wheel/gyro odometry error model.
     pub odometry: OdometrySimConfig,
+    /// The gyro (default: none).
+    pub imu: crate::sim::imu::ImuSimConfig,
     /// Ground-truth pose rate, Hz (default 50).
     pub ground_truth_rate: f64,
     /// Map frame id of the ground truth (default `map`).
@@ -84,6 +86,7 @@ impl Default for SimConfig {
             radars: Vec::new(),
             noise: NoiseConfig::default(),
             odometry: OdometrySimConfig::default(),
+            imu: Default::default(),
             ground_truth_rate: 50.0,
             map_frame: "map".into(),
             odom_frame: "odom".into(),
@@ -219,6 +222,7 @@ impl SimConfig {
         }
         v.section("noise", |v| self.noise.check(v));
         v.section("odometry", |v| self.odometry.check(v));
+        v.section("imu", |v| self.imu.check(v));
         v.range(
             "ground_truth_rate",
             self.ground_truth_rate,

@@ -152,6 +152,8 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
                 )?;
                 counts[1].count += 1;
             }
+            // The bag writer has no `sensor_msgs/Imu` schema: the gyro stays out of bags.
+            SimEventRef::Imu(_) => {}
             SimEventRef::Scan(s) => {
                 let r = s.scan.radar;
                 let Some((topic, frame_id)) = radar_topics.get(r) else {

@@ -1,4 +1,4 @@
-//! A simulated drive as an input stream ([`SimInputs`]): its odometry, ground truth and radar scans in
+//! A simulated drive as an input stream ([`SimInputs`]): its odometry, ground truth, gyro and radar scans in
 //! time order, each as the pipeline's [`Input`]. The scans come either as decoded detections
 //! ([`ScanEncoding::Detections`]) or encoded as the simulator's bags carry them
 //! ([`ScanEncoding::Clouds`]: float32 `x y z v_r rcs` PointCloud2), so that a drive fed in memory
@@ -71,6 +71,10 @@ impl Iterator for SimInputs<'_> {
                 stamp: g.stamp,
                 t_map_body: iso3_from_iso2(&g.t_map_body),
                 speed: g.speed,
+            }),
+            SimEventRef::Imu(i) => Ok(Input::Imu {
+                stamp: i.stamp,
+                angular_velocity: i.angular_velocity,
             }),
             SimEventRef::Scan(s) => self.encode_scan(s),
         })

@@ -15,6 +15,7 @@ pub mod config;
 pub mod export;
 pub mod families;
 pub mod fleet;
+pub mod imu;
 pub mod inputs;
 pub mod noise;
 pub mod nuscenes;
@@ -66,6 +67,7 @@ const TAG_SCAN: u64 = 0x5343_414e;
 const TAG_ODOM: u64 = 0x4f44_4f4d;
 const TAG_ROBOT: u64 = 0x0052_4f42_4f54;
 const TAG_GHOST: u64 = 0x0047_484f_5354;
+const TAG_IMU: u64 = 0x0049_4d55;
 
 /// The seed of a robot's own noise (detections, stamps, odometry): the configuration seed for robot 0,
 /// so a single robot's drive does not depend on fleets existing.
@@ -124,6 +126,8 @@ pub enum SimEventRef<'a> {
     Odometry(&'a OdometrySample),
     /// A radar scan.
     Scan(&'a SimScan),
+    /// A gyro sample.
+    Imu(&'a imu::ImuSample),
 }
 
 /// Everything shared by the streaming and the collected simulation.
@@ -365,17 +369,26 @@ pub struct SimDrive {
     pub odometry: Vec<OdometrySample>,
     /// All scans of all radars, in time order.
     pub scans: Vec<SimScan>,
+    /// The gyro's samples (none unless `imu.rate` is set).
+    pub imu: Vec<imu::ImuSample>,
 }
 
 /// Simulates the whole drive of `cfg` (validated first).
 pub fn simulate(cfg: &SimConfig) -> Result<SimDrive, ConfigError> {
     let sim = Simulator::new(cfg)?;
     let setup = sim.setup().clone();
+    let imu = imu::simulate_imu(
+        &cfg.imu,
+        &setup.trajectory,
+        setup.start,
+        stream_seed(robot_seed(cfg), TAG_IMU, 0),
+    );
     let mut drive = SimDrive {
         setup,
         ground_truth: Vec::new(),
         odometry: Vec::new(),
         scans: Vec::new(),
+        imu,
     };
     for ev in sim {
         match ev {
@@ -442,21 +455,26 @@ impl SimDrive {
         )
     }
 
-    /// All events in time order (ground truth, odometry, scans at equal stamps).
+    /// All events in time order (ground truth, odometry, gyro, scans at equal stamps).
     pub fn events(&self) -> impl Iterator<Item = SimEventRef<'_>> {
         let mut g = self.ground_truth.iter().peekable();
         let mut o = self.odometry.iter().peekable();
+        let mut i = self.imu.iter().peekable();
         let mut s = self.scans.iter().peekable();
         std::iter::from_fn(move || {
             let tg = g.peek().map(|x| x.stamp);
             let to = o.peek().map(|x| x.stamp);
+            let ti = i.peek().map(|x| x.stamp);
             let ts = s.peek().map(|x| x.scan.stamp);
-            let min = [tg, to, ts].into_iter().flatten().min()?;
+            let min = [tg, to, ti, ts].into_iter().flatten().min()?;
             if tg == Some(min) {
                 return g.next().map(SimEventRef::GroundTruth);
             }
             if to == Some(min) {
                 return o.next().map(SimEventRef::Odometry);
+            }
+            if ti == Some(min) {
+                return i.next().map(SimEventRef::Imu);
             }
             s.next().map(SimEventRef::Scan)
         })

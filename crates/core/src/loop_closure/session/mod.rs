@@ -1,67 +1,29 @@
-//! The state of closure acceptance over a session ([`Session`]): the accepted alignments to earlier
-//! sessions, the closures held until another confirms them, and the keyframes to search again once
-//! a confirmation comes. Each change of state is a named operation: [`Session::note_keyframe`],
-//! [`Session::accept`] (publish, hold or confirm), [`Session::published`], and the backfill queue.
+//! The state of closure acceptance over a session ([`Session`]), the owner of three parts with one
+//! job each: the accepted and shared alignments ([`alignments`]), the closures held until others
+//! confirm them ([`held`]), and the keyframes searched again after a confirmation or along a walk
+//! ([`search_again`]). Each change of state is a named operation: [`Session::note_keyframe`],
+//! [`Session::accept`] (publish, hold or confirm), [`Session::published`], [`Session::take_shared`],
+//! and the search-again queue.
 
-use std::collections::{BTreeMap, VecDeque};
+mod alignments;
+mod held;
+mod search_again;
 
-use super::drift::{
-    alignment_distance, anchored_inconsistency, closure_disagreement, vouches, within_reach,
-};
+use std::collections::BTreeMap;
+
+pub use alignments::Alignment;
+
 use super::{LoopClosure, LoopConfig};
 use crate::math::Iso2;
-
-/// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
-const CONFIRM_CHI2: f64 = 16.27;
-
-/// Closures beyond the drift model confirm each other only when their query keyframes' headings
-/// differ by at least this, rad (45 degrees): they come from two streets that meet at an angle. Along
-/// one street the view repeats across the block grid, and a parallel street a block or more away
-/// agrees with itself from every keyframe; the same shift rarely also aligns the street that turns off
-/// it.
-const BEYOND_DRIFT_TURN: f64 = std::f64::consts::FRAC_PI_4;
-
-/// An accepted alignment of this session's odometry frame into an earlier session's frame, and the
-/// path lengths of the two keyframes the closure that gave it joined.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Alignment {
-    /// This session's odometry frame in the other session's frame.
-    pub t: Iso2,
-    /// Path length at which it was found (its query keyframe's), m of this session's odometry.
-    pub path: f64,
-    /// Path length of its match keyframe, m of the other session's odometry.
-    pub match_path: f64,
-}
-
-impl Alignment {
-    /// The same closure seen from the other session: that session's frame in this one's, the two
-    /// path lengths swapped.
-    pub fn inverse(&self) -> Alignment {
-        Alignment {
-            t: self.t.inverse(),
-            path: self.match_path,
-            match_path: self.path,
-        }
-    }
-}
+use alignments::Alignments;
+use held::{CONFIRM_CHI2, HeldClosures, Need, apart};
+use search_again::SearchAgain;
 
 #[cfg(test)]
 impl Session {
     /// Sets the accepted alignment to `session`, as a confirmation would.
     pub(crate) fn set_alignment(&mut self, session: u32, a: Alignment) {
-        self.alignments.insert(session, a);
-    }
-}
-
-#[cfg(test)]
-impl Alignment {
-    /// The alignment `t` found at `path` metres, its match keyframe as far along the other pass.
-    pub(crate) fn along_one_pass(t: Iso2, path: f64) -> Self {
-        Alignment {
-            t,
-            path,
-            match_path: path,
-        }
+        self.alignments.accept(session, a);
     }
 }
 
@@ -82,19 +44,6 @@ pub enum Standing {
     BeyondDrift,
 }
 
-/// A closure waiting for confirmation, with the alignment it implies and the number of agreeing
-/// closures (itself included) it needs.
-#[derive(Debug, Clone, PartialEq)]
-struct Held {
-    closure: LoopClosure,
-    alignment: Alignment,
-    needed: usize,
-    /// The query keyframe's odometry heading, rad.
-    heading: f64,
-    /// It lies beyond the drift model: its confirmation must span a turn ([`BEYOND_DRIFT_TURN`]).
-    turn: bool,
-}
-
 /// Where a closure's query keyframe lies: its id, path length and odometry pose.
 #[derive(Debug, Clone, Copy)]
 pub struct QueryPlace {
@@ -106,63 +55,18 @@ pub struct QueryPlace {
     pub t_odom_body: Iso2,
 }
 
-/// What a held closure needs before it is published: this many agreeing closures, itself
-/// included, and whether their query keyframes must span a turn ([`BEYOND_DRIFT_TURN`]).
-#[derive(Debug, Clone, Copy)]
-struct Need {
-    closures: usize,
-    turn: bool,
-}
-
-/// Whether the headings, `first` and the rest, differ pairwise by at least [`BEYOND_DRIFT_TURN`]
-/// somewhere.
-fn turn_spanned(first: f64, rest: impl Iterator<Item = f64>) -> bool {
-    let all: Vec<f64> = std::iter::once(first).chain(rest).collect();
-    all.iter().enumerate().any(|(i, a)| {
-        all[i + 1..]
-            .iter()
-            .any(|b| crate::math::wrap_angle(a - b).abs() >= BEYOND_DRIFT_TURN)
-    })
-}
-
-/// Keyframes queued to be searched again, in the order they are searched: (id, path length).
-type Queue = VecDeque<(u64, f64)>;
-
 /// Closure acceptance over one session.
 #[derive(Debug, Clone, Default)]
 pub struct Session {
     /// This session's number: its own earlier keyframes need `loop.confirmations`, another
     /// session's `loop.foreign_confirmations`.
     own: u32,
-    /// Per earlier session: the latest accepted alignment.
-    alignments: BTreeMap<u32, Alignment>,
-    /// Per other robot's session: the latest alignment that robot's node accepted to this session,
-    /// inverted (this session's frame in that one's).
-    shared: BTreeMap<u32, Alignment>,
-    /// Per session without an alignment yet: closures waiting for confirmation.
-    held: BTreeMap<u32, Vec<Held>>,
-    /// This session's keyframes of the last `loop.backfill_horizon` metres without a published
-    /// closure (id, path length).
-    unclosed: VecDeque<(u64, f64)>,
-    /// Keyframes queued to be searched again, each further along the path from the confirmation
-    /// than the one before: those made after the confirming keyframe, oldest first (there are some
-    /// only when it was an older keyframe searched around a shared alignment), then `behind`.
-    backfill: Queue,
-    /// The keyframes made before the confirming keyframe, newest first, and the confirmation's
-    /// alignment (its session) that the chain starts from again when `backfill` is done with.
-    behind: Option<(Queue, (u32, Alignment))>,
-    /// The alignment the queued keyframes are searched around (its session): the confirmation's,
-    /// then each closure those searches publish.
-    chain: Option<(u32, Alignment)>,
-    /// The alignments of the closures the confirmation published: a queued keyframe where the
-    /// chain's is no longer fresh is searched around the one found nearest to it along the path.
-    anchors: Vec<Alignment>,
-    /// Keyframes without a closure to search as new keyframes are, for closures to a session (its
-    /// number first) that are held until others agree ([`Session::next_walk`]): those left when a
-    /// shared alignment to a session arrives before this session has one of its own, and those a
-    /// search again to another robot's session leaves where no alignment is fresh enough
-    /// ([`Session::walk_gone_stale`]).
-    walks: VecDeque<(u32, VecDeque<u64>)>,
+    /// The accepted alignments to other sessions and the shared ones from other robots.
+    alignments: Alignments,
+    /// Per session: closures waiting for confirmation.
+    held: HeldClosures,
+    /// The keyframes without a closure, and what is searched again.
+    again: SearchAgain,
 }
 
 impl Session {
@@ -176,23 +80,23 @@ impl Session {
 
     /// The accepted alignments, by session.
     pub fn alignments(&self) -> &BTreeMap<u32, Alignment> {
-        &self.alignments
+        self.alignments.accepted()
     }
 
     /// The other robots' accepted alignments to this session, inverted, by their sessions.
     pub fn shared(&self) -> &BTreeMap<u32, Alignment> {
-        &self.shared
+        self.alignments.shared()
     }
 
     /// Another robot's node accepted `alignment` (inverted: this session's frame in that robot's
     /// session `session`): kept as a prior for closures to `session`, and the closures to it held
-    /// for confirmation that lie beyond [`within_reach`] of it and of this session's own alignment to
-    /// `session` are dropped, as the gates would refuse them now ([`super::drift::Prior::Anchored`]).
+    /// for confirmation that lie beyond [`super::drift::within_reach`] of it and of this session's
+    /// own alignment to `session` are dropped, as the gates would refuse them now
+    /// ([`super::drift::Prior::Anchored`]).
     pub fn take_shared(&mut self, session: u32, alignment: Alignment, lc: &LoopConfig) {
-        if self.shared.insert(session, alignment).is_none() {
-            if !self.alignments.contains_key(&session) && lc.backfill_per_keyframe > 0 {
-                let unclosed = self.unclosed.iter().rev().map(|&(id, _)| id).collect();
-                self.walks.push_back((session, unclosed));
+        if self.alignments.share(session, alignment) {
+            if !self.alignments.accepted().contains_key(&session) && lc.backfill_per_keyframe > 0 {
+                self.again.walk_unclosed(session);
             }
             log::debug!(
                 "session {session}'s robot accepted an alignment to this session ({:.2} {:.2} {:.3}, at {:.0} m here, {:.0} m there)",
@@ -206,36 +110,18 @@ impl Session {
         if lc.consistency_chi2 <= 0.0 {
             return;
         }
-        let known: Vec<Alignment> = [self.alignments.get(&session), Some(&alignment)]
+        let known: Vec<Alignment> = [self.alignments.accepted().get(&session), Some(&alignment)]
             .into_iter()
             .flatten()
             .copied()
             .collect();
-        let Some(pending) = self.held.get_mut(&session) else {
-            return;
-        };
-        pending.retain(|h| {
-            let paths = [h.alignment.path, h.alignment.match_path];
-            let d2 = |a: &Alignment| anchored_inconsistency(a, &h.closure, paths, lc);
-            let keep = known
-                .iter()
-                .any(|a| d2(a).is_none_or(|d2| within_reach(d2, lc)));
-            if !keep {
-                log::debug!(
-                    "held closure {} -> {} dropped: it lies beyond the drift from every alignment to session {session} known here",
-                    h.closure.query_id,
-                    h.closure.match_id
-                );
-            }
-            keep
-        });
+        self.held.drop_unreachable(session, &known, lc);
     }
 
     /// A new keyframe of this session at `path`: it has no closure yet (keyframes farther back than
     /// `horizon` are forgotten).
     pub fn note_keyframe(&mut self, id: u64, path: f64, horizon: f64) {
-        self.unclosed.retain(|&(_, p)| path - p <= horizon);
-        self.unclosed.push_back((id, path));
+        self.again.note_keyframe(id, path, horizon);
     }
 
     /// The alignment a revisit search of `session` looks around: the accepted one, or before there is
@@ -244,20 +130,22 @@ impl Session {
     /// of keyframes this node registers are found where that robot's closures put them.
     pub fn search_prior(&self, session: u32) -> Option<Alignment> {
         self.alignments
+            .accepted()
             .get(&session)
             .copied()
-            .or_else(|| Some(self.held.get(&session)?.last()?.alignment))
-            .or_else(|| self.shared.get(&session).copied())
+            .or_else(|| self.held.newest(session))
+            .or_else(|| self.alignments.shared().get(&session).copied())
     }
 
     /// Every other session with a [`Session::search_prior`], and that prior.
     pub fn other_search_priors(&self) -> impl Iterator<Item = (u32, Alignment)> + '_ {
         let sessions: std::collections::BTreeSet<u32> = self
             .alignments
+            .accepted()
             .keys()
-            .chain(self.held.keys())
-            .chain(self.shared.keys())
             .copied()
+            .chain(self.held.sessions())
+            .chain(self.alignments.shared().keys().copied())
             .filter(|&s| s != self.own)
             .collect();
         sessions
@@ -267,14 +155,12 @@ impl Session {
 
     /// The accepted alignment to `session` is fresh enough at `path` to vouch for a closure alone.
     pub fn vouches_for(&self, session: u32, path: f64, lc: &LoopConfig) -> bool {
-        self.alignments
-            .get(&session)
-            .is_some_and(|a| vouches(path - a.path, lc))
+        self.alignments.vouches_for(session, path, lc)
     }
 
     /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone.
     pub fn any_vouches(&self, path: f64, lc: &LoopConfig) -> bool {
-        self.alignments.values().any(|a| vouches(path - a.path, lc))
+        self.alignments.any_vouches(path, lc)
     }
 
     /// Takes a closure that passed the gates, with the alignment of this session into `session` it
@@ -287,7 +173,7 @@ impl Session {
     /// alignment is fresh enough to vouch, by `foreign_confirmations`, `overturns_fresh`)
     /// replaces it, so that one false closure that slipped through cannot block every true one
     /// after it; a closure published on that alignment's word drops the held ones it contradicts
-    /// (`refute_held`).
+    /// ([`HeldClosures::refute`]).
     pub fn accept(
         &mut self,
         query: &QueryPlace,
@@ -305,9 +191,10 @@ impl Session {
         } else {
             lc.foreign_confirmations
         };
-        let vouched = standing == Standing::Vouched && self.alignments.contains_key(&session);
+        let vouched =
+            standing == Standing::Vouched && self.alignments.accepted().contains_key(&session);
         let publish = if vouched {
-            self.refute_held(query, session, &alignment, lc);
+            self.held.refute(query, session, &alignment, lc);
             vec![c]
         } else if needed <= 1 {
             vec![c]
@@ -316,18 +203,22 @@ impl Session {
                 closures: needed,
                 turn: beyond,
             };
-            match self.confirm(query, c, (session, need), alignment, lc) {
-                Some(p) => p,
+            match self.held.confirm(query, c, (session, need), alignment, lc) {
+                Some((publish, anchors)) => {
+                    self.again
+                        .confirmed((session, alignment), anchors, query, &publish, lc);
+                    publish
+                }
                 None => return Vec::new(),
             }
         };
-        self.alignments.insert(session, alignment);
+        self.alignments.accept(session, alignment);
         publish
     }
 
     /// A closure that implies `alignment` to `session` contradicts the accepted alignment to it, and
     /// that one is fresh enough to vouch: the two lie beyond [`CONFIRM_CHI2`] of each other
-    /// ([`apart`], as [`Self::refute_held`] compares them). Such a closure would
+    /// ([`apart`], as [`HeldClosures::refute`] compares them). Such a closure would
     /// overturn closures that agreed with each other a little way back, so it needs as many agreeing
     /// closures as a first alignment without odometry (`loop.foreign_confirmations`): a street slid
     /// along itself by a repeating block agrees with itself from two keyframes. A closure onto
@@ -340,335 +231,74 @@ impl Session {
         lc: &LoopConfig,
     ) -> bool {
         self.alignments
+            .accepted()
             .get(&session)
-            .filter(|a| vouches(query.path - a.path, lc))
+            .filter(|a| super::drift::vouches(query.path - a.path, lc))
             .is_some_and(|fresh| apart(fresh, alignment, query, lc) > CONFIRM_CHI2)
-    }
-
-    /// A closure to `session` with `alignment` was published on a fresh alignment's word: the held
-    /// closures to that session whose alignments it contradicts are dropped ([`apart`] beyond
-    /// [`CONFIRM_CHI2`]). Each contradicts an alignment that
-    /// a newer closure has borne out; left waiting, two such closures on either side of a stretch
-    /// the alignment keeps vouching for would confirm each other and replace it (a road slid along
-    /// itself by its repeating posts agrees with itself over the drift between them). A false
-    /// accepted alignment is still replaced once it stops vouching for new closures: the
-    /// contradicting closures after that confirm each other.
-    fn refute_held(
-        &mut self,
-        query: &QueryPlace,
-        session: u32,
-        alignment: &Alignment,
-        lc: &LoopConfig,
-    ) {
-        let Some(pending) = self.held.get_mut(&session) else {
-            return;
-        };
-        pending.retain(|h| {
-            let d2 = apart(&h.alignment, alignment, query, lc);
-            if d2 > CONFIRM_CHI2 {
-                log::debug!(
-                    "held closure {} -> {} dropped: closure {} on the accepted alignment contradicts it (squared distance {d2:.1})",
-                    h.closure.query_id,
-                    h.closure.match_id,
-                    query.id
-                );
-            }
-            d2 <= CONFIRM_CHI2
-        });
-    }
-
-    /// Holds `c` or, when enough closures to `session` agree (held ones and `c`, as many as the most
-    /// demanding of them needs, across a turn when one of them needs it), returns them with it (in
-    /// query order, `c` last) and queues the keyframes since for searching again.
-    fn confirm(
-        &mut self,
-        query: &QueryPlace,
-        c: LoopClosure,
-        (session, need): (u32, Need),
-        alignment: Alignment,
-        lc: &LoopConfig,
-    ) -> Option<Vec<LoopClosure>> {
-        let pending = self.held.entry(session).or_default();
-        // Old unconfirmed hypotheses expire before they may confirm anything.
-        pending.retain(|h| query.path - h.alignment.path <= lc.confirmation_horizon);
-        let agree = agreeing(pending, query, &c, need.turn, &alignment, lc);
-        let needed = agree
-            .iter()
-            .map(|&k| pending[k].needed)
-            .fold(need.closures, usize::max);
-        let heading = query.t_odom_body.rotation.angle();
-        if !confirmed(pending, &agree, query, &c, need, needed, lc) {
-            log::debug!(
-                "closure {} -> {} held until another closure to session {session} confirms it ({} inliers, overlap {:.2}, alignment {:.2} {:.2} {:.3})",
-                c.query_id,
-                c.match_id,
-                c.inliers,
-                c.score,
-                alignment.t.translation.x,
-                alignment.t.translation.y,
-                alignment.t.rotation.angle()
-            );
-            // A keyframe searched again (a walk) can find a pair it holds already: held once.
-            let pair = (c.query_id, c.match_id);
-            pending.retain(|h| (h.closure.query_id, h.closure.match_id) != pair);
-            pending.push(Held {
-                closure: c,
-                alignment,
-                needed,
-                heading,
-                turn: need.turn,
-            });
-            return None;
-        }
-        let mut kept = std::mem::take(pending);
-        let mut publish = Vec::new();
-        self.anchors = vec![alignment];
-        for k in agree.into_iter().rev() {
-            let h = kept.swap_remove(k);
-            publish.push(h.closure);
-            self.anchors.push(h.alignment);
-        }
-        publish.sort_by_key(|p| p.query_id);
-        publish.push(c);
-        log::info!(
-            "closures to session {session} confirmed by {} agreeing matches",
-            publish.len()
-        );
-        self.chain = Some((session, alignment));
-        self.queue_unclosed(query, &publish, lc);
-        Some(publish)
-    }
-
-    /// Queues the keyframes that got nothing to be searched again after a confirmation at `query`
-    /// (not even at the end of a bag when `backfill_per_keyframe` is 0), walking away from it: those
-    /// made after it forward, then those before it back; `query` and the confirmed closures' query
-    /// keyframes are done. Each walk follows its own chain of alignments from the confirmation's.
-    fn queue_unclosed(&mut self, query: &QueryPlace, publish: &[LoopClosure], lc: &LoopConfig) {
-        let unclosed = std::mem::take(&mut self.unclosed);
-        self.backfill.clear();
-        self.behind = None;
-        if lc.backfill_per_keyframe == 0 {
-            return;
-        }
-        let done = |id: u64| id == query.id || publish.iter().any(|p| p.query_id == id);
-        let open: Vec<(u64, f64)> = unclosed.into_iter().filter(|&(id, _)| !done(id)).collect();
-        let (after, before): (Vec<_>, Vec<_>) = open.iter().partition(|&&(_, p)| p > query.path);
-        self.backfill = after.into_iter().copied().collect();
-        let behind = before.into_iter().rev().copied().collect();
-        self.behind = self.chain.map(|chain| (behind, chain));
     }
 
     /// `c` was published: its query keyframe has a closure.
     pub fn published(&mut self, c: &LoopClosure) {
-        self.unclosed.retain(|&(id, _)| id != c.query_id);
+        self.again.published(c);
     }
 
     /// The next keyframe to search again, if any. The walk back from the confirmation starts
     /// from the confirmation's alignment again.
     pub fn next_backfill(&mut self) -> Option<u64> {
-        if self.backfill.is_empty() {
-            let (behind, chain) = self.behind.take()?;
-            self.backfill = behind;
-            self.chain = Some(chain);
-        }
-        self.backfill.pop_front().map(|(id, _)| id)
+        self.again.next_backfill()
     }
 
     /// Keyframes queued to be searched again on the present walk away from the confirmation.
     pub fn backfill_len(&self) -> usize {
-        self.backfill.len()
+        self.again.backfill_len()
     }
 
     /// No alignment is fresh enough at keyframe `id` (path length `path`), just taken from the search
-    /// again's present walk away from the confirmation. When the chain's session is another robot's
-    /// (`another_robot`), it and the rest of that walk go back to the keyframes without a closure and
-    /// are searched as new keyframes are, for closures to that session that are held until others
-    /// agree ([`Session::next_walk`]): two robots driving at once can pass the same places for
-    /// kilometres before the first confirmation between them. Otherwise the rest of the walk is
-    /// dropped: one robot's keyframes beyond lie before its revisit began, and searched around an
-    /// alignment that no longer vouches they find places that repeat along its own route.
+    /// again's present walk away from the confirmation: the rest of the walk goes back to the
+    /// keyframes without a closure when the chain's session is another robot's (`another_robot`),
+    /// else it is dropped ([`search_again::SearchAgain::walk_gone_stale`]).
     pub fn walk_gone_stale(&mut self, id: u64, path: f64, another_robot: impl Fn(u32) -> bool) {
-        let mut rest = std::mem::take(&mut self.backfill);
-        rest.push_front((id, path));
-        let Some((session, _)) = self.chain.filter(|&(s, _)| another_robot(s)) else {
-            return;
-        };
-        self.walks
-            .push_back((session, rest.iter().map(|&(id, _)| id).collect()));
-        self.unclosed.extend(rest);
-        self.unclosed
-            .make_contiguous()
-            .sort_by(|a, b| a.1.total_cmp(&b.1));
+        self.again.walk_gone_stale(id, path, another_robot);
     }
 
     /// The next keyframe to search as a new keyframe is, and the session its closure must go to
     /// (the walks): one that still has no closure. A confirmation queues the keyframes
     /// without a closure to be searched again, which ends the walks over them.
     pub fn next_walk(&mut self) -> Option<(u32, u64)> {
-        while let Some((session, ids)) = self.walks.front_mut() {
-            match ids.pop_front() {
-                Some(id) if self.unclosed.iter().any(|&(u, _)| u == id) => {
-                    return Some((*session, id));
-                }
-                Some(_) => {}
-                None => {
-                    self.walks.pop_front();
-                }
-            }
-        }
-        None
+        self.again.next_walk()
     }
 
     /// A closure published by a search again moves the chain to the alignment it implies.
     pub fn extend_chain(&mut self, session: u32, alignment: Alignment) {
-        if self.chain.is_some_and(|(s, _)| s != session) {
-            self.anchors.clear();
-        }
-        self.chain = Some((session, alignment));
+        self.again.extend_chain(session, alignment);
     }
 
     /// Puts the chain's alignment in place of its session's accepted one, or, where the chain's is no
     /// longer fresh enough to vouch at `path`, the alignment of the confirmed closure found nearest
-    /// to it along the path (a yaw-rate bias turns the alignment as the robot drives); returns what to
-    /// put back with [`Session::restore`].
+    /// to it along the path ([`search_again::SearchAgain::chain_alignment`]); returns what to put
+    /// back with [`Session::restore`].
     pub fn swap_in_chain(
         &mut self,
         path: f64,
         lc: &LoopConfig,
     ) -> Option<(u32, Option<Alignment>)> {
-        let (s, chain) = self.chain?;
-        let a = if vouches(path - chain.path, lc) {
-            chain
-        } else {
-            self.anchors
-                .iter()
-                .copied()
-                .min_by(|a, b| (a.path - path).abs().total_cmp(&(b.path - path).abs()))
-                .unwrap_or(chain)
-        };
-        Some((s, self.alignments.insert(s, a)))
+        let (s, a) = self.again.chain_alignment(path, lc)?;
+        Some((s, self.alignments.swap_in(s, a)))
     }
 
     /// Undoes [`Session::swap_in_chain`].
     pub fn restore(&mut self, swapped: Option<(u32, Option<Alignment>)>) {
         if let Some((s, before)) = swapped {
-            match before {
-                Some(v) => self.alignments.insert(s, v),
-                None => self.alignments.remove(&s),
-            };
+            self.alignments.restore(s, before);
         }
     }
-}
-
-/// Squared distance ([`alignment_distance`]) between an earlier alignment and `alignment`, which a
-/// closure at `query` implies, with the drift over the path between the two query keyframes and
-/// between the two match keyframes: two true closures onto two passes of one place a lap apart imply
-/// alignments that differ by the drift over that lap.
-fn apart(earlier: &Alignment, alignment: &Alignment, query: &QueryPlace, lc: &LoopConfig) -> f64 {
-    let gap = (query.path - earlier.path).abs() + (alignment.match_path - earlier.match_path).abs();
-    alignment_distance(&earlier.t, &alignment.t, &query.t_odom_body, gap, lc)
-}
-
-/// Closure `a` lies within [`CONFIRM_CHI2`] of its prediction from `b`, `gap` metres of path away
-/// ([`closure_disagreement`]; agreeing when that is singular).
-fn closures_agree(a: &LoopClosure, b: &LoopClosure, gap: f64, lc: &LoopConfig) -> bool {
-    closure_disagreement(a, b, gap, lc).is_none_or(|d| d <= CONFIRM_CHI2)
-}
-
-/// The held closures (indices into `pending`) from other query keyframes that agree with `c`: their
-/// alignments within [`CONFIRM_CHI2`] of `alignment`, `c`'s, at the generous accuracy of
-/// [`alignment_distance`] plus the drift between them, and, unless `c` or the held closure lies
-/// beyond the drift model (`beyond`, [`Held::turn`]), each closure within [`CONFIRM_CHI2`] of its
-/// prediction from `c` under the two closures' own covariances and the drift model
-/// ([`closure_disagreement`]). The first tells one street from another; the second keeps out a
-/// closure slid along the street by the period of its posts, which fits as well as the true
-/// alignment and lies metres away where its covariance says centimetres. Beyond the drift model the
-/// odometry between the two keyframes is not known to the model's accuracy, and only the first
-/// applies.
-fn agreeing(
-    pending: &[Held],
-    query: &QueryPlace,
-    c: &LoopClosure,
-    beyond: bool,
-    alignment: &Alignment,
-    lc: &LoopConfig,
-) -> Vec<usize> {
-    let with_c: Vec<usize> = (0..pending.len())
-        .filter(|&k| {
-            let h = &pending[k];
-            let gap = query.path - h.alignment.path;
-            let consistent = || beyond || h.turn || closures_agree(&h.closure, c, gap, lc);
-            h.closure.query_id != c.query_id
-                && alignment_distance(&h.alignment.t, &alignment.t, &query.t_odom_body, gap, lc)
-                    <= CONFIRM_CHI2
-                && consistent()
-        })
-        .collect();
-    if beyond {
-        return with_c;
-    }
-    mutually_agreeing(pending, query, with_c, lc)
-}
-
-/// The held closures `agree` (indices into `pending`, ascending) that also agree with each other:
-/// taken nearest `query` along the path first, each kept when it is within [`CONFIRM_CHI2`] of every
-/// one kept before it ([`closure_disagreement`] over the path between their query keyframes), unless
-/// one of the two lies beyond the drift model. Agreeing with the newest closure alone lets a closure
-/// far back along the path through: the drift over a long stretch covers a street slid by a block,
-/// which the closures in between rule out. Ascending, as `agree`.
-fn mutually_agreeing(
-    pending: &[Held],
-    query: &QueryPlace,
-    mut agree: Vec<usize>,
-    lc: &LoopConfig,
-) -> Vec<usize> {
-    let back = |k: usize| (query.path - pending[k].alignment.path).abs();
-    agree.sort_by(|&a, &b| back(a).total_cmp(&back(b)));
-    let mut kept: Vec<usize> = Vec::with_capacity(agree.len());
-    for k in agree {
-        let h = &pending[k];
-        let fits = |j: &usize| {
-            let o = &pending[*j];
-            let gap = h.alignment.path - o.alignment.path;
-            h.turn || o.turn || closures_agree(&h.closure, &o.closure, gap, lc)
-        };
-        if kept.iter().all(fits) {
-            kept.push(k);
-        }
-    }
-    kept.sort_unstable();
-    kept
-}
-
-/// Whether `c` with the held closures `agree` confirms: `needed` closures in all, their query
-/// keyframes spanning `confirmation_span` of path, one of them strong (`confirmation_overlap`), and
-/// across a turn when `need` or one of them asks for it.
-fn confirmed(
-    pending: &[Held],
-    agree: &[usize],
-    query: &QueryPlace,
-    c: &LoopClosure,
-    need: Need,
-    needed: usize,
-    lc: &LoopConfig,
-) -> bool {
-    let span = agree
-        .iter()
-        .map(|&k| (query.path - pending[k].alignment.path).abs())
-        .fold(0.0, f64::max);
-    let strong = c.score >= lc.confirmation_overlap
-        || agree
-            .iter()
-            .any(|&k| pending[k].closure.score >= lc.confirmation_overlap);
-    let heading = query.t_odom_body.rotation.angle();
-    let turned = !(need.turn || agree.iter().any(|&k| pending[k].turn))
-        || turn_spanned(heading, agree.iter().map(|&k| pending[k].heading));
-    agree.len() + 1 >= needed && span >= lc.confirmation_span && strong && turned
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::drift::{alignment_distance, closure_disagreement};
     use super::Standing::{BeyondDrift, Unconfirmed, Vouched};
+    use super::held::{Held, agreeing, turn_spanned};
     use super::*;
     use crate::math::{Iso3, Mat3, Mat6, Stamp, Vec2, Vec3, iso3_from_iso2};
     use crate::registration::covariance_ros_from_se2;
@@ -813,7 +443,7 @@ mod tests {
         s2.set_alignment(0, aligned(slid, 200.0));
         s2.take_shared(0, aligned(true_alignment(), 150.0), &lc);
         assert_eq!(
-            s2.held[&0].len(),
+            s2.held.of(0).len(),
             2,
             "both held closures lie within reach of one"
         );
@@ -1341,7 +971,7 @@ mod tests {
             .collect();
         assert_eq!(forward, [10, 11, 13, 14, 15, 16, 17, 18, 19]);
         assert_eq!(
-            s.chain,
+            s.again.chain(),
             Some((0, aligned(true_alignment(), 80.0))),
             "back from the confirmation"
         );
@@ -1392,7 +1022,7 @@ mod tests {
         let a = true_alignment();
         assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
         assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
-        assert_eq!(s.held[&0].len(), 1);
+        assert_eq!(s.held.of(0).len(), 1);
         let mut s = session_with_keyframes(5, &lc);
         s.own = 1;
         s.set_alignment(2, aligned(true_alignment(), 30.0));

@@ -1,13 +1,14 @@
 //! A session's alignments to other sessions ([`Alignments`]): the accepted ones, which the closures
 //! the session publishes set, and the shared ones, which other robots' nodes accepted to this
-//! session and send. An accepted alignment vouches for a closure alone while it is fresh
-//! ([`vouches`]), and a search again may stand another in its place for a while
+//! session and send. An accepted alignment is Vouching or Stale at a path length
+//! ([`vouching`]) and ends Replaced or Overturned when a newer closure's alignment takes its
+//! place ([`Alignments::accept`]); a search again may stand another in its place for a while
 //! ([`Alignments::swap_in`]).
 
 use std::collections::BTreeMap;
 
 use super::super::LoopConfig;
-use super::super::drift::vouches;
+use super::super::decision::{AlignmentState, vouching};
 use crate::math::Iso2;
 
 /// An accepted alignment of this session's odometry frame into an earlier session's frame, and the
@@ -67,21 +68,48 @@ impl Alignments {
         &self.shared
     }
 
-    /// The accepted alignment to `session` is fresh enough at `path` to vouch for a closure alone.
-    pub(super) fn vouches_for(&self, session: u32, path: f64, lc: &LoopConfig) -> bool {
-        self.accepted
-            .get(&session)
-            .is_some_and(|a| vouches(path - a.path, lc))
+    /// The state of the accepted alignment to `session` at path length `path`:
+    /// [`AlignmentState::Vouching`] or [`AlignmentState::Stale`] ([`vouching`]); `None` without one.
+    pub(super) fn state(&self, session: u32, path: f64, lc: &LoopConfig) -> Option<AlignmentState> {
+        self.accepted.get(&session).map(|a| {
+            if vouching(a, path, lc) {
+                AlignmentState::Vouching
+            } else {
+                AlignmentState::Stale
+            }
+        })
     }
 
-    /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone.
-    pub(super) fn any_vouches(&self, path: f64, lc: &LoopConfig) -> bool {
-        self.accepted.values().any(|a| vouches(path - a.path, lc))
+    /// Some accepted alignment is fresh enough at `path` to vouch for a closure alone
+    /// ([`vouching`]).
+    pub(super) fn any_vouching(&self, path: f64, lc: &LoopConfig) -> bool {
+        self.accepted.values().any(|a| vouching(a, path, lc))
     }
 
-    /// `alignment` is the accepted alignment to `session` now.
-    pub(super) fn accept(&mut self, session: u32, alignment: Alignment) {
-        self.accepted.insert(session, alignment);
+    /// `alignment`, a published closure's, is the accepted alignment to `session` now; the state the
+    /// one it replaces ends in: [`AlignmentState::Overturned`] when the closure [`overturns`] it,
+    /// else [`AlignmentState::Replaced`] (`None`: there was none).
+    ///
+    /// [`overturns`]: super::super::decision::overturns
+    pub(super) fn accept(
+        &mut self,
+        session: u32,
+        alignment: Alignment,
+        overturns: bool,
+    ) -> Option<AlignmentState> {
+        let before = self.accepted.insert(session, alignment)?;
+        if !overturns {
+            return Some(AlignmentState::Replaced);
+        }
+        log::debug!(
+            "the accepted alignment to session {session} ({:.2} {:.2} {:.3}, found at {:.0} m) overturned at {:.0} m",
+            before.t.translation.x,
+            before.t.translation.y,
+            before.t.rotation.angle(),
+            before.path,
+            alignment.path
+        );
+        Some(AlignmentState::Overturned)
     }
 
     /// Keeps `alignment` as the one `session`'s robot accepted to this session; whether it is the

@@ -6,7 +6,7 @@
 
 use std::collections::VecDeque;
 
-use super::super::drift::vouches;
+use super::super::decision::vouching;
 use super::super::{LoopClosure, LoopConfig};
 use super::{Alignment, QueryPlace};
 
@@ -175,7 +175,7 @@ impl SearchAgain {
     /// the robot drives).
     pub(super) fn chain_alignment(&self, path: f64, lc: &LoopConfig) -> Option<(u32, Alignment)> {
         let (s, chain) = self.chain?;
-        let a = if vouches(path - chain.path, lc) {
+        let a = if vouching(&chain, path, lc) {
             chain
         } else {
             self.anchors
@@ -185,5 +185,178 @@ impl SearchAgain {
                 .unwrap_or(chain)
         };
         Some((s, a))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Session;
+    use super::super::Standing::Vouched;
+    use super::super::fixtures::*;
+    use super::*;
+    use crate::math::{Iso2, Vec2};
+
+    #[test]
+    fn no_backfill_when_switched_off_and_published_keyframes_leave_the_queue() {
+        let off = LoopConfig {
+            backfill_per_keyframe: 0,
+            ..LoopConfig::default()
+        };
+        let a = true_alignment();
+        let mut s = session_with_keyframes(20, &off);
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &off);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &off);
+        assert_eq!(s.backfill_len(), 0);
+        // Keyframes beyond the horizon are forgotten; published ones leave the unclosed list.
+        let lc = LoopConfig::default();
+        let mut s = session_with_keyframes(3, &lc);
+        s.note_keyframe(3, 10.0 + lc.backfill_horizon, lc.backfill_horizon);
+        s.published(&closure(3, 0, 0.7));
+        offer(&mut s, (4, 0.0), (0, 0.7), a, &lc);
+        offer(&mut s, (8, 40.0), (4, 0.7), a, &lc);
+        let mut queued = Vec::new();
+        while let Some(id) = s.next_backfill() {
+            queued.push(id);
+        }
+        assert_eq!(queued, [2, 1], "keyframe 0 beyond the horizon, 3 published");
+    }
+
+    #[test]
+    fn a_keyframe_searched_again_is_searched_around_the_nearest_confirmed_closure() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let later = Iso2::new(Vec2::new(3.3, -2.0), 0.05);
+        let mut s = session_with_keyframes(30, &lc);
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        assert_eq!(offer(&mut s, (24, 240.0), (14, 0.7), later, &lc).len(), 2);
+        // The confirmation's alignment vouches up to 60 m back; beyond, the nearest confirmed one.
+        for (path, expected) in [(200.0, later), (150.0, a), (110.0, a), (290.0, later)] {
+            let swapped = s.swap_in_chain(path, &lc);
+            assert_eq!(s.alignments()[&0].t, expected, "at {path} m");
+            s.restore(swapped);
+        }
+        // A search again that publishes moves the chain on, and it is kept while it vouches.
+        let walked = aligned(Iso2::new(Vec2::new(3.1, -2.0), 0.05), 150.0);
+        s.extend_chain(0, walked);
+        for (path, expected) in [(110.0, walked), (60.0, aligned(a, 100.0))] {
+            let swapped = s.swap_in_chain(path, &lc);
+            assert_eq!(s.alignments()[&0], expected, "at {path} m");
+            s.restore(swapped);
+        }
+    }
+
+    #[test]
+    fn the_chain_alignment_is_swapped_in_and_restored() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::default();
+        offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+        offer(&mut s, (14, 140.0), (4, 0.7), a, &lc);
+        let newer = Iso2::new(Vec2::new(3.5, -2.0), 0.05);
+        take(
+            &mut s,
+            (18, 180.0),
+            (8, 0.7),
+            (aligned(newer, 180.0), Vouched),
+            &lc,
+        );
+        let chain = aligned(a, 90.0);
+        s.extend_chain(0, chain);
+        let swapped = s.swap_in_chain(90.0, &lc);
+        assert_eq!(s.alignments()[&0], chain);
+        assert!(s.any_vouches(100.0, &lc) && !s.any_vouches(200.0, &lc));
+        s.restore(swapped);
+        assert_eq!(s.alignments()[&0].t, newer);
+        // A chain to a session without an alignment leaves none behind.
+        s.extend_chain(7, chain);
+        let swapped = s.swap_in_chain(90.0, &lc);
+        assert!(s.alignments().contains_key(&7));
+        s.restore(swapped);
+        assert!(!s.alignments().contains_key(&7));
+    }
+
+    /// Keyframes 0 to 19, 10 m apart: a closure held at keyframe 12 is confirmed at the older
+    /// keyframe 8 (as keyframes searched again by a walk find them), and the first keyframe to search
+    /// again, 9, is taken.
+    fn confirmed_at_an_older_keyframe(lc: &LoopConfig) -> Session {
+        let a = true_alignment();
+        let mut s = session_with_keyframes(20, lc);
+        offer(&mut s, (12, 120.0), (2, 0.7), a, lc);
+        assert_eq!(offer(&mut s, (8, 80.0), (0, 0.7), a, lc).len(), 2);
+        assert_eq!(s.next_backfill(), Some(9));
+        s
+    }
+
+    /// A confirmation at an older keyframe (an older keyframe searched around a shared alignment)
+    /// queues the keyframes made after it oldest first, then those before it newest first, and the
+    /// walk back starts from the confirmation's alignment again, not from where the walk forward
+    /// ended.
+    #[test]
+    fn a_confirmation_at_an_older_keyframe_walks_forward_then_back() {
+        let lc = LoopConfig::default();
+        let mut s = confirmed_at_an_older_keyframe(&lc);
+        s.extend_chain(0, aligned(Iso2::new(Vec2::new(3.2, -2.0), 0.05), 90.0));
+        let forward: Vec<u64> = std::iter::from_fn(|| s.next_backfill())
+            .take_while(|&id| id != 7)
+            .collect();
+        assert_eq!(forward, [10, 11, 13, 14, 15, 16, 17, 18, 19]);
+        assert_eq!(
+            s.again.chain(),
+            Some((0, aligned(true_alignment(), 80.0))),
+            "back from the confirmation"
+        );
+        assert_eq!(drain_backfill(&mut s), [6, 5, 4, 3, 2, 1, 0]);
+    }
+
+    /// Where no alignment vouches any more, the rest of a search again's walk to another robot's
+    /// session is searched as new keyframes are, for closures to that session (to one robot's own
+    /// session it ends there); the walk back from the confirmation still follows a walk forward that
+    /// went stale, and a confirmation among the keyframes walked ends the walk over them.
+    #[test]
+    fn a_walk_to_another_robot_gone_stale_is_searched_as_new_keyframes() {
+        let lc = LoopConfig::default();
+        let mut s = confirmed_at_an_older_keyframe(&lc);
+        assert_eq!(s.next_backfill(), Some(10));
+        let mut lone = s.clone();
+        lone.walk_gone_stale(10, 100.0, |_| false);
+        assert_eq!(drain_backfill(&mut lone), [7, 6, 5, 4, 3, 2, 1, 0]);
+        assert_eq!(lone.next_walk(), None, "one robot's walk ends there");
+        s.walk_gone_stale(10, 100.0, |session| session == 0);
+        assert_eq!(drain_backfill(&mut s), [7, 6, 5, 4, 3, 2, 1, 0]);
+        assert_eq!(s.next_walk(), Some((0, 10)));
+        s.published(&closure(11, 1, 0.7));
+        assert_eq!(s.next_walk(), Some((0, 13)), "11 has a closure now");
+        // Two walked keyframes confirm a new alignment: the walk ends, and what it had not reached
+        // is queued to be searched again around that alignment.
+        let b = Iso2::new(Vec2::new(3.6, -2.0), 0.05);
+        offer(&mut s, (14, 140.0), (4, 0.7), b, &lc);
+        assert_eq!(offer(&mut s, (17, 170.0), (7, 0.7), b, &lc).len(), 2);
+        assert_eq!(s.next_walk(), None);
+        assert_eq!(drain_backfill(&mut s), [18, 19, 16, 15, 13, 10]);
+    }
+
+    /// A shared alignment to a session that arrives before this session has one of its own walks
+    /// over this session's keyframes that have no closure, newest first; once this session has its
+    /// own, a second shared alignment starts no walk.
+    #[test]
+    fn a_shared_alignment_walks_over_the_keyframes_without_a_closure() {
+        let lc = LoopConfig::default();
+        let mut s = session_with_keyframes(5, &lc);
+        s.own = 1;
+        s.published(&closure(3, 0, 0.7));
+        s.take_shared(0, aligned(true_alignment(), 30.0), &lc);
+        let walked: Vec<(u32, u64)> = std::iter::from_fn(|| s.next_walk()).collect();
+        assert_eq!(walked, [(0, 4), (0, 2), (0, 1), (0, 0)]);
+        // A walked keyframe that finds the pair it holds already holds it once, and a confirmation
+        // publishes it once.
+        let a = true_alignment();
+        assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
+        assert!(offer(&mut s, (0, 0.0), (7, 0.7), a, &lc).is_empty());
+        assert_eq!(s.held.of(0).len(), 1);
+        let mut s = session_with_keyframes(5, &lc);
+        s.own = 1;
+        s.set_alignment(2, aligned(true_alignment(), 30.0));
+        s.take_shared(2, aligned(true_alignment(), 30.0), &lc);
+        assert_eq!(s.next_walk(), None);
     }
 }

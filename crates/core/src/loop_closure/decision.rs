@@ -365,9 +365,562 @@ pub(crate) fn turn_spanned(first: f64, rest: impl Iterator<Item = f64>) -> bool 
 
 #[cfg(test)]
 mod tests {
+    use super::super::Session;
     use super::super::session::fixtures::*;
+    use super::Standing::{BeyondDrift, Unconfirmed, Vouched};
     use super::*;
-    use crate::math::{Iso2, Vec2};
+    use crate::math::{Iso2, Vec2, iso3_from_iso2};
+
+    /// The true alignment slid `x` metres along the query's heading.
+    fn off(x: f64) -> Iso2 {
+        true_alignment() * Iso2::new(Vec2::new(x, 0.0), 0.0)
+    }
+
+    fn moved(query_id: u64, match_id: u64, to: ClosureState) -> Moved {
+        Moved {
+            query_id,
+            match_id,
+            to,
+        }
+    }
+
+    /// Gated -> Published ([`vouched`]): a closure the gates found Vouched is published alone while
+    /// its session has an accepted alignment, whose place its alignment takes (Replaced); to a
+    /// session without one, or not vouched, it is held.
+    #[test]
+    fn gated_to_published_when_vouched() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let at_100 = aligned(a, 100.0);
+        let with_alignment = || {
+            let mut s = Session::new(0);
+            s.set_alignment(0, at_100);
+            s
+        };
+        let mut s = with_alignment();
+        let out = judge(
+            &mut s,
+            (12, 120.0),
+            (2, 0.4),
+            (aligned(a, 120.0), Vouched),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Published);
+        assert_eq!(ids(&out.publish), [12]);
+        assert_eq!(out.replaced, Some(AlignmentState::Replaced));
+        assert_eq!(s.alignments()[&0].path, 120.0);
+        let mut s = with_alignment();
+        let out = judge(
+            &mut s,
+            (12, 120.0),
+            (2, 0.4),
+            (aligned(a, 120.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!((out.state, out.replaced), (ClosureState::Held, None));
+        assert_eq!(s.alignments()[&0].path, 100.0);
+        let mut other = Session::new(1);
+        let out = judge(
+            &mut other,
+            (12, 120.0),
+            (2, 0.4),
+            (aligned(a, 120.0), Vouched),
+            &lc,
+        );
+        assert_eq!(
+            out.state,
+            ClosureState::Held,
+            "no accepted alignment to session 0"
+        );
+        assert!(vouched(Vouched, Some(&at_100)));
+        assert!(!vouched(Vouched, None));
+        assert!(!vouched(Unconfirmed, Some(&at_100)) && !vouched(BeyondDrift, Some(&at_100)));
+    }
+
+    /// Gated -> Published ([`alone_enough`]): with `loop.confirmations` at 1 a first closure to this
+    /// session is published alone and its alignment is the first accepted one; to another session
+    /// it still waits for `loop.foreign_confirmations` (4), unless that is 1 too.
+    #[test]
+    fn gated_to_published_when_one_closure_is_enough() {
+        let a = true_alignment();
+        let single = LoopConfig {
+            confirmations: 1,
+            ..LoopConfig::default()
+        };
+        let first = |s: &mut Session, lc: &LoopConfig| {
+            judge(
+                s,
+                (10, 100.0),
+                (0, 0.3),
+                (aligned(a, 100.0), Unconfirmed),
+                lc,
+            )
+        };
+        let mut s = Session::new(0);
+        let out = first(&mut s, &single);
+        assert_eq!((out.state, out.replaced), (ClosureState::Published, None));
+        assert_eq!(s.alignments()[&0].t, a);
+        assert_eq!(
+            first(&mut Session::new(1), &single).state,
+            ClosureState::Held
+        );
+        let both = LoopConfig {
+            foreign_confirmations: 1,
+            ..single
+        };
+        assert_eq!(
+            first(&mut Session::new(1), &both).state,
+            ClosureState::Published
+        );
+        let need = |closures: usize| Need {
+            closures,
+            turn: false,
+        };
+        assert!(alone_enough(need(1)) && !alone_enough(need(2)));
+    }
+
+    /// Gated -> Held ([`need`]): `loop.confirmations` (2) for a closure to this session within the
+    /// drift model, `loop.foreign_confirmations` (4) for one to another session, one beyond the drift
+    /// model (across a turn) or one that overturns a fresh alignment.
+    #[test]
+    fn gated_to_held_with_the_closures_it_needs() {
+        let lc = LoopConfig::default();
+        let n = |closures: usize, turn: bool| Need { closures, turn };
+        assert_eq!(need(true, Unconfirmed, false, &lc), n(2, false));
+        assert_eq!(need(false, Unconfirmed, false, &lc), n(4, false));
+        assert_eq!(need(true, BeyondDrift, false, &lc), n(4, true));
+        assert_eq!(need(true, Unconfirmed, true, &lc), n(4, false));
+        let mut s = Session::new(0);
+        let out = judge(
+            &mut s,
+            (10, 100.0),
+            (0, 0.7),
+            (aligned(true_alignment(), 100.0), BeyondDrift),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Held);
+        let held = &s.held_to(0)[0];
+        assert_eq!((held.needed, held.turn), (4, true));
+    }
+
+    /// The test of Vouching -> Overturned ([`overturns`]): an unconfirmed closure found 10 m of path
+    /// after the accepted alignment (on both passes) lies within 16.27 of it at 1 m + 0.5 x 5 % x 20
+    /// m = 1.5 m of standard deviation when 6.0 m off (16.0), beyond when 6.1 m off (16.54), and then
+    /// needs four closures. 70 m after it the alignment is stale and overturns nothing.
+    #[test]
+    fn an_unconfirmed_closure_overturns_a_vouching_alignment_it_contradicts() {
+        let lc = LoopConfig::default();
+        let accepted = aligned(true_alignment(), 100.0);
+        let at = place(11, 110.0);
+        assert!(!overturns(
+            Unconfirmed,
+            Some(&accepted),
+            &aligned(off(6.0), 110.0),
+            &at,
+            &lc
+        ));
+        assert!(overturns(
+            Unconfirmed,
+            Some(&accepted),
+            &aligned(off(6.1), 110.0),
+            &at,
+            &lc
+        ));
+        assert!(!overturns(
+            Vouched,
+            Some(&accepted),
+            &aligned(off(6.1), 110.0),
+            &at,
+            &lc
+        ));
+        assert!(!overturns(
+            BeyondDrift,
+            Some(&accepted),
+            &aligned(off(6.1), 110.0),
+            &at,
+            &lc
+        ));
+        assert!(!overturns(
+            Unconfirmed,
+            None,
+            &aligned(off(6.1), 110.0),
+            &at,
+            &lc
+        ));
+        let stale_at = place(17, 170.0);
+        assert!(!overturns(
+            Unconfirmed,
+            Some(&accepted),
+            &aligned(off(20.0), 170.0),
+            &stale_at,
+            &lc
+        ));
+        let needed = |x: f64| {
+            let mut s = Session::new(0);
+            s.set_alignment(0, accepted);
+            let out = judge(
+                &mut s,
+                (11, 110.0),
+                (1, 0.7),
+                (aligned(off(x), 110.0), Unconfirmed),
+                &lc,
+            );
+            assert_eq!(out.state, ClosureState::Held);
+            s.held_to(0)[0].needed
+        };
+        assert_eq!((needed(6.0), needed(6.1)), (2, 4));
+    }
+
+    /// Vouching -> Overturned: four closures 20 m off the accepted alignment found at 140 m, the
+    /// last at 185 m (45 m on, where it still vouches), confirm each other and overturn it. The
+    /// same closures after 60 m of path meet a stale alignment: two confirm, and it is Replaced.
+    #[test]
+    fn a_vouching_alignment_that_confirmed_closures_contradict_is_overturned() {
+        let lc = LoopConfig::default();
+        let slid = off(20.0);
+        let mut s = Session::new(0);
+        s.set_alignment(0, aligned(true_alignment(), 140.0));
+        for (q, path) in [(15, 150.0), (16, 160.0), (17, 170.0)] {
+            let out = judge(
+                &mut s,
+                (q, path),
+                (q + 10, 0.7),
+                (aligned(slid, path), Unconfirmed),
+                &lc,
+            );
+            assert_eq!(out.state, ClosureState::Held, "{q}: fewer than four");
+        }
+        let out = judge(
+            &mut s,
+            (18, 185.0),
+            (28, 0.7),
+            (aligned(slid, 185.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Confirmed);
+        assert_eq!(ids(&out.publish), [15, 16, 17, 18]);
+        assert_eq!(out.replaced, Some(AlignmentState::Overturned));
+        assert_eq!(s.alignments()[&0].t, slid);
+        let mut s = Session::new(0);
+        s.set_alignment(0, aligned(true_alignment(), 100.0));
+        let held = judge(
+            &mut s,
+            (17, 170.0),
+            (27, 0.7),
+            (aligned(slid, 170.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!(held.state, ClosureState::Held);
+        let out = judge(
+            &mut s,
+            (20, 200.0),
+            (30, 0.7),
+            (aligned(slid, 200.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Confirmed);
+        assert_eq!(out.replaced, Some(AlignmentState::Replaced));
+    }
+
+    /// Vouching -> Stale ([`vouching`]): an accepted alignment vouches while its predicted
+    /// translation standard deviation, 0.5 m + 0.5 x 5 % of the path since it was found, is at most
+    /// `loop.trusted_prior_std` (2 m): 60 m either way (2.0 m), not 61 m (2.025 m).
+    #[test]
+    fn an_accepted_alignment_is_stale_beyond_60_m_of_path() {
+        let lc = LoopConfig::default();
+        let mut s = Session::new(0);
+        s.set_alignment(0, aligned(true_alignment(), 100.0));
+        for (path, fresh) in [(160.0, true), (161.0, false), (40.0, true), (39.0, false)] {
+            assert_eq!(s.vouches_for(0, path, &lc), fresh, "at {path} m");
+            assert_eq!(s.any_vouches(path, &lc), fresh, "at {path} m");
+        }
+        assert!(!s.vouches_for(1, 100.0, &lc), "no alignment to session 1");
+    }
+
+    /// Gated -> Confirmed ([`confirms`]): two agreeing closures to this session confirm when their
+    /// query keyframes lie `loop.confirmation_span` (30 m) of path apart: at 130 m after one held at
+    /// 100 m, not at 129 m.
+    #[test]
+    fn gated_to_confirmed_across_the_confirmation_span() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let at = |path: f64| {
+            let mut s = Session::new(0);
+            offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+            judge(
+                &mut s,
+                (13, path),
+                (3, 0.7),
+                (aligned(a, path), Unconfirmed),
+                &lc,
+            )
+        };
+        let out = at(130.0);
+        assert_eq!(out.state, ClosureState::Confirmed);
+        assert_eq!(ids(&out.publish), [10, 13]);
+        assert_eq!(out.moved, [moved(10, 0, ClosureState::Confirmed)]);
+        assert_eq!(at(129.0).state, ClosureState::Held);
+    }
+
+    /// Gated -> Confirmed ([`confirms`]): one of the agreeing closures must reach
+    /// `loop.confirmation_overlap` (0.6), the held one or the new one.
+    #[test]
+    fn gated_to_confirmed_with_one_strong_closure() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let state = |held: f64, new: f64| {
+            let mut s = Session::new(0);
+            offer(&mut s, (10, 100.0), (0, held), a, &lc);
+            judge(
+                &mut s,
+                (14, 140.0),
+                (4, new),
+                (aligned(a, 140.0), Unconfirmed),
+                &lc,
+            )
+            .state
+        };
+        assert_eq!(state(0.6, 0.59), ClosureState::Confirmed);
+        assert_eq!(state(0.59, 0.6), ClosureState::Confirmed);
+        assert_eq!(state(0.59, 0.59), ClosureState::Held);
+    }
+
+    /// Gated -> Confirmed ([`confirms`]): to another session four agreeing closures confirm
+    /// (`loop.foreign_confirmations`), three do not.
+    #[test]
+    fn gated_to_confirmed_by_as_many_closures_as_needed() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::new(1);
+        for (q, path) in [(10, 100.0), (14, 140.0), (18, 180.0)] {
+            let out = judge(
+                &mut s,
+                (q, path),
+                (q - 10, 0.7),
+                (aligned(a, path), Unconfirmed),
+                &lc,
+            );
+            assert_eq!(out.state, ClosureState::Held, "{q}");
+        }
+        let out = judge(
+            &mut s,
+            (22, 220.0),
+            (12, 0.7),
+            (aligned(a, 220.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Confirmed);
+        assert_eq!(ids(&out.publish), [10, 14, 18, 22]);
+    }
+
+    /// Gated -> Confirmed ([`confirms`], [`turn_spanned`]): beyond the drift model four agreeing
+    /// closures confirm only when two of their query keyframes' headings lie [`BEYOND_DRIFT_TURN`]
+    /// (0.785 rad) apart: 0.79 rad does, 0.78 rad does not.
+    #[test]
+    fn gated_to_confirmed_beyond_the_drift_model_across_a_turn() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let state = |heading: f64| {
+            let mut s = Session::new(0);
+            for (q, path) in [(10, 100.0), (11, 110.0), (12, 120.0)] {
+                judge(
+                    &mut s,
+                    (q, path),
+                    (q - 10, 0.7),
+                    (aligned(a, path), BeyondDrift),
+                    &lc,
+                );
+            }
+            let mut corner = place(14, 140.0);
+            corner.t_odom_body = Iso2::new(Vec2::new(140.0, 0.0), heading);
+            let c = closure(14, 4, 0.7);
+            s.accept(&corner, c, 0, aligned(a, 140.0), BeyondDrift, &lc)
+                .state
+        };
+        assert_eq!(state(0.79), ClosureState::Confirmed);
+        assert_eq!(state(0.78), ClosureState::Held);
+    }
+
+    /// Held -> Confirmed ([`agreeing`]): two closures agree when their alignments lie within 16.27
+    /// of each other at 1 m + 0.5 x 5 % of the path between them, 2 m over 40 m: 8.0 m apart (16.0)
+    /// they confirm, 8.1 m apart (16.40) the new one is held beside the other.
+    #[test]
+    fn held_to_confirmed_when_the_alignments_agree() {
+        let lc = LoopConfig::default();
+        let state = |x: f64| {
+            let mut s = Session::new(0);
+            offer(&mut s, (10, 100.0), (0, 0.7), true_alignment(), &lc);
+            let out = judge(
+                &mut s,
+                (14, 140.0),
+                (4, 0.7),
+                (aligned(off(x), 140.0), Unconfirmed),
+                &lc,
+            );
+            (out.state, s.held_to(0).len())
+        };
+        assert_eq!(state(8.0), (ClosureState::Confirmed, 0));
+        assert_eq!(state(8.1), (ClosureState::Held, 2));
+    }
+
+    /// Held -> Outvoted: a confirmation takes the held closures that agree with the new one, and
+    /// every other closure held to the session leaves with them: one 20 m off the true alignment is
+    /// dropped when two true ones confirm.
+    #[test]
+    fn held_to_outvoted_when_others_are_confirmed() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::new(0);
+        assert!(offer(&mut s, (10, 100.0), (0, 0.7), off(20.0), &lc).is_empty());
+        assert!(offer(&mut s, (11, 105.0), (1, 0.7), a, &lc).is_empty());
+        let out = judge(
+            &mut s,
+            (14, 140.0),
+            (4, 0.7),
+            (aligned(a, 140.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!(out.state, ClosureState::Confirmed);
+        assert_eq!(ids(&out.publish), [11, 14]);
+        assert_eq!(
+            out.moved,
+            [
+                moved(11, 1, ClosureState::Confirmed),
+                moved(10, 0, ClosureState::Outvoted)
+            ]
+        );
+        assert!(s.held_to(0).is_empty());
+    }
+
+    /// Held -> Expired ([`expired`]): a closure held at 100 m still confirms with one at 250 m
+    /// (`loop.confirmation_horizon`, 150 m, after it); at 250.5 m it has expired, and the new one is
+    /// held alone.
+    #[test]
+    fn held_to_expired_beyond_the_confirmation_horizon() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let at = |path: f64| {
+            let mut s = Session::new(0);
+            offer(&mut s, (10, 100.0), (0, 0.7), a, &lc);
+            let out = judge(
+                &mut s,
+                (25, path),
+                (15, 0.7),
+                (aligned(a, path), Unconfirmed),
+                &lc,
+            );
+            (out, s.held_to(0).len())
+        };
+        let (out, held) = at(250.0);
+        assert_eq!((out.state, held), (ClosureState::Confirmed, 0));
+        let (out, held) = at(250.5);
+        assert_eq!((out.state, held), (ClosureState::Held, 1));
+        assert_eq!(out.moved, [moved(10, 0, ClosureState::Expired)]);
+    }
+
+    /// Held -> Replaced ([`replaced`]): a closure of the same pair of keyframes held again (a walk
+    /// finds it again) takes the held one's place; another pair of the same query keyframe is held
+    /// beside it.
+    #[test]
+    fn held_to_replaced_by_the_same_pair() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let mut s = Session::new(0);
+        let out = judge(
+            &mut s,
+            (10, 100.0),
+            (0, 0.7),
+            (aligned(a, 100.0), Unconfirmed),
+            &lc,
+        );
+        assert_eq!((out.state, out.moved.len()), (ClosureState::Held, 0));
+        let again = aligned(off(0.5), 100.0);
+        let out = judge(&mut s, (10, 100.0), (0, 0.8), (again, Unconfirmed), &lc);
+        assert_eq!(out.state, ClosureState::Held);
+        assert_eq!(out.moved, [moved(10, 0, ClosureState::Replaced)]);
+        assert_eq!(s.held_to(0).len(), 1);
+        assert_eq!(s.held_to(0)[0].alignment, again);
+        let out = judge(
+            &mut s,
+            (10, 100.0),
+            (1, 0.8),
+            (aligned(a, 100.0), Unconfirmed),
+            &lc,
+        );
+        assert!(out.moved.is_empty());
+        assert_eq!(s.held_to(0).len(), 2);
+    }
+
+    /// Held -> Refuted ([`refuted`]): a closure published on the accepted alignment's word drops a
+    /// held closure whose alignment lies beyond 16.27 of its own, with the drift over the 20 m of
+    /// path between them on each pass (1 m + 0.5 x 5 % x 40 m = 2 m): 8.1 m off (16.40) is refuted,
+    /// 8.0 m off (16.0) stays held.
+    #[test]
+    fn held_to_refuted_by_a_vouched_closure() {
+        let lc = LoopConfig::default();
+        let a = true_alignment();
+        let refuted_at = |x: f64| {
+            let mut s = Session::new(0);
+            s.set_alignment(0, aligned(a, 90.0));
+            assert!(offer(&mut s, (10, 100.0), (0, 0.7), off(x), &lc).is_empty());
+            let out = judge(
+                &mut s,
+                (12, 120.0),
+                (2, 0.7),
+                (aligned(a, 120.0), Vouched),
+                &lc,
+            );
+            assert_eq!(out.state, ClosureState::Published);
+            (out.moved, s.held_to(0).len())
+        };
+        assert_eq!(
+            refuted_at(8.1),
+            (vec![moved(10, 0, ClosureState::Refuted)], 0)
+        );
+        assert_eq!(refuted_at(8.0), (vec![], 1));
+    }
+
+    /// Held -> Unreachable ([`unreachable`]): a closure to another robot's session is dropped when
+    /// that robot's alignment arrives and the closure lies beyond three times the drift model's
+    /// bounds of it. Found where the closure was (no path between), the drift is 15 m / 3 = 5 m;
+    /// with the closure's 1 m, 9 x 16.27 = 146.43 allows 61.7 m: 61 m off (143.1) stays held, 62 m
+    /// off (147.8) does not.
+    #[test]
+    fn held_to_unreachable_from_a_shared_alignment() {
+        let lc = LoopConfig::default();
+        let dropped = |x: f64| {
+            let mut s = Session::new(1);
+            let mut c = closure(10, 0, 0.7);
+            c.t_match_query = iso3_from_iso2(&Iso2::new(Vec2::new(x, 0.0), 0.0));
+            let implied = aligned(Iso2::identity(), 100.0);
+            let out = s.accept(&place(10, 100.0), c, 0, implied, Unconfirmed, &lc);
+            assert_eq!(out.state, ClosureState::Held);
+            let moved = s.take_shared(0, aligned(Iso2::identity(), 100.0), &lc);
+            (moved, s.held_to(0).len())
+        };
+        assert_eq!(dropped(61.0), (vec![], 1));
+        assert_eq!(
+            dropped(62.0),
+            (vec![moved(10, 0, ClosureState::Unreachable)], 0)
+        );
+    }
+
+    /// Gated -> Published or Unvouched ([`published_late`]): a search again and another robot's
+    /// arriving keyframe publish only what a fresh alignment vouches for.
+    #[test]
+    fn gated_to_unvouched_late_unless_vouched() {
+        assert!(published_late(Vouched));
+        assert!(!published_late(Unconfirmed));
+        assert!(!published_late(BeyondDrift));
+    }
+
+    /// Gated -> OffWalk ([`off_walk`]): a walk for closures to one session drops a closure to another.
+    #[test]
+    fn gated_to_off_walk_when_it_goes_to_another_session() {
+        assert!(off_walk(0, Some(1)));
+        assert!(!off_walk(1, Some(1)));
+        assert!(!off_walk(0, None), "not on a walk");
+    }
 
     /// Beyond the drift model the odometry between two keyframes is not known to the model's
     /// accuracy: a closure slid by a guard rail post period, which its neighbour 10 m on does not

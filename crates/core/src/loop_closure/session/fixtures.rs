@@ -87,6 +87,11 @@ pub(crate) fn judge(
     )
 }
 
+/// The query keyframes of `closures`, in order.
+pub(crate) fn ids(closures: &[LoopClosure]) -> Vec<u64> {
+    closures.iter().map(|c| c.query_id).collect()
+}
+
 /// All the keyframes [`Session::next_backfill`] gives.
 pub(crate) fn drain_backfill(s: &mut Session) -> Vec<u64> {
     std::iter::from_fn(|| s.next_backfill()).collect()

@@ -504,15 +504,15 @@ mod tests {
         assert_eq!(ids, [10, 14, 18, 22]);
         // The own session (1) is confirmed by two.
         let mut s = Session::new(1);
-        s.accept(
+        let first = s.accept(
             &place(10, 100.0),
             closure(10, 0, 0.7),
             1,
             aligned(a, 100.0),
             Unconfirmed,
             &lc,
-        )
-        .publish;
+        );
+        assert_eq!(first.state, ClosureState::Held);
         let published = s
             .accept(
                 &place(14, 140.0),

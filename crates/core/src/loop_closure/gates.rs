@@ -11,8 +11,9 @@
 use std::collections::BTreeMap;
 
 use super::calibration::{add_planar, calibration_covariance, clock_covariance};
+use super::decision::vouching;
 use super::drift::{
-    Prior, heading_drift_covariance, inconsistency, predict, reach_chi2, translation_std, vouches,
+    Prior, heading_drift_covariance, inconsistency, predict, reach_chi2, translation_std,
     within_reach,
 };
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason, Standing};
@@ -117,7 +118,7 @@ impl Gates<'_> {
     /// The accepted alignment to the candidate's session is fresh enough to vouch for a closure.
     fn trusted(&self, p: &Pair<'_>) -> bool {
         self.alignment(p.cand.session)
-            .is_some_and(|a| vouches(p.query.path_distance - a.path, self.lc))
+            .is_some_and(|a| vouching(a, p.query.path_distance, self.lc))
     }
 
     /// The pose the accepted alignment to the candidate's session predicts.

@@ -7,21 +7,24 @@
 //! descriptor); registration of each, in parallel; the gates ([`gates`]); the best closure
 //! that passes the prediction and slide tests (while an alignment vouches and none passes, the same
 //! for the next keyframes nearest to the position it predicts, [`KeyframeDb::candidate_rounds`]);
-//! acceptance by the session ([`Session::accept`]: published, held, or confirmed with those it
-//! agrees with). After a confirmation, the keyframes that got nothing are searched again, a few per
-//! new keyframe ([`LoopCloser::backfill`]).
+//! the closure decision ([`decision`], applied by [`Session::accept`]: published, held, or
+//! confirmed with those it agrees with). After a confirmation, the keyframes that got nothing are
+//! searched again, a few per new keyframe ([`LoopCloser::backfill`]).
 //!
 //! Entry points: [`LoopCloser`], [`LoopClosure`], [`Decision`], [`RejectReason`], [`LoopConfig`];
-//! the state of acceptance is [`Session`], the drift model [`drift`].
+//! the closure decision's states and transitions are [`decision`], the state of acceptance is
+//! [`Session`], the drift model [`drift`].
 
 pub mod calibration;
 mod config;
+pub mod decision;
 pub mod drift;
 pub mod gates;
 mod session;
 
 pub use config::LoopConfig;
-pub use session::{Alignment, QueryPlace, Session, Standing};
+pub use decision::{AlignmentState, ClosureState, Moved, Standing};
+pub use session::{Alignment, Outcome, QueryPlace, Session};
 
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -235,8 +238,8 @@ impl LoopCloser {
     }
 
     /// `query`'s best closure among its candidates, offered for acceptance: published, held or
-    /// confirming held ones ([`Session::accept`]). With `only`, a closure to another session is
-    /// left alone.
+    /// confirming held ones ([`Session::accept`]). With `only` (a walk's session), a closure to
+    /// another session is dropped ([`decision::off_walk`]).
     fn offer(
         &mut self,
         db: &KeyframeDb,
@@ -248,7 +251,7 @@ impl LoopCloser {
         let Some((session, alignment)) = closure_alignment(db, query, &c) else {
             return;
         };
-        if only.is_some_and(|s| s != session) {
+        if decision::off_walk(session, only) {
             return;
         }
         let place = QueryPlace {
@@ -256,10 +259,10 @@ impl LoopCloser {
             path: query.path_distance,
             t_odom_body: query.t_odom_body,
         };
-        let publish = self
+        let outcome = self
             .state
             .accept(&place, c, session, alignment, standing, &self.lc);
-        self.publish(publish, out);
+        self.publish(outcome.publish, out);
     }
 
     /// Another robot's keyframe `index`, just added to `db`: this session's keyframes that may revisit
@@ -287,7 +290,7 @@ impl LoopCloser {
             let Some(query) = db.get(cand.index as u64).cloned() else {
                 continue;
             };
-            if !drift::vouches(query.path_distance - alignment.path, &self.lc) {
+            if !decision::vouching(&alignment, query.path_distance, &self.lc) {
                 continue;
             }
             match db.prepared(cand.index, &self.rc) {
@@ -321,7 +324,9 @@ impl LoopCloser {
             // Only what agrees with a fresh alignment to the robot's session is published from here:
             // the first closures to a session come from new keyframes, whose candidates compete.
             match self.first_that_passes(passed, &source, out) {
-                Some((c, Standing::Vouched)) => self.publish(vec![c], out),
+                Some((c, standing)) if decision::published_late(standing) => {
+                    self.publish(vec![c], out)
+                }
                 Some((c, _)) => log::debug!(
                     "revisit {} -> {index} of another robot passed the gates, but no fresh alignment to its session vouches for it",
                     c.query_id
@@ -376,9 +381,12 @@ impl LoopCloser {
             return;
         }
         // Only what agrees with the alignment that vouches is published.
-        let Some((c, Standing::Vouched)) = found else {
+        let Some((c, standing)) = found else {
             return;
         };
+        if !decision::published_late(standing) {
+            return;
+        }
         if let Some((s, alignment)) = closure_alignment(db, &rec, &c) {
             self.state.extend_chain(s, alignment);
         }

@@ -4,7 +4,9 @@
 //! One step from `t_a` to `t_b` (`dt`) takes the mean body velocity `v` of its two ends and the heading
 //! change `dtheta` (from the yaw rates at the ends, or the gyro over the interval):
 //!
-//!     theta_m = theta + dtheta / 2,   p' = p + R(theta_m) v dt,   theta' = theta + dtheta
+//! ```text
+//! theta_m = theta + dtheta / 2,   p' = p + R(theta_m) v dt,   theta' = theta + dtheta
+//! ```
 //!
 //! and the covariance of `(x, y, theta)` (odometry frame) to first order, `P' = F P F^T + G Q G^T`,
 //! with `F = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]` (`(dx, dy)` the step in the odometry frame), `G` the

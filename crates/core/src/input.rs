@@ -1,12 +1,13 @@
 //! What enters the pipeline: [`Input`] (a radar cloud, a decoded scan, an odometry or ground-truth
-//! sample, a gyro sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft, the simulator, the
-//! node's DDS subscriptions), the [`InputIssue`] a source reports for a message it skips, and the
-//! conversions of ROS messages into inputs ([`odometry_pose`], [`ground_truth_sample`],
-//! [`header_stamp`]).
+//! sample, a gyro sample) from every source (rosbag2 and foxglove MCAP, nuScenes, View-of-Delft,
+//! the simulator, the node's DDS subscriptions), the [`InputIssue`] a source reports for a message
+//! it skips, and the conversions of ROS messages into inputs ([`odometry_pose`],
+//! [`ground_truth_sample`], [`header_stamp`]).
 //!
 //! Stamps: an input carries its message's `header.stamp`. Some drivers leave it zero (the TI mmWave
 //! ROS driver does); then the receive time (a bag's log time, the node's clock) stands in. A stamp
-//! whose `nanosec` is 1e9 or more names no time: its message is skipped ([`IssueReason::BadStamp`]).
+//! whose `nanosec` is 1e9 or more names no time: its message is skipped
+//! ([`IssueReason::BadStamp`]).
 
 use crate::math::{Iso3, Stamp, Vec3};
 use crate::msgs::nav_msgs::Odometry;
@@ -18,7 +19,8 @@ use crate::radar::{Detection, RadarScan};
 /// One input of the pipeline, from any source.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Input {
-    /// A radar cloud (its `header.stamp` already replaced by the receive or log time when it was zero).
+    /// A radar cloud (its `header.stamp` already replaced by the receive or log time when it was
+    /// zero).
     Radar {
         /// Radar index (position in `radar_names`).
         radar: usize,
@@ -136,8 +138,8 @@ pub struct InputIssue {
     pub reason: IssueReason,
 }
 
-/// How large a cloud the pipeline takes (`node.max_cloud_points`, `node.max_cloud_bytes`, in the node
-/// and in `dc_loc run` alike): whatever a cloud's header claims, decoding it never holds more.
+/// How large a cloud the pipeline takes (`node.max_cloud_points`, `node.max_cloud_bytes`, in the
+/// node and in `dc_loc run` alike): whatever a cloud's header claims, decoding it never holds more.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InputLimits {
     /// Most points (width x height).
@@ -147,7 +149,8 @@ pub struct InputLimits {
 }
 
 impl Default for InputLimits {
-    /// 200,000 points and 16 MiB: a 4D imaging radar's thousands of points fit a hundred times over.
+    /// 200,000 points and 16 MiB: a 4D imaging radar's thousands of points fit a hundred times
+    /// over.
     fn default() -> Self {
         InputLimits {
             max_cloud_points: 200_000,
@@ -195,11 +198,11 @@ pub fn header_stamp(header: &Header, log_time: Stamp) -> Result<Stamp, IssueReas
     }
 }
 
-/// A `radar_msgs/RadarScan` as the scan of radar `radar` at `stamp`: each return becomes the detection
-/// at `(r cos el cos az, r cos el sin az, r sin el)` in the radar frame with `v_r = doppler_velocity`
-/// (positive away, dc_loc's convention). Returns that are not finite or at zero range are kept here and
-/// counted as invalid by the pipeline, as the points of a cloud are. `amplitude` (dB) is not an RCS and
-/// is not read.
+/// A `radar_msgs/RadarScan` as the scan of radar `radar` at `stamp`: each return becomes the
+/// detection at `(r cos el cos az, r cos el sin az, r sin el)` in the radar frame with `v_r =
+/// doppler_velocity` (positive away, dc_loc's convention). Returns that are not finite or at zero
+/// range are kept here and counted as invalid by the pipeline, as the points of a cloud are.
+/// `amplitude` (dB) is not an RCS and is not read.
 pub fn radar_scan_input(radar: usize, stamp: Stamp, msg: &RadarScanMsg) -> Input {
     let detections = msg
         .returns
@@ -242,8 +245,8 @@ pub fn imu_input(stamp: Stamp, msg: &crate::msgs::sensor_msgs::Imu) -> Input {
     }
 }
 
-/// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message; `None`
-/// when the pose is not finite (the speed is not checked: the pose is what matters).
+/// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message;
+/// `None` when the pose is not finite (the speed is not checked: the pose is what matters).
 pub fn ground_truth_sample(msg: &Odometry) -> Option<(Stamp, Iso3, f64)> {
     let (stamp, pose) = odometry_pose(msg)?;
     let l = &msg.twist.twist.linear;

@@ -87,7 +87,45 @@ pub struct MapShape {
     /// `map.max_points_per_keyframe` (0: not recorded).
     pub max_points_per_keyframe: usize,
     /// The place-descriptor settings the records are described with.
+    #[serde(with = "stored_place")]
     pub place: PlaceConfig,
+}
+
+/// The place settings as every map file version stores them: `max_range`, `sectors` and a
+/// candidate count that retrieval no longer reads, written as its old default so that files stay
+/// readable both ways.
+mod stored_place {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    use crate::place::PlaceConfig;
+
+    /// The stored layout.
+    #[derive(Serialize, Deserialize)]
+    struct Stored {
+        max_range: f64,
+        sectors: usize,
+        retrieve: usize,
+    }
+
+    /// The count written in the retired field.
+    const RETRIEVE: usize = 25;
+
+    pub fn serialize<S: Serializer>(place: &PlaceConfig, s: S) -> Result<S::Ok, S::Error> {
+        Stored {
+            max_range: place.max_range,
+            sectors: place.sectors,
+            retrieve: RETRIEVE,
+        }
+        .serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PlaceConfig, D::Error> {
+        let stored = Stored::deserialize(d)?;
+        Ok(PlaceConfig {
+            max_range: stored.max_range,
+            sectors: stored.sectors,
+        })
+    }
 }
 
 impl MapShape {
@@ -166,6 +204,7 @@ struct MapFileV3 {
 #[derive(Deserialize)]
 struct MapFileV2 {
     written_by: String,
+    #[serde(with = "stored_place")]
     place: PlaceConfig,
     keyframes: Vec<RecordV4>,
 }
@@ -413,4 +452,38 @@ struct MapFileRef<'a> {
     shape: &'a MapShape,
     keyframes: Vec<&'a KeyframeRecord>,
     origins: &'a [(u64, Origin)],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The place settings keep their stored layout: three fields, the third read and ignored.
+    #[test]
+    fn place_settings_keep_their_stored_layout() {
+        let shape = MapShape {
+            body_frame: "base_link".into(),
+            radars: Vec::new(),
+            max_points_per_keyframe: 7,
+            place: PlaceConfig {
+                max_range: 50.0,
+                sectors: 40,
+            },
+        };
+        let bytes = postcard::to_stdvec(&shape).unwrap();
+        #[derive(Deserialize)]
+        struct Stored {
+            body_frame: String,
+            radars: Vec<RadarMount>,
+            max_points_per_keyframe: usize,
+            place: (f64, usize, usize),
+        }
+        let stored: Stored = postcard::from_bytes(&bytes).unwrap();
+        assert_eq!(stored.body_frame, "base_link");
+        assert!(stored.radars.is_empty());
+        assert_eq!(stored.max_points_per_keyframe, 7);
+        assert_eq!(stored.place, (50.0, 40, 25));
+        let back: MapShape = postcard::from_bytes(&bytes).unwrap();
+        assert_eq!(back, shape);
+    }
 }

@@ -8,7 +8,9 @@
 //! each radar's scans on its topic ([`SimDrive::to_config`]) as `PointCloud2` in its frame with FLOAT32
 //! `x, y, z, v_r, rcs` ([`CloudLayout::radar_f32`]); the drifting odometry on `/odom` (`odom` ->
 //! `base_link`, the simulator's `odom_frame` and `body_frame`) and the true pose and twist on
-//! [`GROUND_TRUTH_TOPIC`] (frame `map`), both `nav_msgs/msg/Odometry`; at the start, a
+//! [`GROUND_TRUTH_TOPIC`] (frame `map`), both `nav_msgs/msg/Odometry`; with a simulated gyro
+//! (`imu.rate`), its samples as `sensor_msgs/msg/Imu` on `imu.topic` in the body frame (angular
+//! velocity only: no orientation, its covariance's first element -1); at the start, a
 //! `tf2_msgs/msg/TFMessage` on [`TF_STATIC_TOPIC`] with every radar's extrinsic `base_link -> <radar
 //! frame>`, offered transient local as tf2's static broadcaster does.
 
@@ -91,6 +93,11 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
     let tf_topic = bag.add_topic(TF_STATIC_TOPIC, schema::TF_MESSAGE)?;
     let odom_topic = bag.add_topic(&cfg.odometry.topic, schema::ODOMETRY)?;
     let gt_topic = bag.add_topic(GROUND_TRUTH_TOPIC, schema::ODOMETRY)?;
+    let imu_topic = if drive.imu.is_empty() {
+        None
+    } else {
+        Some(bag.add_topic(&cfg.imu.topic, schema::IMU)?)
+    };
     let mut radar_topics = Vec::new();
     for (_, rc) in cfg.radar_list() {
         radar_topics.push((
@@ -113,6 +120,11 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
             .into_iter()
             .map(|(_, rc)| count(&rc.topic, schema::POINT_CLOUD2)),
     );
+    // The gyro's count, last, when there is one.
+    let imu_count = counts.len();
+    if imu_topic.is_some() {
+        counts.push(count(&cfg.imu.topic, schema::IMU));
+    }
 
     // The extrinsics once, at the start.
     let start = drive.setup.start;
@@ -152,8 +164,13 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
                 )?;
                 counts[1].count += 1;
             }
-            // The bag writer has no `sensor_msgs/Imu` schema: the gyro stays out of bags.
-            SimEventRef::Imu(_) => {}
+            SimEventRef::Imu(i) => {
+                if let Some(topic) = imu_topic {
+                    let sigma = sim.imu.noise_density * sim.imu.rate.sqrt();
+                    bag.write(topic, i.stamp, &i.to_msg(&sim.body_frame, sigma))?;
+                    counts[imu_count].count += 1;
+                }
+            }
             SimEventRef::Scan(s) => {
                 let r = s.scan.radar;
                 let Some((topic, frame_id)) = radar_topics.get(r) else {

@@ -200,13 +200,18 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
 /// configuration of the drive ([`SimDrive::to_config`]) as a params YAML for node [`NODE_NAME`].
 pub fn export_drive(drive: &SimDrive, dir: &Path) -> Result<ExportSummary, ExportError> {
     let (bag_dir, topics) = write_bag(drive, dir)?;
-    let header = format!(
+    let mut header = format!(
         "dc_loc parameters for the simulated drive in this bag directory (written by `dc_loc sim`):\n{}\n\
          Run it with: dc_loc run --bag {} --params {} --out closures.jsonl",
         drive_description(&drive.setup.config),
         bag_dir.display(),
         bag_dir.join(PARAMS_FILE).display()
     );
+    if !drive.imu.is_empty() {
+        header.push_str(
+            "\nWithout the wheel odometry, from the radar and the gyro: add -p odometry.source:=radar_imu",
+        );
+    }
     let params_file = bag_dir.join(PARAMS_FILE);
     std::fs::write(&params_file, params_yaml(&drive.to_config(), &header)).map_err(|source| {
         ExportError::Io {
@@ -264,6 +269,56 @@ mod tests {
 
     use super::*;
     use crate::sim::{RadarPreset, SimConfig};
+
+    /// A drive with a gyro: its samples on `imu.topic` as `sensor_msgs/Imu`, each as simulated, and
+    /// the params file says how to run on them.
+    #[test]
+    fn the_simulated_gyro_goes_into_the_bag() {
+        use crate::sim::config::LapConfig;
+        use crate::sim::imu::ImuSimConfig;
+        use crate::sim::simulate;
+        use dc_loc_core::msgs::sensor_msgs::Imu;
+        use dc_loc_io::bag::BagReader;
+
+        let cfg = SimConfig {
+            laps: vec![LapConfig::default()],
+            imu: ImuSimConfig::at_100_hz(),
+            ..SimConfig::default()
+        };
+        let drive = simulate(&cfg).unwrap();
+        let dir = std::env::temp_dir().join(format!("dc_loc_gyro_bag_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let summary = export_drive(&drive, &dir).unwrap();
+        let imu = summary.topics.iter().find(|t| t.topic == "/imu").unwrap();
+        assert_eq!(
+            (imu.type_name, imu.count),
+            (schema::IMU, drive.imu.len() as u64)
+        );
+        let reader = BagReader::open(&summary.bag_dir).unwrap();
+        let got: Vec<Imu> = reader
+            .messages_on(&["/imu"])
+            .unwrap()
+            .map(|m| m.unwrap().decode::<Imu>().unwrap())
+            .collect();
+        assert_eq!(got.len(), drive.imu.len());
+        for (m, s) in got.iter().zip(&drive.imu) {
+            assert_eq!(Stamp::from(m.header.stamp), s.stamp);
+            assert_eq!(m.header.frame_id, cfg.body_frame);
+            let w = &m.angular_velocity;
+            assert_eq!(
+                [w.x, w.y, w.z],
+                [
+                    s.angular_velocity.x,
+                    s.angular_velocity.y,
+                    s.angular_velocity.z
+                ]
+            );
+            assert_eq!(m.orientation_covariance[0], -1.0);
+        }
+        let params = std::fs::read_to_string(&summary.params_file).unwrap();
+        assert!(params.contains("odometry.source:=radar_imu"), "{params}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn params_yaml_applies_back_to_the_config() {

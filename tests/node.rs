@@ -160,6 +160,8 @@ struct Replay {
     set_at: Option<(f64, String)>,
     /// `--record-odometry`: the node's `~/odometry` messages, in arrival order.
     odometry: Vec<serde_json::Value>,
+    /// `--record-tf`: the transforms on `/tf`, in arrival order.
+    tf: Vec<serde_json::Value>,
 }
 
 impl Replay {
@@ -257,6 +259,7 @@ fn replay_on(d: &Drive, name: &str, script_args: &[&str], node_args: &[&str]) ->
         replay_seconds: v["replay_seconds"].as_f64().unwrap(),
         outputs: v["outputs"].clone(),
         odometry: v["odometry"].as_array().cloned().unwrap_or_default(),
+        tf: v["tf"].as_array().cloned().unwrap_or_default(),
         set_at: v["set_at_stamp"].as_f64().map(|t| {
             let answer = v["set_result"].as_str().unwrap_or_default().to_string();
             (t, answer)
@@ -536,7 +539,8 @@ fn assert_no_odometry_topic(r: &Replay) {
 }
 
 /// Five radars, odometry from their Doppler alone (`odometry.source: radar`) and no `/odom`
-/// published: the closures and `~/odometry` are `dc_loc run`'s with the same setting.
+/// published: the closures and `~/odometry` are `dc_loc run`'s with the same setting; with
+/// `node.odometry_tf`, `/tf` carries each sample as `odom -> base_link`.
 #[test]
 fn five_radars_without_wheel_odometry_give_the_offline_closures_and_odometry() {
     let _serial = serial();
@@ -545,12 +549,20 @@ fn five_radars_without_wheel_odometry_give_the_offline_closures_and_odometry() {
     let r = replay_on(
         d,
         "five_radars_radar",
-        &["--rate", "3", "--no-odom", "--record-odometry"],
+        &[
+            "--rate",
+            "3",
+            "--no-odom",
+            "--record-odometry",
+            "--record-tf",
+        ],
         &[
             "--params-file",
             d.params.to_str().unwrap(),
             "-p",
             "odometry.source:=radar",
+            "-p",
+            "node.odometry_tf:=true",
         ],
     );
     assert_eq!(r.node_exit, 0);
@@ -558,6 +570,17 @@ fn five_radars_without_wheel_odometry_give_the_offline_closures_and_odometry() {
     assert!(!closures.is_empty(), "no closures with the radar odometry");
     assert_no_odometry_topic(&r);
     let worst = assert_odometry_as_offline(&r, &odometry);
+    // /tf: one transform per sample, the same poses.
+    assert_eq!(r.tf.len(), r.odometry.len());
+    for (t, o) in r.tf.iter().zip(&r.odometry) {
+        assert_eq!(
+            (&t["frame_id"], &t["child_frame_id"]),
+            (&o["frame_id"], &o["child_frame_id"])
+        );
+        for k in ["sec", "nanosec", "x", "y", "z"] {
+            assert_eq!(t[k], o[k], "{t} vs {o}");
+        }
+    }
     println!(
         "five radars, radar odometry: {} closures and {} odometry samples as dc_loc run (positions \
          within {worst:.2e} m)",

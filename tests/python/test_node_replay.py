@@ -4,7 +4,8 @@ Run by tests/node.rs with the venv's interpreter:
 
     test_node_replay.py --node BIN --bag DIR --out RESULT.json [--rate R] [--malformed]
                         [--stop-after FRACTION --kill] [--skip-before FRACTION] [--tf-static]
-                        [--radar-scan] [--no-odom] [--imu] [--record-odometry] [-- NODE ARGS...]
+                        [--radar-scan] [--no-odom] [--imu] [--record-odometry [--record-tf]]
+                        [-- NODE ARGS...]
 
 1. Reserves a ROS domain id of its own; everything stays on loopback (dcloc_testlib).
 2. Starts the node (``BIN --ros-args NODE ARGS``) and waits for its "running" line. ``--tf-static``
@@ -25,7 +26,8 @@ Run by tests/node.rs with the venv's interpreter:
 6. Writes RESULT.json: the closures each subscriber received (as dc_loc's ClosureRecord JSON objects),
    the last diagnostics (key -> value), the node's exit code, message counts; with ``--record-odometry``
    the node's ``~/odometry`` messages (stamp, pose, frames, covariances), subscribed before the replay
-   and waited for as the closures are.
+   and waited for as the closures are; with ``--record-tf`` also the /tf transforms (stamp, frames,
+   translation).
 Exit code 0 when the run went through (the checks on the closures are the Rust test's), 1 otherwise.
 """
 
@@ -252,6 +254,8 @@ def main() -> int:
     ap.add_argument("--imu", action="store_true", help="publish the bag's sensor_msgs/Imu gyro too")
     ap.add_argument("--record-odometry", action="store_true",
                     help="subscribe the node's ~/odometry and write its messages to RESULT.json")
+    ap.add_argument("--record-tf", action="store_true",
+                    help="subscribe /tf and write its transforms to RESULT.json")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
 
@@ -356,6 +360,22 @@ def main() -> int:
                     Odometry, node_ns + "/odometry", lambda m: odometry_msgs.append(odometry_record(m)),
                     QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                                reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE))
+            # /tf: the radar odometry's transforms (node.odometry_tf), as tf2's listeners subscribe.
+            tf_msgs = []
+            if a.record_tf:
+                from tf2_msgs.msg import TFMessage
+
+                def on_tf(m):
+                    for t in m.transforms:
+                        v = t.transform.translation
+                        tf_msgs.append({"sec": t.header.stamp.sec, "nanosec": t.header.stamp.nanosec,
+                                        "frame_id": t.header.frame_id, "child_frame_id": t.child_frame_id,
+                                        "x": v.x, "y": v.y, "z": v.z})
+
+                tf_sub = rs.node.create_subscription(
+                    TFMessage, "/tf", on_tf,
+                    QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                               reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE))
             reader = cs.reader(closures_topic, tl.LoopClosure, tl.cyclone_qos_loop_closure())
 
             def poll_cyclone():
@@ -368,6 +388,8 @@ def main() -> int:
             rs.wait_for_publishers(diag_sub, 1)
             if a.record_odometry:
                 rs.wait_for_publishers(odom_sub, 1)
+            if a.record_tf:
+                rs.wait_for_publishers(tf_sub, 1)
             tl.wait_for_matched(reader, 1, what="cyclone closure reader matched")
 
             # The node's readers must have matched the publishers too (matching is not symmetric in time):
@@ -462,6 +484,7 @@ def main() -> int:
                 return (odo == sent["odometry"] + sent["malformed"].get("bad_odometry", 0)
                         and imu == sent["imu"]
                         and (not a.record_odometry or len(odometry_msgs) == odometry_out)
+                        and (not a.record_tf or len(tf_msgs) == odometry_out)
                         and radar_received() == sent["radar"] + bad_radar
                         and queued == 0 and len(got_rclpy) == closures and len(got_cyclone) == closures)
 
@@ -498,6 +521,7 @@ def main() -> int:
             poll_cyclone()
             result["outputs"] = outputs
             result["odometry"] = odometry_msgs
+            result["tf"] = tf_msgs
             result["rclpy"] = got_rclpy
             result["cyclone"] = got_cyclone
     finally:

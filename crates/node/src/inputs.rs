@@ -319,6 +319,24 @@ pub async fn publisher_counts(
 mod tests {
     use super::*;
 
+    /// A gyro sample is counted as received; one whose angular velocity is not finite is refused as
+    /// `bad_imu`, naming the topic.
+    #[test]
+    fn a_gyro_sample_that_is_not_finite_is_refused() {
+        let shared = Shared::new(Duration::from_secs(5));
+        let mut imu = Imu::default();
+        imu.header.stamp.sec = 3;
+        imu.angular_velocity.z = 0.5;
+        let (input, frame) = imu_input("/imu", &shared, imu.clone()).unwrap();
+        assert_eq!(input.stamp(), Stamp(3_000_000_000));
+        assert!(frame.is_none());
+        imu.angular_velocity.y = f64::INFINITY;
+        let (reason, detail) = imu_input("/imu", &shared, imu).unwrap_err();
+        assert_eq!(reason, "bad_imu");
+        assert!(detail.contains("/imu"), "{detail}");
+        assert_eq!(lock(&shared.received).get("imu"), Some(&2));
+    }
+
     /// A robot gets a burst of `node.fleet_history` keyframes, then `node.fleet_rate` a second; another
     /// robot's allowance is its own.
     #[test]

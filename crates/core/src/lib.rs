@@ -25,6 +25,7 @@ pub mod pipeline;
 pub mod place;
 pub mod radar;
 pub mod registration;
+pub mod repeats;
 pub mod runner;
 pub mod submap;
 pub mod validate;

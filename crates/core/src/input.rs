@@ -144,7 +144,7 @@ impl InputIssue {
     /// `repeats`, at debug level after; every one is counted there.
     pub fn log_once(&self, repeats: &mut crate::repeats::Repeats) {
         let cause = format!("{}: {}", self.topic, self.reason.cause());
-        repeats.warn_first(&cause, &format!("skipped: {self}"));
+        repeats.warn_first(module_path!(), &cause, &format!("skipped: {self}"));
     }
 }
 

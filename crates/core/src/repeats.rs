@@ -43,13 +43,14 @@ impl Repeats {
         &self.counts
     }
 
-    /// Logs `message` at `warn` for the first occurrence of `cause` (saying that the others are only
-    /// counted), at `debug` for the others.
-    pub fn warn_first(&mut self, cause: &str, message: &str) {
+    /// Logs `message` under the log target `target` (the caller's module, so that log filters apply
+    /// as to its other records) at `warn` for the first occurrence of `cause`, saying that the others
+    /// are only counted, and at `debug` for the others.
+    pub fn warn_first(&mut self, target: &str, cause: &str, message: &str) {
         if self.first(cause) {
-            log::warn!("{message} (told once: further ones of this cause are only counted)");
+            log::warn!(target: target, "{message} (told once: further ones of this cause are only counted)");
         } else {
-            log::debug!("{message}");
+            log::debug!(target: target, "{message}");
         }
     }
 }

@@ -212,6 +212,6 @@ pub(crate) fn dropped(
     *stats.dropped.entry(reason).or_default() += 1;
     let key = format!("{}: {cause}", reason.name());
     let message = format!("dropped input ({}): {detail}", reason.name());
-    stats.drop_causes.warn_first(&key, &message);
+    stats.drop_causes.warn_first(module_path!(), &key, &message);
     out.push(Event::Dropped { reason, detail });
 }

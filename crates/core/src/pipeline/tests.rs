@@ -226,7 +226,7 @@ fn a_missing_field_is_one_cause_counted_per_cloud() {
             stamp: Stamp::from_secs_f64(1.0 + 0.1 * f64::from(k)).into(),
             frame_id: "radar".into(),
         };
-        let cloud = encode_detections(&[det.clone()], &CloudLayout::radar_f32(), header).unwrap();
+        let cloud = encode_detections(&[det], &CloudLayout::radar_f32(), header).unwrap();
         for e in p.push(&Input::Radar { radar: 0, cloud }) {
             if let Event::Dropped { reason, detail } = e {
                 assert_eq!(reason, DropReason::BadCloud);

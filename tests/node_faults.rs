@@ -1,8 +1,7 @@
 //! The node's start-up refusals and its map file as an operator meets them: out-of-range node
 //! settings and DDS security requests stop the start with exit code 2 and the cause; a radar left on
-//! the default noise is warned about once at start; a map another
-//! node holds is refused naming the holder, and the holder keeps and saves it; files a killed writer
-//! left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
+//! the default noise is warned about once at start; a map another node holds is refused naming the
+//! holder, and the holder keeps and saves it; files a killed writer left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
 //! `<map>.new.1`, never over an earlier session. No Python here: the node runs alone on a domain of
 //! its own, on loopback.
 

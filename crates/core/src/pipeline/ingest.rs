@@ -11,6 +11,7 @@ use crate::input::InputLimits;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::odometry::RadarOdometry;
+use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{DopplerMonitor, Verdict};
 use crate::radar::doppler::RadarModel;
@@ -236,6 +237,7 @@ impl Ingest {
         cfg: &OdometryConfig,
         stamp: Stamp,
         t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
         stats: &mut PipelineStats,
         out: &mut Vec<Event>,
     ) -> OdometryCheck {
@@ -263,7 +265,7 @@ impl Ingest {
             reset = true;
         }
         self.jump = None;
-        match self.odom.push(stamp, t_odom_body) {
+        match self.odom.push(stamp, t_odom_body, noise) {
             Ok(()) => {}
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
                 // Within the tolerance: an out-of-order sample, not a restart.
@@ -420,7 +422,8 @@ impl Ingest {
             };
             let scan = self.pending.pop_front()?;
             let prior = self.odom.velocity_at(scan.stamp, 0.05);
-            let Some(rep) = self.builder.add_scan(&scan, pose, prior) else {
+            let noise = self.odom.noise_at(scan.stamp);
+            let Some(rep) = self.builder.add_scan(&scan, pose, noise, prior) else {
                 let detail = format!("radar index {}", scan.radar);
                 dropped(stats, out, DropReason::UnknownRadar, detail);
                 continue;

@@ -11,6 +11,7 @@
 
 use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, interpolate_iso3};
 use crate::odometry::OdometrySource;
+use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
@@ -118,11 +119,14 @@ impl OdometryConfig {
     }
 }
 
-/// Stamped odometry poses `t_odom_body`, interpolated at arbitrary stamps.
+/// Stamped odometry poses `t_odom_body`, interpolated at arbitrary stamps, with their uncertainty
+/// when the odometry gives it in the form [`PoseNoise`] (the radar odometry does).
 #[derive(Debug, Clone)]
 pub struct OdometryBuffer {
     cfg: OdometryConfig,
     samples: VecDeque<(Stamp, Iso3)>,
+    /// Per sample, in step with `samples`.
+    noise: VecDeque<Option<PoseNoise>>,
 }
 
 impl OdometryBuffer {
@@ -131,12 +135,18 @@ impl OdometryBuffer {
         OdometryBuffer {
             cfg,
             samples: VecDeque::new(),
+            noise: VecDeque::new(),
         }
     }
 
     /// Appends a sample. Stamps must not go backwards (the caller decides whether to [`Self::clear`]);
     /// a repeated stamp replaces the previous sample.
-    pub fn push(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Result<(), OdometryError> {
+    pub fn push(
+        &mut self,
+        stamp: Stamp,
+        t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
+    ) -> Result<(), OdometryError> {
         let finite = t_odom_body.translation.vector.iter().all(|v| v.is_finite())
             && t_odom_body.rotation.coords.iter().all(|v| v.is_finite());
         if !finite {
@@ -148,12 +158,15 @@ impl OdometryBuffer {
             }
             if stamp == newest {
                 self.samples.pop_back();
+                self.noise.pop_back();
             }
         }
         self.samples.push_back((stamp, t_odom_body));
+        self.noise.push_back(noise);
         while let (Some(&(old, _)), true) = (self.samples.front(), self.samples.len() > 2) {
             if stamp.secs_since(old) > self.cfg.buffer_duration {
                 self.samples.pop_front();
+                self.noise.pop_front();
             } else {
                 break;
             }
@@ -164,6 +177,7 @@ impl OdometryBuffer {
     /// Forgets every sample (after time went backwards).
     pub fn clear(&mut self) {
         self.samples.clear();
+        self.noise.clear();
     }
 
     /// The newest sample.
@@ -184,42 +198,62 @@ impl OdometryBuffer {
     /// The body pose at `at`, interpolated between the bracketing samples (linear translation, geodesic
     /// rotation), or extrapolated up to `max_extrapolation` past the newest one.
     pub fn pose_at(&self, at: Stamp) -> Result<Iso3, OdometryError> {
+        let (i, j, t) = self.bracket(at)?;
+        let (a, b) = (self.samples[i].1, self.samples[j].1);
+        Ok(if i == j {
+            b
+        } else {
+            interpolate_iso3(&a, &b, t)
+        })
+    }
+
+    /// The pose's uncertainty at `at`, interpolated as [`Self::pose_at`] interpolates the pose (held
+    /// at the newest sample's past it); `None` when the odometry gives none.
+    pub fn noise_at(&self, at: Stamp) -> Option<PoseNoise> {
+        let (i, j, t) = self.bracket(at).ok()?;
+        let (a, b) = (self.noise[i]?, self.noise[j]?);
+        Some(if at >= self.samples[j].0 {
+            b
+        } else {
+            a.lerp(&b, t)
+        })
+    }
+
+    /// The samples `(i, j)` a stamp lies between and the fraction of the way from `i` to `j` (past 1
+    /// when extrapolating; `i == j` with one sample or a stamp on the newest).
+    fn bracket(&self, at: Stamp) -> Result<(usize, usize, f64), OdometryError> {
         let newest = self.samples.back().map(|s| s.0);
-        let (Some(&(t0, _)), Some(&(tn, pn))) = (self.samples.front(), self.samples.back()) else {
+        let (Some(&(t0, _)), Some(&(tn, _))) = (self.samples.front(), self.samples.back()) else {
             return Err(OdometryError::NotYet { at, newest });
         };
         if at < t0 {
             return Err(OdometryError::TooOld { at, oldest: t0 });
         }
+        let last = self.samples.len() - 1;
         if at >= tn {
             if at.secs_since(tn) > self.cfg.max_extrapolation {
                 return Err(OdometryError::NotYet { at, newest });
             }
-            if at == tn || self.samples.len() < 2 {
-                return Ok(pn);
+            if at == tn || last == 0 {
+                return Ok((last, last, 1.0));
             }
-            let (tp, pp) = self.samples[self.samples.len() - 2];
-            return self.between((tp, pp), (tn, pn), at);
+            return self.between(last - 1, last, at);
         }
         // First sample strictly after `at`.
-        let i = self.samples.partition_point(|s| s.0 <= at);
-        self.between(self.samples[i - 1], self.samples[i], at)
+        let j = self.samples.partition_point(|s| s.0 <= at);
+        self.between(j - 1, j, at)
     }
 
-    fn between(
-        &self,
-        a: (Stamp, Iso3),
-        b: (Stamp, Iso3),
-        at: Stamp,
-    ) -> Result<Iso3, OdometryError> {
-        let gap = b.0.secs_since(a.0);
+    fn between(&self, i: usize, j: usize, at: Stamp) -> Result<(usize, usize, f64), OdometryError> {
+        let (a, b) = (self.samples[i].0, self.samples[j].0);
+        let gap = b.secs_since(a);
         if gap > self.cfg.max_gap {
             return Err(OdometryError::Gap { at, gap });
         }
         if gap <= 0.0 {
-            return Ok(b.1);
+            return Ok((j, j, 1.0));
         }
-        Ok(interpolate_iso3(&a.1, &b.1, at.secs_since(a.0) / gap))
+        Ok((i, j, at.secs_since(a) / gap))
     }
 
     /// Body velocity (body frame, m/s) and yaw rate (rad/s) at `at`, by differences of the interpolated
@@ -441,6 +475,8 @@ struct StackedScan {
     doppler_velocity: Option<Vec3>,
     /// Body velocity (m/s) and yaw rate (rad/s) from odometry at the scan's stamp.
     odom_velocity: Option<(Vec3, f64)>,
+    /// The odometry's uncertainty at the scan's stamp, when it gives one.
+    noise: Option<PoseNoise>,
 }
 
 /// Rolling window of processed scans, per radar, from which submaps are built.
@@ -488,6 +524,7 @@ impl SubmapBuilder {
         &mut self,
         scan: &RadarScan,
         t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
         velocity_prior: Option<(Vec3, f64)>,
     ) -> Option<ScanReport> {
         let model = self.radars.get(scan.radar)?;
@@ -534,6 +571,7 @@ impl SubmapBuilder {
             points,
             doppler_velocity: fit.map(|f| f.v_radar),
             odom_velocity: velocity_prior,
+            noise,
         });
         self.trim();
         Some(report)
@@ -655,6 +693,7 @@ impl SubmapBuilder {
                 });
             }
         }
+        add_motion_noise(&mut sub, &order);
         Some(sub)
     }
 
@@ -707,6 +746,44 @@ impl SubmapBuilder {
 
 /// Deceleration of hard braking, m/s^2: bounds how fast the body's true speed changes.
 const HARD_BRAKING: f64 = 8.0;
+
+/// Adds to each point's covariance what the odometry's motion between its scan and the anchor is
+/// uncertain by, when the odometry gives its uncertainty for every scan (the radar odometry does; a
+/// topic's does not, and its submaps are left as they are). A scan's pose relative to the anchor is
+/// off by `(dt, dtheta)` with the covariance of the steps between them ([`PoseNoise::since`], turned
+/// into the anchor frame); a point at `q` in the anchor frame moves by `dt + perp(q) dtheta`.
+fn add_motion_noise(sub: &mut Submap, order: &[&StackedScan]) {
+    let Some(noises) = order.iter().map(|s| s.noise).collect::<Option<Vec<_>>>() else {
+        return;
+    };
+    let (Some(anchor), Some(anchor_noise)) = (order.last(), noises.last()) else {
+        return;
+    };
+    let (_, _, yaw) = anchor.t_odom_body.rotation.euler_angles();
+    let (s, c) = yaw.sin_cos();
+    let turn = Mat3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
+    let anchor_xy = anchor.t_odom_body.translation.vector.xy();
+    let motion: Vec<Mat3> = order
+        .iter()
+        .zip(&noises)
+        .map(|(scan, noise)| {
+            let shift = anchor_xy - scan.t_odom_body.translation.vector.xy();
+            turn * anchor_noise.since(noise, shift) * turn.transpose()
+        })
+        .collect();
+    let spread = |q: &Vec3, m: &Mat3| {
+        let j = nalgebra::Matrix2x3::new(1.0, 0.0, -q.y, 0.0, 1.0, q.x);
+        j * m * j.transpose()
+    };
+    for p in &mut sub.points {
+        let m = &motion[p.scan as usize];
+        let (extra, extra_raw) = (spread(&p.p, m), spread(&p.p_raw, m));
+        let mut block = p.cov.fixed_view_mut::<2, 2>(0, 0);
+        block += extra;
+        let mut block = p.cov_raw.fixed_view_mut::<2, 2>(0, 0);
+        block += extra_raw;
+    }
+}
 
 /// `v` lies within the bound of one of `priors` (velocity, bound), or there are none.
 fn within_a_prior(v: &Vec3, priors: &[(Vec3, f64)]) -> bool {

@@ -10,7 +10,8 @@ fn odom_circle(buf: &mut OdometryBuffer, t_end: f64, rate: f64) {
     let n = (t_end * rate) as usize;
     for i in 0..=n {
         let t = i as f64 / rate;
-        buf.push(Stamp::from_secs_f64(t), circle_pose(t)).unwrap();
+        buf.push(Stamp::from_secs_f64(t), circle_pose(t), None)
+            .unwrap();
     }
 }
 
@@ -68,7 +69,7 @@ fn interpolation_on_a_circle_and_its_limits() {
     // Backwards time is refused and changes nothing.
     let before = buf.len();
     assert!(matches!(
-        buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0)),
+        buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0), None),
         Err(OdometryError::TimeWentBackwards { .. })
     ));
     assert_eq!(buf.len(), before);
@@ -77,9 +78,9 @@ fn interpolation_on_a_circle_and_its_limits() {
 #[test]
 fn gaps_are_not_bridged() {
     let mut buf = OdometryBuffer::new(OdometryConfig::default());
-    buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0))
+    buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0), None)
         .unwrap();
-    buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0))
+    buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0), None)
         .unwrap();
     assert!(matches!(
         buf.pose_at(Stamp::from_secs_f64(1.0)),
@@ -88,7 +89,8 @@ fn gaps_are_not_bridged() {
     assert!(
         buf.push(
             Stamp::from_secs_f64(3.0),
-            Iso3::translation(f64::NAN, 0.0, 0.0)
+            Iso3::translation(f64::NAN, 0.0, 0.0),
+            None
         )
         .is_err()
     );
@@ -143,7 +145,8 @@ fn circle_submap_with(odom_pose: impl Fn(f64) -> Iso3, cfg: SubmapConfig) -> Sub
     let mut odom = OdometryBuffer::new(OdometryConfig::default());
     for i in 0..=150 {
         let t = i as f64 / 50.0;
-        odom.push(Stamp::from_secs_f64(t), odom_pose(t)).unwrap();
+        odom.push(Stamp::from_secs_f64(t), odom_pose(t), None)
+            .unwrap();
     }
     let radar = RadarModel {
         t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
@@ -182,7 +185,7 @@ fn circle_submap_with(odom_pose: impl Fn(f64) -> Iso3, cfg: SubmapConfig) -> Sub
         };
         let pose = odom.pose_at(scan.stamp).unwrap();
         let prior = odom.velocity_at(scan.stamp, 0.05);
-        let rep = builder.add_scan(&scan, pose, prior).unwrap();
+        let rep = builder.add_scan(&scan, pose, None, prior).unwrap();
         assert!(rep.doppler_fit);
         assert_eq!(rep.dynamic, 0);
     }
@@ -377,12 +380,13 @@ fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
         .add_scan(
             &static_scan(0.0, 20.0),
             Iso3::identity(),
+            None,
             Some((Vec3::new(20.0, 0.0, 0.0), 0.0)),
         )
         .unwrap();
     assert!(before.doppler_fit);
     let during = tracked
-        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), None, slipping)
         .unwrap();
     assert!(during.doppler_fit);
     assert_eq!((during.kept, during.dynamic), (30, 0));
@@ -390,7 +394,7 @@ fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
     assert_relative_eq!(v, Vec3::new(20.0, 0.0, 0.0), epsilon = 1e-6);
     let mut fresh = builder();
     let alone = fresh
-        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), None, slipping)
         .unwrap();
     assert!(!alone.doppler_fit);
     assert_eq!(
@@ -422,7 +426,7 @@ fn a_fit_does_not_slide_away_from_the_static_world_faster_than_the_body_brakes()
         .map(|(k, &seen)| {
             let scan = static_scan(0.077 * k as f64, seen);
             builder
-                .add_scan(&scan, Iso3::identity(), odometry)
+                .add_scan(&scan, Iso3::identity(), None, odometry)
                 .unwrap()
                 .doppler_fit
         })
@@ -469,7 +473,7 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
                 stamp: Stamp::from_secs_f64(k as f64 * 0.077 + radar as f64 * 0.01),
                 detections: dets,
             };
-            let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+            let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
             assert_eq!(rep.dynamic, 1);
             assert_eq!(rep.kept, 30);
         }
@@ -484,6 +488,7 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
                 ..Default::default()
             },
             Iso3::identity(),
+            None,
             None
         )
         .is_none()
@@ -527,7 +532,7 @@ fn the_height_band_keeps_what_stands_on_the_ground() {
             ..SubmapConfig::default()
         };
         let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars.clone());
-        let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+        let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
         assert!(rep.doppler_fit);
         assert_eq!((rep.kept, rep.dynamic), (kept, 0), "band {band:?}");
         assert_eq!(rep.out_of_band, world + 3 - kept, "band {band:?}");
@@ -585,7 +590,87 @@ fn the_doppler_fit_uses_the_points_the_height_band_cuts() {
         ..SubmapConfig::default()
     };
     let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
-    let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
+    let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
     assert!(rep.doppler_fit);
     assert_eq!((rep.kept, rep.dynamic, rep.out_of_band), (3, 1, road));
+}
+
+/// With the odometry's uncertainty given, each point of an older scan gains the scatter that the
+/// anchor's pose error (relative to that scan) gives it in the anchor frame, checked against poses
+/// drawn from that error; the anchor's own points gain nothing, and without it nothing changes.
+#[test]
+fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let radar = RadarModel {
+        t_body_radar: Iso3::identity(),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    };
+    let pose = |x: f64, y: f64, yaw: f64| iso3_from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw);
+    let (p0, pa) = (
+        pose(100.0, 50.0, 0.3),
+        pose(100.0 + 2.0 * 0.3f64.cos(), 50.0 + 2.0 * 0.3f64.sin(), 0.35),
+    );
+    let a = Mat3::new(0.1, 0.0, 0.0, 0.03, 0.08, 0.0, 0.002, -0.001, 0.006);
+    let sigma = a * a.transpose();
+    let noise_a = PoseNoise {
+        white: sigma,
+        sensitivity: Vec3::zeros(),
+        bias_variance: 0.0,
+    };
+    let build = |noise: [Option<PoseNoise>; 2]| {
+        let mut b = SubmapBuilder::new(
+            SubmapConfig::default(),
+            EgoMotionConfig::default(),
+            vec![radar.clone()],
+        );
+        b.add_scan(&static_scan(0.0, 20.0), p0, noise[0], None)
+            .unwrap();
+        b.add_scan(&static_scan(0.1, 20.0), pa, noise[1], None)
+            .unwrap();
+        b.build().unwrap()
+    };
+    let plain = build([None, None]);
+    let spread = build([Some(PoseNoise::zero()), Some(noise_a)]);
+    assert_eq!(build([None, Some(noise_a)]).points, plain.points);
+
+    let chol = sigma.cholesky().unwrap().l();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+    let draws: Vec<Vec3> = (0..20_000)
+        .map(|_| {
+            let z = Vec3::from_fn(|_, _| StandardNormal.sample(&mut rng));
+            chol * z
+        })
+        .collect();
+    let (_, _, yaw_a) = pa.rotation.euler_angles();
+    let ta = pa.translation.vector.xy();
+    for (p, q) in plain.points.iter().zip(&spread.points) {
+        let extra = (q.cov - p.cov).fixed_view::<2, 2>(0, 0).into_owned();
+        if p.scan == 1 {
+            assert!(extra.abs().max() < 1e-12, "the anchor's own point: {extra}");
+            continue;
+        }
+        // The point in the odometry frame, seen from anchors drawn around the true one.
+        let x = (pa * nalgebra::Point3::from(p.p)).coords.xy();
+        let seen: Vec<Vec2> = draws
+            .iter()
+            .map(|d| {
+                let turn = nalgebra::Rotation2::new(yaw_a + d.z);
+                turn.inverse() * (x - ta - d.xy())
+            })
+            .collect();
+        let mean = seen.iter().sum::<Vec2>() / seen.len() as f64;
+        let scatter = seen
+            .iter()
+            .map(|s| (s - mean) * (s - mean).transpose())
+            .sum::<nalgebra::Matrix2<f64>>()
+            / seen.len() as f64;
+        let scale = scatter.abs().max();
+        assert!(
+            (scatter - extra).abs().max() < 0.05 * scale,
+            "point at {:?}: {scatter} drawn, {extra} added",
+            p.p.xy()
+        );
+    }
 }

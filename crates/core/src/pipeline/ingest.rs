@@ -15,7 +15,9 @@ use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{DopplerMonitor, Verdict};
 use crate::radar::doppler::RadarModel;
-use crate::submap::{OdometryBuffer, OdometryConfig, OdometryError, Submap, SubmapBuilder};
+use crate::submap::{
+    OdometryBuffer, OdometryConfig, OdometryError, Submap, SubmapBuilder, add_motion_noise,
+};
 
 /// Most scans held while waiting for odometry to cover their stamps.
 const MAX_PENDING: usize = 256;
@@ -147,9 +149,15 @@ impl Ingest {
         self.pending.len()
     }
 
-    /// The current rolling submap.
+    /// The current rolling submap, its points' covariances grown by the odometry's motion between
+    /// the scans where the odometry gives its uncertainty (the radar odometry does).
     pub fn submap(&self) -> Option<Submap> {
-        self.builder.build()
+        let mut sub = self.builder.build()?;
+        let stamps: Vec<Stamp> = sub.scans.iter().map(|s| s.stamp).collect();
+        if let Some(motion) = self.odom.motion_to(&stamps, sub.anchor_stamp) {
+            add_motion_noise(&mut sub, &motion);
+        }
+        Some(sub)
     }
 
     /// Whether an input at `stamp` may go on. A stamp out of line with the newest input (more than
@@ -422,8 +430,7 @@ impl Ingest {
             };
             let scan = self.pending.pop_front()?;
             let prior = self.odom.velocity_at(scan.stamp, 0.05);
-            let noise = self.odom.noise_at(scan.stamp);
-            let Some(rep) = self.builder.add_scan(&scan, pose, noise, prior) else {
+            let Some(rep) = self.builder.add_scan(&scan, pose, prior) else {
                 let detail = format!("radar index {}", scan.radar);
                 dropped(stats, out, DropReason::UnknownRadar, detail);
                 continue;

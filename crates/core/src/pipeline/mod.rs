@@ -297,6 +297,7 @@ impl Pipeline {
             self.loops
                 .note_submap_span(last.stamp.secs_since(first.stamp));
         }
+        self.loops.note_submap_motion(submap.motion);
         let id = self.next_id;
         let path = self.ingest.path_distance();
         let rec = KeyframeRecord::from_submap(

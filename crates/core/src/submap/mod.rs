@@ -11,7 +11,7 @@
 
 use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, interpolate_iso3};
 use crate::odometry::OdometrySource;
-use crate::pose_noise::PoseNoise;
+use crate::pose_noise::{PoseNoise, shear};
 use crate::radar::RadarScan;
 use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
@@ -207,16 +207,42 @@ impl OdometryBuffer {
         })
     }
 
-    /// The pose's uncertainty at `at`, interpolated as [`Self::pose_at`] interpolates the pose (held
-    /// at the newest sample's past it); `None` when the odometry gives none.
-    pub fn noise_at(&self, at: Stamp) -> Option<PoseNoise> {
-        let (i, j, t) = self.bracket(at).ok()?;
-        let (a, b) = (self.noise[i]?, self.noise[j]?);
-        Some(if at >= self.samples[j].0 {
-            b
-        } else {
-            a.lerp(&b, t)
-        })
+    /// Covariance of `(x, y, yaw)` (odometry frame) of the pose at `to` given the pose at each of
+    /// `stamps` (each at or before `to`): the errors the odometry's steps between them add, each step's
+    /// own ([`PoseNoise::since`] of its two samples) turned to `to` by the heading error it carries, a
+    /// step cut by a stamp taking its share in time. `None` when the odometry gives no uncertainty or
+    /// cannot place `to`. The steps' bias parts add as if independent: over a submap's second they are
+    /// small beside the white errors.
+    pub fn motion_to(&self, stamps: &[Stamp], to: Stamp) -> Option<Vec<Mat3>> {
+        let end = self.pose_at(to).ok()?.translation.vector.xy();
+        let position = |j: usize| self.samples[j].1.translation.vector.xy();
+        let mut steps = Vec::with_capacity(self.samples.len());
+        for j in 1..self.samples.len() {
+            let own = self.noise[j]?.since(&self.noise[j - 1]?, position(j) - position(j - 1));
+            let turn = shear(end - position(j));
+            steps.push(turn * own * turn.transpose());
+        }
+        let share = |j: usize, from: Stamp| {
+            let (t0, t1) = (self.samples[j - 1].0, self.samples[j].0);
+            // The newest step also stands for the motion extrapolated past it.
+            let t1_cut = if j + 1 == self.samples.len() {
+                to
+            } else {
+                t1.min(to)
+            };
+            let overlap = t1_cut.secs_since(t0.max(from));
+            (overlap / t1.secs_since(t0).max(1e-9)).max(0.0)
+        };
+        Some(
+            stamps
+                .iter()
+                .map(|&from| {
+                    (1..self.samples.len())
+                        .map(|j| steps[j - 1] * share(j, from))
+                        .sum()
+                })
+                .collect(),
+        )
     }
 
     /// The samples `(i, j)` a stamp lies between and the fraction of the way from `i` to `j` (past 1
@@ -408,6 +434,10 @@ pub struct Submap {
     pub scans: Vec<SubmapScan>,
     /// The correction of the odometry's distances the scans were placed with.
     pub speed_scale: SpeedScale,
+    /// Covariance of `(x, y, yaw)` of the frame the points pin down as a whole against the anchor,
+    /// from the odometry's motion between the scans (zero when the odometry gives no uncertainty):
+    /// the scans' pose errors share the steps between them, so they do not average out.
+    pub motion: Mat3,
 }
 
 impl Submap {
@@ -475,8 +505,6 @@ struct StackedScan {
     doppler_velocity: Option<Vec3>,
     /// Body velocity (m/s) and yaw rate (rad/s) from odometry at the scan's stamp.
     odom_velocity: Option<(Vec3, f64)>,
-    /// The odometry's uncertainty at the scan's stamp, when it gives one.
-    noise: Option<PoseNoise>,
 }
 
 /// Rolling window of processed scans, per radar, from which submaps are built.
@@ -524,7 +552,6 @@ impl SubmapBuilder {
         &mut self,
         scan: &RadarScan,
         t_odom_body: Iso3,
-        noise: Option<PoseNoise>,
         velocity_prior: Option<(Vec3, f64)>,
     ) -> Option<ScanReport> {
         let model = self.radars.get(scan.radar)?;
@@ -571,7 +598,6 @@ impl SubmapBuilder {
             points,
             doppler_velocity: fit.map(|f| f.v_radar),
             odom_velocity: velocity_prior,
-            noise,
         });
         self.trim();
         Some(report)
@@ -666,6 +692,7 @@ impl SubmapBuilder {
             points: Vec::with_capacity(order.iter().map(|s| s.points.len()).sum()),
             scans: Vec::with_capacity(order.len()),
             speed_scale,
+            motion: Mat3::zeros(),
         };
         for (k, (s, position)) in order.iter().zip(&positions).enumerate() {
             let t_anchor_body = Iso3::from_parts(
@@ -693,7 +720,6 @@ impl SubmapBuilder {
                 });
             }
         }
-        add_motion_noise(&mut sub, &order);
         Some(sub)
     }
 
@@ -748,33 +774,20 @@ impl SubmapBuilder {
 const HARD_BRAKING: f64 = 8.0;
 
 /// Adds to each point's covariance what the odometry's motion between its scan and the anchor is
-/// uncertain by, when the odometry gives its uncertainty for every scan (the radar odometry does; a
-/// topic's does not, and its submaps are left as they are). A scan's pose relative to the anchor is
-/// off by `(dt, dtheta)` with the covariance of the steps between them ([`PoseNoise::since`], turned
-/// into the anchor frame); a point at `q` in the anchor frame moves by `dt + perp(q) dtheta`.
-fn add_motion_noise(sub: &mut Submap, order: &[&StackedScan]) {
-    let Some(noises) = order.iter().map(|s| s.noise).collect::<Option<Vec<_>>>() else {
-        return;
-    };
-    let (Some(anchor), Some(anchor_noise)) = (order.last(), noises.last()) else {
-        return;
-    };
-    let (_, _, yaw) = anchor.t_odom_body.rotation.euler_angles();
+/// uncertain by, and sets [`Submap::motion`]; `motion` holds per scan (as `sub.scans`) the covariance
+/// of the anchor's pose given the scan's, odometry frame ([`OdometryBuffer::motion_to`]). A scan's
+/// pose relative to the anchor is off by `(dt, dtheta)` with that covariance turned into the anchor
+/// frame; a point at `q` in the anchor frame moves by `dt + perp(q) dtheta`.
+pub fn add_motion_noise(sub: &mut Submap, motion: &[Mat3]) {
+    let (_, _, yaw) = sub.t_odom_anchor.rotation.euler_angles();
     let (s, c) = yaw.sin_cos();
     let turn = Mat3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
-    let anchor_xy = anchor.t_odom_body.translation.vector.xy();
-    let motion: Vec<Mat3> = order
-        .iter()
-        .zip(&noises)
-        .map(|(scan, noise)| {
-            let shift = anchor_xy - scan.t_odom_body.translation.vector.xy();
-            turn * anchor_noise.since(noise, shift) * turn.transpose()
-        })
-        .collect();
+    let motion: Vec<Mat3> = motion.iter().map(|m| turn * m * turn.transpose()).collect();
     let spread = |q: &Vec3, m: &Mat3| {
         let j = nalgebra::Matrix2x3::new(1.0, 0.0, -q.y, 0.0, 1.0, q.x);
         j * m * j.transpose()
     };
+    sub.motion = common_motion(&motion, &sub.points);
     for p in &mut sub.points {
         let m = &motion[p.scan as usize];
         let (extra, extra_raw) = (spread(&p.p, m), spread(&p.p_raw, m));
@@ -783,6 +796,26 @@ fn add_motion_noise(sub: &mut Submap, order: &[&StackedScan]) {
         let mut block = p.cov_raw.fixed_view_mut::<2, 2>(0, 0);
         block += extra_raw;
     }
+}
+
+/// Covariance of the points' weighted mean pose error, each scan weighted by its share of the points:
+/// `sum_k sum_l w_k w_l C_kl`, where two scans' errors share the steps from the later of them to the
+/// anchor, `C_kl = motion[max(k, l)]` (`motion` per scan, oldest first, the anchor last).
+fn common_motion(motion: &[Mat3], points: &[SubmapPoint]) -> Mat3 {
+    if points.is_empty() {
+        return Mat3::zeros();
+    }
+    let mut w = vec![0.0; motion.len()];
+    for p in points {
+        w[p.scan as usize] += 1.0 / points.len() as f64;
+    }
+    let mut before = 0.0;
+    let mut out = Mat3::zeros();
+    for (m, wk) in motion.iter().zip(&w) {
+        out += m * (wk * wk + 2.0 * wk * before);
+        before += wk;
+    }
+    out
 }
 
 /// `v` lies within the bound of one of `priors` (velocity, bound), or there are none.

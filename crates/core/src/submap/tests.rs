@@ -185,7 +185,7 @@ fn circle_submap_with(odom_pose: impl Fn(f64) -> Iso3, cfg: SubmapConfig) -> Sub
         };
         let pose = odom.pose_at(scan.stamp).unwrap();
         let prior = odom.velocity_at(scan.stamp, 0.05);
-        let rep = builder.add_scan(&scan, pose, None, prior).unwrap();
+        let rep = builder.add_scan(&scan, pose, prior).unwrap();
         assert!(rep.doppler_fit);
         assert_eq!(rep.dynamic, 0);
     }
@@ -380,13 +380,12 @@ fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
         .add_scan(
             &static_scan(0.0, 20.0),
             Iso3::identity(),
-            None,
             Some((Vec3::new(20.0, 0.0, 0.0), 0.0)),
         )
         .unwrap();
     assert!(before.doppler_fit);
     let during = tracked
-        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), None, slipping)
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
         .unwrap();
     assert!(during.doppler_fit);
     assert_eq!((during.kept, during.dynamic), (30, 0));
@@ -394,7 +393,7 @@ fn a_slipping_odometry_does_not_pull_the_doppler_fit_off_the_static_world() {
     assert_relative_eq!(v, Vec3::new(20.0, 0.0, 0.0), epsilon = 1e-6);
     let mut fresh = builder();
     let alone = fresh
-        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), None, slipping)
+        .add_scan(&static_scan(0.07, 20.0), Iso3::identity(), slipping)
         .unwrap();
     assert!(!alone.doppler_fit);
     assert_eq!(
@@ -426,7 +425,7 @@ fn a_fit_does_not_slide_away_from_the_static_world_faster_than_the_body_brakes()
         .map(|(k, &seen)| {
             let scan = static_scan(0.077 * k as f64, seen);
             builder
-                .add_scan(&scan, Iso3::identity(), None, odometry)
+                .add_scan(&scan, Iso3::identity(), odometry)
                 .unwrap()
                 .doppler_fit
         })
@@ -473,7 +472,7 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
                 stamp: Stamp::from_secs_f64(k as f64 * 0.077 + radar as f64 * 0.01),
                 detections: dets,
             };
-            let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
+            let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
             assert_eq!(rep.dynamic, 1);
             assert_eq!(rep.kept, 30);
         }
@@ -488,7 +487,6 @@ fn movers_are_rejected_and_each_radar_keeps_its_own_window() {
                 ..Default::default()
             },
             Iso3::identity(),
-            None,
             None
         )
         .is_none()
@@ -532,7 +530,7 @@ fn the_height_band_keeps_what_stands_on_the_ground() {
             ..SubmapConfig::default()
         };
         let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars.clone());
-        let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
+        let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
         assert!(rep.doppler_fit);
         assert_eq!((rep.kept, rep.dynamic), (kept, 0), "band {band:?}");
         assert_eq!(rep.out_of_band, world + 3 - kept, "band {band:?}");
@@ -590,14 +588,14 @@ fn the_doppler_fit_uses_the_points_the_height_band_cuts() {
         ..SubmapConfig::default()
     };
     let mut b = SubmapBuilder::new(cfg, EgoMotionConfig::default(), radars);
-    let rep = b.add_scan(&scan, Iso3::identity(), None, None).unwrap();
+    let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
     assert!(rep.doppler_fit);
     assert_eq!((rep.kept, rep.dynamic, rep.out_of_band), (3, 1, road));
 }
 
-/// With the odometry's uncertainty given, each point of an older scan gains the scatter that the
-/// anchor's pose error (relative to that scan) gives it in the anchor frame, checked against poses
-/// drawn from that error; the anchor's own points gain nothing, and without it nothing changes.
+/// Each point of an older scan gains the scatter that the anchor's pose error relative to that scan
+/// gives it in the anchor frame, checked against poses drawn from that error; the anchor's own points
+/// gain nothing; the submap's own frame takes the scans' shared error.
 #[test]
 fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
     use rand::SeedableRng;
@@ -614,36 +612,32 @@ fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
     );
     let a = Mat3::new(0.1, 0.0, 0.0, 0.03, 0.08, 0.0, 0.002, -0.001, 0.006);
     let sigma = a * a.transpose();
-    let noise_a = PoseNoise {
-        white: sigma,
-        sensitivity: Vec3::zeros(),
-        bias_variance: 0.0,
-    };
-    let build = |noise: [Option<PoseNoise>; 2]| {
-        let mut b = SubmapBuilder::new(
-            SubmapConfig::default(),
-            EgoMotionConfig::default(),
-            vec![radar.clone()],
-        );
-        b.add_scan(&static_scan(0.0, 20.0), p0, noise[0], None)
-            .unwrap();
-        b.add_scan(&static_scan(0.1, 20.0), pa, noise[1], None)
-            .unwrap();
-        b.build().unwrap()
-    };
-    let plain = build([None, None]);
-    let spread = build([Some(PoseNoise::zero()), Some(noise_a)]);
-    assert_eq!(build([None, Some(noise_a)]).points, plain.points);
+    let mut b = SubmapBuilder::new(
+        SubmapConfig::default(),
+        EgoMotionConfig::default(),
+        vec![radar],
+    );
+    b.add_scan(&static_scan(0.0, 20.0), p0, None).unwrap();
+    b.add_scan(&static_scan(0.1, 20.0), pa, None).unwrap();
+    let plain = b.build().unwrap();
+    let mut spread = plain.clone();
+    add_motion_noise(&mut spread, &[sigma, Mat3::zeros()]);
+    // The frame takes the older scan's error times the square of its share of the points.
+    let share = plain.points.iter().filter(|p| p.scan == 0).count() as f64 / plain.len() as f64;
+    let (_, _, yaw_a) = pa.rotation.euler_angles();
+    let turn = nalgebra::Rotation2::new(yaw_a);
+    let mut in_anchor = Mat3::identity();
+    in_anchor
+        .fixed_view_mut::<2, 2>(0, 0)
+        .copy_from(turn.inverse().matrix());
+    let expected = in_anchor * sigma * in_anchor.transpose() * share * share;
+    assert!((spread.motion - expected).abs().max() < 1e-12 * expected.abs().max());
 
     let chol = sigma.cholesky().unwrap().l();
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let draws: Vec<Vec3> = (0..20_000)
-        .map(|_| {
-            let z = Vec3::from_fn(|_, _| StandardNormal.sample(&mut rng));
-            chol * z
-        })
+        .map(|_| chol * Vec3::from_fn(|_, _| StandardNormal.sample(&mut rng)))
         .collect();
-    let (_, _, yaw_a) = pa.rotation.euler_angles();
     let ta = pa.translation.vector.xy();
     for (p, q) in plain.points.iter().zip(&spread.points) {
         let extra = (q.cov - p.cov).fixed_view::<2, 2>(0, 0).into_owned();
@@ -655,10 +649,7 @@ fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
         let x = (pa * nalgebra::Point3::from(p.p)).coords.xy();
         let seen: Vec<Vec2> = draws
             .iter()
-            .map(|d| {
-                let turn = nalgebra::Rotation2::new(yaw_a + d.z);
-                turn.inverse() * (x - ta - d.xy())
-            })
+            .map(|d| nalgebra::Rotation2::new(yaw_a + d.z).inverse() * (x - ta - d.xy()))
             .collect();
         let mean = seen.iter().sum::<Vec2>() / seen.len() as f64;
         let scatter = seen
@@ -673,4 +664,57 @@ fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
             p.p.xy()
         );
     }
+}
+
+/// The steps' own errors, each turned to the end by the heading error it carries, add up to the
+/// motion between two samples of a dead-reckoned track; a stamp halfway through a step takes half of
+/// it, and an odometry without uncertainty gives none.
+#[test]
+fn the_steps_between_two_samples_add_up_to_their_motion() {
+    use crate::odometry::integrate::{PlanarIntegrator, StepMotion};
+    let mut track = PlanarIntegrator::new(Stamp(0));
+    let mut buf = OdometryBuffer::new(OdometryConfig::default());
+    buf.push(Stamp(0), track.pose(), Some(track.noise(0.0)))
+        .unwrap();
+    let mut samples = vec![track];
+    for k in 1..=12 {
+        let m = StepMotion {
+            velocity: Vec2::new(15.0, 0.2),
+            dtheta: 0.01 * k as f64,
+            covariance: Mat3::from_diagonal(&Vec3::new(0.01, 0.02, 1e-5)),
+            dtheta_per_bias: 0.0,
+        };
+        track.step(Stamp::from_secs_f64(0.1 * k as f64), &m);
+        buf.push(track.stamp(), track.pose(), Some(track.noise(0.0)))
+            .unwrap();
+        samples.push(track);
+    }
+    let xy = |i: &PlanarIntegrator| i.pose2().translation.vector;
+    let (from, to) = (&samples[3], &samples[12]);
+    let whole = to.noise(0.0).since(&from.noise(0.0), xy(to) - xy(from));
+    let got = buf.motion_to(&[from.stamp()], to.stamp()).unwrap()[0];
+    assert!(
+        (got - whole).abs().max() < 1e-9 * whole.abs().max(),
+        "{got} against {whole}"
+    );
+
+    let half = Stamp::from_secs_f64(1.15);
+    let [last, between] = buf
+        .motion_to(&[samples[11].stamp(), half], to.stamp())
+        .unwrap()[..]
+    else {
+        unreachable!()
+    };
+    assert!((between - last * 0.5).abs().max() < 1e-9 * last.abs().max());
+
+    let mut plain = OdometryBuffer::new(OdometryConfig::default());
+    plain.push(Stamp(0), Iso3::identity(), None).unwrap();
+    plain
+        .push(Stamp::from_secs_f64(0.1), Iso3::identity(), None)
+        .unwrap();
+    assert!(
+        plain
+            .motion_to(&[Stamp(0)], Stamp::from_secs_f64(0.1))
+            .is_none()
+    );
 }

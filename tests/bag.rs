@@ -28,7 +28,7 @@ use dc_loc::msgs::geometry_msgs::{
 };
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::rosgraph_msgs::Clock;
-use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
+use dc_loc::msgs::sensor_msgs::{Imu, PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
 use dc_loc::msgs::tf2_msgs::TFMessage;
 use serde::Serialize;
@@ -102,6 +102,7 @@ macro_rules! with_type {
         match $type_name {
             schema::POINT_CLOUD2 => $check::<PointCloud2>($arg),
             schema::ODOMETRY => $check::<Odometry>($arg),
+            schema::IMU => $check::<Imu>($arg),
             schema::TF_MESSAGE => $check::<TFMessage>($arg),
             schema::CLOCK => $check::<Clock>($arg),
             schema::LOOP_CLOSURE => $check::<LoopClosure>($arg),

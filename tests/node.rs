@@ -1,7 +1,8 @@
 //! The ROS 2 node as real ROS 2 users see it: the `dc_loc` binary, fed by rclpy publishers replaying a
 //! simulated drive (tests/python/test_node_replay.py), its loop closures received by an rclpy subscriber
 //! (typed `dc_loc/msg/LoopClosure`) and a Cyclone DDS subscriber, checked against the ground truth and
-//! against `dc_loc run` on the same bag.
+//! against `dc_loc run` on the same bag; without wheel odometry (`odometry.source: radar`, and `radar_imu`
+//! with the simulated gyro), also `~/odometry` against `dc_loc run --odometry-out`.
 //!
 //! The drive: `dc_loc sim` of two laps (54 and 36 km/h) of a 170 x 110 m block, about 106 s, replayed at
 //! `DCLOC_REPLAY_RATE` times real time (default 5). DDS stays on loopback: the script reserves a domain id
@@ -71,6 +72,12 @@ fn five_radar_drive() -> &'static Drive {
             &format!("{SHORT_DRIVE}radar_preset: nuscenes\n"),
         )
     })
+}
+
+/// The one-radar drive with a simulated 100 Hz gyro on `/imu`.
+fn gyro_drive() -> &'static Drive {
+    static DRIVE: OnceLock<Drive> = OnceLock::new();
+    DRIVE.get_or_init(|| make_drive("drive_gyro", &format!("{SHORT_DRIVE}imu:\n  rate: 100.0\n")))
 }
 
 fn make_drive(name: &str, sim_yaml: &str) -> Drive {
@@ -151,6 +158,10 @@ struct Replay {
     outputs: serde_json::Value,
     /// `--set-at`: the stamp of the drive at the parameter change and the service's answer.
     set_at: Option<(f64, String)>,
+    /// `--record-odometry`: the node's `~/odometry` messages, in arrival order.
+    odometry: Vec<serde_json::Value>,
+    /// `--record-tf`: the transforms on `/tf`, in arrival order.
+    tf: Vec<serde_json::Value>,
 }
 
 impl Replay {
@@ -247,6 +258,8 @@ fn replay_on(d: &Drive, name: &str, script_args: &[&str], node_args: &[&str]) ->
         node_exit: v["node_exit"].as_i64().unwrap(),
         replay_seconds: v["replay_seconds"].as_f64().unwrap(),
         outputs: v["outputs"].clone(),
+        odometry: v["odometry"].as_array().cloned().unwrap_or_default(),
+        tf: v["tf"].as_array().cloned().unwrap_or_default(),
         set_at: v["set_at_stamp"].as_f64().map(|t| {
             let answer = v["set_result"].as_str().unwrap_or_default().to_string();
             (t, answer)
@@ -427,6 +440,190 @@ fn five_radars_give_the_offline_closures() {
         r.diagnostics
     );
     println!("five radars: {} closures, as dc_loc run", r.rclpy.len());
+}
+
+/// `dc_loc run` of drive `d` with `odometry.source` set to `source`: its closures and its radar
+/// odometry (`--odometry-out`: stamp in ns, position).
+fn offline_radar_odometry(
+    d: &Drive,
+    name: &str,
+    source: &str,
+) -> (Vec<ClosureRecord>, Vec<(i64, [f64; 3])>) {
+    let root = scratch(name);
+    let (closures, odometry) = (root.join("closures.jsonl"), root.join("odometry.tum"));
+    let out = dc_loc(&[
+        "run",
+        "--bag",
+        d.dir.to_str().unwrap(),
+        "--params",
+        d.params.to_str().unwrap(),
+        "-p",
+        &format!("odometry.source:={source}"),
+        "--out",
+        closures.to_str().unwrap(),
+        "--odometry-out",
+        odometry.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let tum = std::fs::read_to_string(&odometry).unwrap();
+    let poses = tum
+        .lines()
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let (sec, frac) = f[0].split_once('.').unwrap();
+            assert_eq!(frac.len(), 9, "{l}");
+            let ns = sec.parse::<i64>().unwrap() * 1_000_000_000 + frac.parse::<i64>().unwrap();
+            (ns, [1, 2, 3].map(|i| f[i].parse::<f64>().unwrap()))
+        })
+        .collect();
+    let closures = read_records(&std::fs::read_to_string(&closures).unwrap());
+    (closures, poses)
+}
+
+/// The node's `~/odometry` is `dc_loc run --odometry-out` of the same setting: the same samples in
+/// stamp order (same stamps to the nanosecond), each position within 1 mm; frames and covariance
+/// layout as ROS users read them. Returns the largest position difference, m.
+fn assert_odometry_as_offline(r: &Replay, offline: &[(i64, [f64; 3])]) -> f64 {
+    assert!(!offline.is_empty(), "dc_loc run wrote no radar odometry");
+    let mut live = Vec::new();
+    for m in &r.odometry {
+        let ns = m["sec"].as_i64().unwrap() * 1_000_000_000 + m["nanosec"].as_i64().unwrap();
+        assert_eq!(m["frame_id"], "odom", "{m}");
+        assert_eq!(m["child_frame_id"], "base_link", "{m}");
+        let cov: Vec<f64> = serde_json::from_value(m["covariance"].clone()).unwrap();
+        // x, y and yaw variances observed (zero at the start, which defines the frame); z, roll and
+        // pitch marked unobserved.
+        assert!(cov[0] >= 0.0 && cov[7] >= 0.0 && cov[35] >= 0.0, "{m}");
+        assert!(cov[14] >= 1e6 && cov[21] >= 1e6 && cov[28] >= 1e6, "{m}");
+        live.push((ns, ["x", "y", "z"].map(|k| m[k].as_f64().unwrap())));
+    }
+    let last = &r.odometry.last().unwrap()["covariance"];
+    assert!(last[0].as_f64() > Some(0.0), "the covariance grows: {last}");
+    live.sort_by_key(|(ns, _)| *ns);
+    let stamps = |v: &[(i64, [f64; 3])]| v.iter().map(|(ns, _)| *ns).collect::<Vec<_>>();
+    let (got, want) = (stamps(&live), stamps(offline));
+    if got != want {
+        let first = got.iter().zip(&want).position(|(a, b)| a != b);
+        panic!(
+            "~/odometry: {} samples, dc_loc run --odometry-out: {}; first different stamp at index \
+             {first:?}",
+            got.len(),
+            want.len()
+        );
+    }
+    let mut worst = 0.0f64;
+    for ((ns, p), (_, q)) in live.iter().zip(offline) {
+        let d = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+        assert!(d < 1e-3, "~/odometry at {ns} ns: {p:?}, offline {q:?}");
+        worst = worst.max(d);
+    }
+    worst
+}
+
+/// No odometry subscription and nothing about odometry missing: the node reads only the radars (and
+/// the gyro).
+fn assert_no_odometry_topic(r: &Replay) {
+    assert_eq!(
+        r.outputs["odom_subscribers"].as_u64(),
+        Some(0),
+        "{}",
+        r.outputs
+    );
+    for k in ["odometry.received", "odometry.publishers", "no_odometry"] {
+        assert!(
+            !r.diagnostics.contains_key(k) || r.diag(k) == 0,
+            "{k}: {:?}",
+            r.diagnostics
+        );
+    }
+}
+
+/// Five radars, odometry from their Doppler alone (`odometry.source: radar`) and no `/odom`
+/// published: the closures and `~/odometry` are `dc_loc run`'s with the same setting; with
+/// `node.odometry_tf`, `/tf` carries each sample as `odom -> base_link`.
+#[test]
+fn five_radars_without_wheel_odometry_give_the_offline_closures_and_odometry() {
+    let _serial = serial();
+    let d = five_radar_drive();
+    let (closures, odometry) = offline_radar_odometry(d, "five_radars_radar_offline", "radar");
+    let r = replay_on(
+        d,
+        "five_radars_radar",
+        &[
+            "--rate",
+            "3",
+            "--no-odom",
+            "--record-odometry",
+            "--record-tf",
+        ],
+        &[
+            "--params-file",
+            d.params.to_str().unwrap(),
+            "-p",
+            "odometry.source:=radar",
+            "-p",
+            "node.odometry_tf:=true",
+        ],
+    );
+    assert_eq!(r.node_exit, 0);
+    assert_same_as_offline(&r, &closures);
+    assert!(!closures.is_empty(), "no closures with the radar odometry");
+    assert_no_odometry_topic(&r);
+    let worst = assert_odometry_as_offline(&r, &odometry);
+    // /tf: one transform per sample, the same poses.
+    assert_eq!(r.tf.len(), r.odometry.len());
+    for (t, o) in r.tf.iter().zip(&r.odometry) {
+        assert_eq!(
+            (&t["frame_id"], &t["child_frame_id"]),
+            (&o["frame_id"], &o["child_frame_id"])
+        );
+        for k in ["sec", "nanosec", "x", "y", "z"] {
+            assert_eq!(t[k], o[k], "{t} vs {o}");
+        }
+    }
+    println!(
+        "five radars, radar odometry: {} closures and {} odometry samples as dc_loc run (positions \
+         within {worst:.2e} m)",
+        r.rclpy.len(),
+        r.odometry.len()
+    );
+}
+
+/// One radar and a 100 Hz gyro (`odometry.source: radar_imu`), `/imu` published from the bag and no
+/// `/odom`: the closures and `~/odometry` are `dc_loc run`'s with the same setting.
+#[test]
+fn one_radar_and_a_gyro_give_the_offline_closures_and_odometry() {
+    let _serial = serial();
+    let d = gyro_drive();
+    let (closures, odometry) = offline_radar_odometry(d, "gyro_radar_imu_offline", "radar_imu");
+    let r = replay_on(
+        d,
+        "gyro_radar_imu",
+        &["--rate", "3", "--no-odom", "--imu", "--record-odometry"],
+        &[
+            "--params-file",
+            d.params.to_str().unwrap(),
+            "-p",
+            "odometry.source:=radar_imu",
+        ],
+    );
+    assert_eq!(r.node_exit, 0);
+    assert_same_as_offline(&r, &closures);
+    assert!(
+        !closures.is_empty(),
+        "no closures with the radar and gyro odometry"
+    );
+    assert_no_odometry_topic(&r);
+    let imu = d.drive.imu.len() as u64;
+    assert_eq!(r.diag("imu.received"), imu, "{:?}", r.diagnostics);
+    assert_eq!(r.diag("bad_imu"), 0);
+    let worst = assert_odometry_as_offline(&r, &odometry);
+    println!(
+        "one radar and a gyro: {} closures and {} odometry samples as dc_loc run (positions within \
+         {worst:.2e} m)",
+        r.rclpy.len(),
+        r.odometry.len()
+    );
 }
 
 #[test]

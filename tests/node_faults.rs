@@ -89,7 +89,8 @@ fn out_of_range_node_settings_stop_the_start() {
         ("node.shutdown_timeout:=1e20", "node.shutdown_timeout"),
         ("node.max_cloud_points:=-5", "node.max_cloud_points"),
         ("node.diagnostics_period:=0.0", "node.diagnostics_period"),
-        ("odometry.source:=radar_imu", "odometry.source"),
+        ("imu.topic:=''", "imu.topic"),
+        ("node.odom_frame:=''", "node.odom_frame"),
     ] {
         let out = run(&["--ros-args", "-p", p], &[]);
         let err = text(&out.stderr);

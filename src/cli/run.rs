@@ -187,12 +187,16 @@ fn run_segment(
     ))
 }
 
-/// A pose as a TUM trajectory line: `stamp x y z qx qy qz qw`.
+/// A pose as a TUM trajectory line: `stamp x y z qx qy qz qw`, the stamp to the nanosecond (written
+/// from its integer nanoseconds: a float of seconds keeps only about 0.2 us at today's epoch).
 fn tum_line(stamp: crate::math::Stamp, t: &crate::math::Iso3) -> String {
     let (p, q) = (t.translation.vector, t.rotation.coords);
+    let ns = stamp.0.unsigned_abs();
+    let sign = if stamp.0 < 0 { "-" } else { "" };
     format!(
-        "{:.9} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
-        stamp.as_secs_f64(),
+        "{sign}{}.{:09} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
+        ns / 1_000_000_000,
+        ns % 1_000_000_000,
         p.x,
         p.y,
         p.z,

@@ -37,6 +37,7 @@ TYPES = [
     'geometry_msgs/msg/Transform',
     'geometry_msgs/msg/TransformStamped',
     'nav_msgs/msg/Odometry',
+    'sensor_msgs/msg/Imu',
     'tf2_msgs/msg/TFMessage',
     'rosgraph_msgs/msg/Clock',
     LOOP_CLOSURE_TYPE,
@@ -139,6 +140,16 @@ CASES = [
                       'angular': {'x': 0.0, 'y': 0.0, 'z': 0.0}},
             'covariance': [0.0] * 36,
         },
+    }),
+    # No orientation (-1 first, as a gyro-only driver publishes), a yaw rate and an acceleration.
+    ('imu', 'sensor_msgs/msg/Imu', {
+        'header': header(1700000000, 10000000, 'imu_link'),
+        'orientation': {'x': 0.0, 'y': 0.0, 'z': 0.0, 'w': 1.0},
+        'orientation_covariance': [-1.0] + [0.0] * 8,
+        'angular_velocity': {'x': 0.001953125, 'y': -0.00390625, 'z': 0.15625},
+        'angular_velocity_covariance': [0.0009765625 * (i % 4 == 0) for i in range(9)],
+        'linear_acceleration': {'x': 0.5, 'y': -0.25, 'z': 9.8125},
+        'linear_acceleration_covariance': [0.0] * 9,
     }),
     ('tfmessage_empty', 'tf2_msgs/msg/TFMessage', {'transforms': []}),
     ('tfmessage_static', 'tf2_msgs/msg/TFMessage', {'transforms': [

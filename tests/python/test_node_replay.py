@@ -4,7 +4,8 @@ Run by tests/node.rs with the venv's interpreter:
 
     test_node_replay.py --node BIN --bag DIR --out RESULT.json [--rate R] [--malformed]
                         [--stop-after FRACTION --kill] [--skip-before FRACTION] [--tf-static]
-                        [--radar-scan] [-- NODE ARGS...]
+                        [--radar-scan] [--no-odom] [--imu] [--record-odometry [--record-tf]]
+                        [-- NODE ARGS...]
 
 1. Reserves a ROS domain id of its own; everything stays on loopback (dcloc_testlib).
 2. Starts the node (``BIN --ros-args NODE ARGS``) and waits for its "running" line. ``--tf-static``
@@ -15,14 +16,18 @@ Run by tests/node.rs with the venv's interpreter:
 4. Publishes the bag's messages (their raw CDR, original stamps) in log-time order at ``--rate`` times
    real time. ``--malformed`` interleaves bad messages (rclpy-built) on the same topics: each kind
    ``MALFORMED_REPEAT`` times (see ``malformed``). ``--radar-scan`` publishes each cloud as the
-   radar_msgs/RadarScan of the same detections (``as_radar_scans``).
+   radar_msgs/RadarScan of the same detections (``as_radar_scans``). ``--no-odom`` leaves /odom out (a
+   robot without wheel odometry); ``--imu`` publishes the bag's sensor_msgs/Imu gyro (/imu).
 5. Waits until the node's diagnostics show every message received and processed and both subscribers have
    as many closures as the node published; then SIGINT, and the node must exit 0.
    ``--stop-after F --kill``: publishes only the first fraction F of the drive, waits for it to be
    processed, then SIGKILLs the node (map persistence test). ``--skip-before F``: publishes only from
    fraction F on.
 6. Writes RESULT.json: the closures each subscriber received (as dc_loc's ClosureRecord JSON objects),
-   the last diagnostics (key -> value), the node's exit code, message counts.
+   the last diagnostics (key -> value), the node's exit code, message counts; with ``--record-odometry``
+   the node's ``~/odometry`` messages (stamp, pose, frames, covariances), subscribed before the replay
+   and waited for as the closures are; with ``--record-tf`` also the /tf transforms (stamp, frames,
+   translation).
 Exit code 0 when the run went through (the checks on the closures are the Rust test's), 1 otherwise.
 """
 
@@ -93,15 +98,21 @@ def set_parameter(rs, node_ns: str, assignment: str) -> str:
     return "ok" if r.successful else r.reason
 
 
-def read_bag(bag: Path):
-    """(log_time_ns, topic, type, raw CDR) of the radar and odometry topics, in log-time order."""
+ODOMETRY = "nav_msgs/msg/Odometry"
+IMU = "sensor_msgs/msg/Imu"
+
+
+def read_bag(bag: Path, odom: bool = True, imu: bool = False):
+    """(log_time_ns, topic, type, raw CDR) of the radar topics, /odom (``odom``) and the gyro (``imu``), in
+    log-time order."""
     from rosbags.rosbag2 import Reader
 
     out = []
     with Reader(bag) as reader:
         conns = [c for c in reader.connections
                  if c.msgtype == "sensor_msgs/msg/PointCloud2"
-                 or (c.msgtype == "nav_msgs/msg/Odometry" and c.topic == "/odom")]
+                 or (odom and c.msgtype == ODOMETRY and c.topic == "/odom")
+                 or (imu and c.msgtype == IMU)]
         for conn, t, raw in reader.messages(connections=conns):
             out.append((t, conn.topic, conn.msgtype, bytes(raw)))
     out.sort(key=lambda m: m[0])
@@ -140,6 +151,17 @@ def as_radar_scans(messages):
                                             amplitude=0.0))
         out.append((t, topic, "radar_msgs/msg/RadarScan", serialize_message(scan)))
     return out
+
+
+def odometry_record(m) -> dict:
+    """A nav_msgs/Odometry as a plain dict: stamp, frames, pose, twist and both covariances."""
+    p, q = m.pose.pose.position, m.pose.pose.orientation
+    t = m.twist.twist
+    return {"sec": m.header.stamp.sec, "nanosec": m.header.stamp.nanosec, "frame_id": m.header.frame_id,
+            "child_frame_id": m.child_frame_id,
+            "x": p.x, "y": p.y, "z": p.z, "qx": q.x, "qy": q.y, "qz": q.z, "qw": q.w,
+            "twist": [t.linear.x, t.linear.y, t.angular.z],
+            "covariance": list(m.pose.covariance), "twist_covariance": list(m.twist.covariance)}
 
 
 def malformed(good_cloud, last_odom):
@@ -228,13 +250,20 @@ def main() -> int:
                     help="publish the bag's /tf_static (transient local) before the node starts")
     ap.add_argument("--radar-scan", action="store_true",
                     help="publish the radars as radar_msgs/RadarScan instead of PointCloud2")
+    ap.add_argument("--no-odom", action="store_true", help="leave /odom out of the replay")
+    ap.add_argument("--imu", action="store_true", help="publish the bag's sensor_msgs/Imu gyro too")
+    ap.add_argument("--record-odometry", action="store_true",
+                    help="subscribe the node's ~/odometry and write its messages to RESULT.json")
+    ap.add_argument("--record-tf", action="store_true",
+                    help="subscribe /tf and write its transforms to RESULT.json")
     ap.add_argument("node_args", nargs="*")
     a = ap.parse_args()
 
-    messages = read_bag(a.bag)
+    messages = read_bag(a.bag, odom=not a.no_odom, imu=a.imu)
     t0, t1 = messages[0][0], messages[-1][0]
-    lo = t0 + a.skip_before * (t1 - t0)
-    hi = t0 + a.stop_after * (t1 - t0)
+    # In integer nanoseconds: a float of today's epoch in ns is 256 ns coarse and would cut the ends.
+    lo = t0 + round(a.skip_before * (t1 - t0))
+    hi = t0 + round(a.stop_after * (t1 - t0))
     messages = [m for m in messages if lo <= m[0] <= hi]
     if a.radar_scan:
         messages = as_radar_scans(messages)
@@ -266,7 +295,9 @@ def main() -> int:
             qos_pub = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.VOLATILE)
-            types = {"sensor_msgs/msg/PointCloud2": PointCloud2, "nav_msgs/msg/Odometry": Odometry}
+            from sensor_msgs.msg import Imu
+
+            types = {"sensor_msgs/msg/PointCloud2": PointCloud2, ODOMETRY: Odometry, IMU: Imu}
             if a.radar_scan:
                 from radar_msgs.msg import RadarScan
                 types["radar_msgs/msg/RadarScan"] = RadarScan
@@ -322,6 +353,29 @@ def main() -> int:
                 PoseWithCovarianceStamped, node_ns + "/relocalized", on_relocalized,
                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE))
+            # ~/odometry: the radar odometry, every message kept.
+            odometry_msgs = []
+            if a.record_odometry:
+                odom_sub = rs.node.create_subscription(
+                    Odometry, node_ns + "/odometry", lambda m: odometry_msgs.append(odometry_record(m)),
+                    QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                               reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE))
+            # /tf: the radar odometry's transforms (node.odometry_tf), as tf2's listeners subscribe.
+            tf_msgs = []
+            if a.record_tf:
+                from tf2_msgs.msg import TFMessage
+
+                def on_tf(m):
+                    for t in m.transforms:
+                        v = t.transform.translation
+                        tf_msgs.append({"sec": t.header.stamp.sec, "nanosec": t.header.stamp.nanosec,
+                                        "frame_id": t.header.frame_id, "child_frame_id": t.child_frame_id,
+                                        "x": v.x, "y": v.y, "z": v.z})
+
+                tf_sub = rs.node.create_subscription(
+                    TFMessage, "/tf", on_tf,
+                    QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                               reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE))
             reader = cs.reader(closures_topic, tl.LoopClosure, tl.cyclone_qos_loop_closure())
 
             def poll_cyclone():
@@ -332,6 +386,10 @@ def main() -> int:
             for p in pubs.values():
                 rs.wait_for_subscriptions(p, 1)
             rs.wait_for_publishers(diag_sub, 1)
+            if a.record_odometry:
+                rs.wait_for_publishers(odom_sub, 1)
+            if a.record_tf:
+                rs.wait_for_publishers(tf_sub, 1)
             tl.wait_for_matched(reader, 1, what="cyclone closure reader matched")
 
             # The node's readers must have matched the publishers too (matching is not symmetric in time):
@@ -341,11 +399,13 @@ def main() -> int:
                 return len(n) >= 2 and all(v >= 1 for v in n.values())
 
             rs.spin_until(node_matched, 30.0, "the node's readers to match the publishers")
+            # Who reads /odom (a node without wheel odometry must not).
+            outputs["odom_subscribers"] = rs.node.count_subscribers("/odom")
 
             # Replay at --rate, malformed messages interleaved.
-            radar_topic = next(t for _, t, ty, _ in messages if ty != "nav_msgs/msg/Odometry")
+            radar_topic = next(t for _, t, ty, _ in messages if ty not in (ODOMETRY, IMU))
             bad_plan = []
-            sent = {"radar": 0, "odometry": 0, "malformed": {}}
+            sent = {"radar": 0, "odometry": 0, "imu": 0, "malformed": {}}
             start = time.monotonic()
             last_cloud = last_odom = None
             set_index = int(float(a.set_at[0]) * len(messages)) if a.set_at else -1
@@ -361,7 +421,9 @@ def main() -> int:
                     rs.executor.spin_once(timeout_sec=min(left, 0.01))
                 poll_cyclone()
                 pubs[topic].publish(raw)
-                if msgtype != "nav_msgs/msg/Odometry":
+                if msgtype == IMU:
+                    sent["imu"] += 1
+                elif msgtype != ODOMETRY:
                     sent["radar"] += 1
                     if a.malformed:
                         last_cloud = raw
@@ -404,19 +466,25 @@ def main() -> int:
             # Wait until everything is received and processed, and both subscribers caught up.
             def radar_received():
                 return sum(int(v) for k, v in diag.items() if k.endswith(".received")
-                           and not k.endswith("odometry.received"))
+                           and not k.endswith("odometry.received") and not k.endswith("/imu.received"))
 
             def done():
                 poll_cyclone()
                 if not diag:
                     return False
-                odo = int(diag.get("dc_loc: input/odometry.received", -1))
+                # An input never received has no key: none of it was sent (--no-odom, no --imu).
+                odo = int(diag.get("dc_loc: input/odometry.received", 0))
+                imu = int(diag.get("dc_loc: input/imu.received", 0))
+                odometry_out = int(diag.get("dc_loc: processing/odometry_published", 0))
                 queued = (int(diag.get("dc_loc: processing/queue_depth", -1))
                           + int(diag.get("dc_loc: processing/held_for_order", -1)))
                 closures = int(diag.get("dc_loc: processing/closures", -1))
                 bad_radar = sum(v for k, v in sent["malformed"].items()
                                 if k not in ("bad_odometry", "unknown_frame"))
                 return (odo == sent["odometry"] + sent["malformed"].get("bad_odometry", 0)
+                        and imu == sent["imu"]
+                        and (not a.record_odometry or len(odometry_msgs) == odometry_out)
+                        and (not a.record_tf or len(tf_msgs) == odometry_out)
                         and radar_received() == sent["radar"] + bad_radar
                         and queued == 0 and len(got_rclpy) == closures and len(got_cyclone) == closures)
 
@@ -445,10 +513,15 @@ def main() -> int:
             else:
                 node.proc.send_signal(signal.SIGINT)
                 result["node_exit"] = node.proc.wait(timeout=30)
-            # Nothing more may arrive after the shutdown (the node flushed before exiting).
-            rs.spin_until(lambda: True, 1.0, "spin")
+            # What the node published while it shut down (its last ~/odometry samples) is taken for 1 s;
+            # no closure may come then (the node flushed them before the stop).
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                rs.executor.spin_once(timeout_sec=0.05)
             poll_cyclone()
             result["outputs"] = outputs
+            result["odometry"] = odometry_msgs
+            result["tf"] = tf_msgs
             result["rclpy"] = got_rclpy
             result["cyclone"] = got_cyclone
     finally:

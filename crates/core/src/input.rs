@@ -83,6 +83,9 @@ pub enum IssueReason {
     /// An odometry or ground-truth pose with a non-finite value or a zero quaternion.
     #[error("pose is not finite (or its quaternion is zero)")]
     NonFinitePose,
+    /// A gyro sample whose angular velocity is not finite.
+    #[error("angular velocity is not finite")]
+    NonFiniteRate,
     /// A cloud whose `header.frame_id` is not the configured `frame_id` of the topic's radar(s).
     #[error("frame_id `{got}` is not the configured `{expected}`")]
     FrameMismatch {
@@ -117,6 +120,7 @@ impl IssueReason {
         match self {
             IssueReason::Decode(_) => "undecodable",
             IssueReason::NonFinitePose => "non_finite_pose",
+            IssueReason::NonFiniteRate => "non_finite_rate",
             IssueReason::FrameMismatch { .. } => "frame_mismatch",
             IssueReason::Damaged(_) => "damaged_file",
             IssueReason::Foreign(_) => "undecodable_foreign",
@@ -236,13 +240,18 @@ pub fn odometry_pose(msg: &Odometry) -> Option<(Stamp, Iso3)> {
     Some((msg.header.stamp.into(), msg.pose.pose.to_iso3()?))
 }
 
-/// A `sensor_msgs/Imu` as a gyro input stamped `stamp`.
-pub fn imu_input(stamp: Stamp, msg: &crate::msgs::sensor_msgs::Imu) -> Input {
+/// A `sensor_msgs/Imu` as a gyro input stamped `stamp`; `None` when its angular velocity is not
+/// finite.
+pub fn imu_input(stamp: Stamp, msg: &crate::msgs::sensor_msgs::Imu) -> Option<Input> {
     let w = &msg.angular_velocity;
-    Input::Imu {
-        stamp,
-        angular_velocity: Vec3::new(w.x, w.y, w.z),
-    }
+    let angular_velocity = Vec3::new(w.x, w.y, w.z);
+    angular_velocity
+        .iter()
+        .all(|x| x.is_finite())
+        .then_some(Input::Imu {
+            stamp,
+            angular_velocity,
+        })
 }
 
 /// Stamp, body pose and speed (norm of `twist.linear`, m/s) of a ground-truth odometry message;
@@ -315,6 +324,18 @@ mod tests {
             Some(Stamp(5_000_000_007))
         );
         assert_eq!(header_stamp(&Header::default(), log).ok(), Some(log));
+
+        let mut imu = crate::msgs::sensor_msgs::Imu::default();
+        imu.angular_velocity.z = 0.25;
+        assert_eq!(
+            imu_input(log, &imu),
+            Some(Input::Imu {
+                stamp: log,
+                angular_velocity: Vec3::new(0.0, 0.0, 0.25)
+            })
+        );
+        imu.angular_velocity.x = f64::NAN;
+        assert_eq!(imu_input(log, &imu), None);
     }
 
     #[test]

@@ -318,7 +318,7 @@ pub mod sensor_msgs {
         pub is_dense: bool,
     }
 
-    /// sensor_msgs/msg/Imu (read from bags; the pipeline takes no IMU).
+    /// sensor_msgs/msg/Imu (a gyro: the pipeline takes its `angular_velocity`, see `input::imu_input`).
     #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
     pub struct Imu {
         /// Stamp and sensor frame.

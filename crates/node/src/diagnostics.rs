@@ -53,6 +53,8 @@ pub struct Measures {
     pub keyframe_time: Latencies,
     /// Closures published.
     pub closures_published: u64,
+    /// Radar odometry samples published on `~/odometry` (`odometry.source: radar | radar_imu`).
+    pub odometry_published: u64,
     /// Points in the newest `~/markers` message (keyframes plus two per closure).
     pub markers_points: usize,
 }
@@ -228,6 +230,10 @@ fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
         kv("map_full", stats.map_full.to_string()),
         kv("registrations", stats.registrations.to_string()),
         kv("closures", r.measures.closures_published.to_string()),
+        kv(
+            "odometry_published",
+            r.measures.odometry_published.to_string(),
+        ),
         kv("markers_points", r.measures.markers_points.to_string()),
         kv(
             "odometry_speed_scale",

@@ -1,6 +1,7 @@
 //! The node's DDS endpoints with their QoS: the input subscriptions and the reception loop over them
-//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`], with the optional back-end outputs
-//! of `node.pose_graph_output` and `node.lio_sam_output`) and the service servers.
+//! ([`Subscriptions`]), the publishers the worker owns ([`Outputs`], with the radar odometry's
+//! outputs and the optional back-end outputs of `node.pose_graph_output` and `node.lio_sam_output`)
+//! and the service servers.
 
 use std::sync::mpsc::SyncSender;
 use std::time::Duration;
@@ -24,8 +25,9 @@ use dc_loc_core::input::InputLimits;
 use dc_loc_core::msgs::dc_loc::{Keyframe as KeyframeMsg, LoopClosure as LoopClosureMsg};
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::rosgraph_msgs::Clock;
-use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
 use dc_loc_core::msgs::tf2_msgs::TFMessage;
+use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::radar::RadarMessage;
 use dc_loc_io::params::node::{FleetSettings, NodeSettings};
@@ -48,13 +50,20 @@ pub struct Outputs {
     pub lio_sam: Option<Publisher<Float64MultiArray>>,
     /// `node.fleet_topic`, when `node.fleet` is on.
     pub keyframes: Option<Publisher<KeyframeMsg>>,
+    /// `~/odometry`, when the odometry comes from the radars (`odometry.source: radar | radar_imu`).
+    pub odometry: Option<Publisher<Odometry>>,
+    /// `/tf`, when the radar odometry is also broadcast as a transform (`node.odometry_tf`).
+    pub tf: Option<Publisher<TFMessage>>,
 }
 
 /// The node's input subscriptions.
 pub struct Subscriptions {
     /// Per radar topic (several radars may share one; the frame id tells them apart).
     radars: Vec<(String, TopicRadars, RadarSubscription)>,
-    odometry: (String, Subscription<Odometry>),
+    /// `odometry.topic`, with `odometry.source: topic`.
+    odometry: Option<(String, Subscription<Odometry>)>,
+    /// `imu.topic`, with `odometry.source: radar_imu`.
+    imu: Option<(String, Subscription<Imu>)>,
     clock: Option<Subscription<Clock>>,
     /// `~/save_map`.
     save_map: Server<TriggerRequest, TriggerResponse>,
@@ -65,8 +74,9 @@ pub struct Subscriptions {
 }
 
 impl Subscriptions {
-    /// Subscribes the radars (one subscription per topic), the odometry, with sim time `/clock`, and
-    /// with `node.fleet` the fleet's keyframes.
+    /// Subscribes the radars (one subscription per topic), the pose input of `odometry.source` (the
+    /// odometry topic, nothing, or the gyro), with sim time `/clock`, and with `node.fleet` the
+    /// fleet's keyframes.
     pub fn new(
         node: &mut Node,
         ros_args: &RosArgs,
@@ -106,9 +116,7 @@ impl Subscriptions {
             log::info!("radar {} on {topic} ({message:?})", names.join(", "));
             radars.push((topic, topic_radars, sub));
         }
-        let odom_topic = ros_args.resolve_topic(&cfg.odometry.topic);
-        let odometry = subscribe(node, &odom_topic, "nav_msgs", "Odometry", INPUT_DEPTH)?;
-        log::info!("odometry on {odom_topic}");
+        let (odometry, imu) = pose_input(node, ros_args, cfg)?;
         let clock = if use_sim_time {
             Some(subscribe(node, "/clock", "rosgraph_msgs", "Clock", 10)?)
         } else {
@@ -144,7 +152,8 @@ impl Subscriptions {
         };
         Ok(Subscriptions {
             radars,
-            odometry: (odom_topic, odometry),
+            odometry,
+            imu,
             clock,
             keyframes,
             save_map,
@@ -182,11 +191,18 @@ impl Subscriptions {
                 }
             }
         }
-        let (topic, sub) = &self.odometry;
-        let shared = r.shared.clone();
-        tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
-            inputs::odometry_input(topic, &shared, o)
-        })));
+        if let Some((topic, sub)) = &self.odometry {
+            let shared = r.shared.clone();
+            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
+                inputs::odometry_input(topic, &shared, o)
+            })));
+        }
+        if let Some((topic, sub)) = &self.imu {
+            let shared = r.shared.clone();
+            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |m| {
+                inputs::imu_input(topic, &shared, m)
+            })));
+        }
         if let Some(sub) = &self.clock {
             tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
         }
@@ -200,7 +216,10 @@ impl Subscriptions {
         let counts = inputs::publisher_counts(
             node,
             &self.radars,
-            &self.odometry.1,
+            inputs::PoseSubscriptions {
+                odometry: self.odometry.as_ref().map(|(_, s)| s),
+                imu: self.imu.as_ref().map(|(_, s)| s),
+            },
             &self.map_views,
             r.shared,
         );
@@ -224,8 +243,43 @@ impl Subscriptions {
     }
 }
 
+/// The pose input `odometry.source` asks for: `nav_msgs/Odometry` on `odometry.topic` (`topic`), none
+/// (`radar`: the radars make the odometry, so no `/odom` is needed), or the `sensor_msgs/Imu` gyro on
+/// `imu.topic` (`radar_imu`). Both with the radars' QoS ([`sensor_qos`]).
+#[allow(clippy::type_complexity)]
+fn pose_input(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    cfg: &Config,
+) -> Result<
+    (
+        Option<(String, Subscription<Odometry>)>,
+        Option<(String, Subscription<Imu>)>,
+    ),
+    NodeError,
+> {
+    match cfg.odometry.source {
+        OdometrySource::Topic => {
+            let topic = ros_args.resolve_topic(&cfg.odometry.topic);
+            let sub = subscribe(node, &topic, "nav_msgs", "Odometry", INPUT_DEPTH)?;
+            log::info!("odometry on {topic}");
+            Ok((Some((topic, sub)), None))
+        }
+        OdometrySource::Radar => {
+            log::info!("odometry from the radars' Doppler: no odometry topic read");
+            Ok((None, None))
+        }
+        OdometrySource::RadarImu => {
+            let topic = ros_args.resolve_topic(&cfg.imu.topic);
+            let sub = subscribe(node, &topic, "sensor_msgs", "Imu", INPUT_DEPTH)?;
+            log::info!("odometry from the radars' Doppler and the gyro on {topic}");
+            Ok((None, Some((topic, sub))))
+        }
+    }
+}
+
 /// DDS reader history of each input: deep enough that a busy executor never makes the reader discard
-/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz).
+/// a sample (about 8 s of 5 radars at 13 Hz, 40 s of odometry at 25 Hz, 10 s of a 100 Hz gyro).
 const INPUT_DEPTH: usize = 1000;
 
 /// Best-effort, volatile, keep-last: matches reliable and best-effort publishers alike.
@@ -285,11 +339,12 @@ pub fn tf_static(
         .map_err(dds("/tf_static subscription"))
 }
 
-/// The publishers, with the back-end outputs the node's parameters (`ros_args`: files and `-p`) turn
-/// on; see [`outputs_with`].
-pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError> {
+/// The publishers, with the outputs the node's parameters (`ros_args`: files and `-p`) turn on; see
+/// [`outputs_with`].
+pub fn outputs(node: &mut Node, ros_args: &RosArgs, cfg: &Config) -> Result<Outputs, NodeError> {
     let (settings, _) = NodeSettings::take_from(&ros_args.param_set()?)?;
-    outputs_with(node, ros_args, &settings)
+    let radar_odometry = cfg.odometry.source != OdometrySource::Topic;
+    outputs_with(node, ros_args, &settings, radar_odometry)
 }
 
 /// The publishers: `~/loop_closures` (reliable, transient-local: a back end that starts late still
@@ -297,15 +352,42 @@ pub fn outputs(node: &mut Node, ros_args: &RosArgs) -> Result<Outputs, NodeError
 /// outputs `settings` turns on: the `pose_graph_tools_msgs/PoseGraph` topic (QoS of
 /// `~/loop_closures`), the LIO-SAM topic (reliable, volatile: LIO-SAM takes its pairs as they come) and
 /// the fleet's keyframes (reliable, transient local, keep last `node.fleet_history`: a robot that
-/// starts late gets the recent ones).
+/// starts late gets the recent ones); with `radar_odometry`, `~/odometry` (reliable, volatile, keep
+/// last 100: as an odometry driver publishes) and with `node.odometry_tf` also `/tf` (as tf2's
+/// broadcaster: reliable, volatile, keep last 100).
 pub fn outputs_with(
     node: &mut Node,
     ros_args: &RosArgs,
     settings: &NodeSettings,
+    radar_odometry: bool,
 ) -> Result<Outputs, NodeError> {
     let backends = &settings.backends;
     let fleet = &settings.fleet;
+    let odometry = if radar_odometry {
+        Some(publisher(
+            node,
+            ros_args,
+            "~/odometry",
+            ("nav_msgs", "Odometry"),
+            reliable(100, Durability::Volatile),
+        )?)
+    } else {
+        None
+    };
+    let tf = if radar_odometry && settings.odometry_tf {
+        Some(publisher(
+            node,
+            ros_args,
+            "/tf",
+            ("tf2_msgs", "TFMessage"),
+            reliable(100, Durability::Volatile),
+        )?)
+    } else {
+        None
+    };
     Ok(Outputs {
+        odometry,
+        tf,
         closures: publisher(
             node,
             ros_args,

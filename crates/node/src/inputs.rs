@@ -13,13 +13,14 @@ use ros2_client::{Node, Subscription};
 use serde::de::DeserializeOwned;
 
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
+use dc_loc_core::input::imu_input as gyro_input;
 use dc_loc_core::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
 use dc_loc_core::math::Stamp;
 use dc_loc_core::msgs::dc_loc::Keyframe as KeyframeMsg;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan;
 use dc_loc_core::msgs::rosgraph_msgs::Clock;
-use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
 use dc_loc_core::msgs::std_msgs::Header;
 use dc_loc_io::params::node::FleetSettings;
 
@@ -43,6 +44,12 @@ impl Stamped for RadarScan {
 }
 
 impl Stamped for Odometry {
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Stamped for Imu {
     fn header_mut(&mut self) -> &mut Header {
         &mut self.header
     }
@@ -243,6 +250,20 @@ pub fn odometry_input(
     Ok((input, Some(odom.header.frame_id)))
 }
 
+/// A gyro sample (`odometry.source: radar_imu`) as the input, refused (`bad_imu`) when its angular
+/// velocity is not finite.
+pub fn imu_input(
+    topic: &str,
+    shared: &Shared,
+    imu: Imu,
+) -> Result<(Input, Option<String>), Refusal> {
+    shared.count_received("imu");
+    match gyro_input(imu.header.stamp.into(), &imu) {
+        Some(input) => Ok((input, None)),
+        None => Err(("bad_imu", format!("{topic}: angular velocity not finite"))),
+    }
+}
+
 /// `/clock` into the shared clock (sim time).
 pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
     let mut stream = std::pin::pin!(sub.async_stream());
@@ -254,12 +275,20 @@ pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
     }
 }
 
+/// The pose input's subscription, as `odometry.source` asks for it (at most one is set).
+pub struct PoseSubscriptions<'a> {
+    /// `odometry.topic` (`topic`).
+    pub odometry: Option<&'a Subscription<Odometry>>,
+    /// `imu.topic` (`radar_imu`).
+    pub imu: Option<&'a Subscription<Imu>>,
+}
+
 /// Matched publishers per input, every 250 ms, for `/diagnostics` (a user or test waits for them
 /// before sending), and the subscriptions discovered on the map views (`~/markers`, `~/submap`).
 pub async fn publisher_counts(
     node: &Node,
     radars: &[(String, TopicRadars, RadarSubscription)],
-    odometry: &Subscription<Odometry>,
+    pose: PoseSubscriptions<'_>,
     map_views: &[String; 2],
     shared: Arc<Shared>,
 ) {
@@ -275,7 +304,12 @@ pub async fn publisher_counts(
             };
             counts.extend(topic_radars.iter().map(|(_, name, _)| (name.clone(), n)));
         }
-        counts.push(("odometry".to_string(), odometry.get_publisher_count(node)));
+        if let Some(s) = pose.odometry {
+            counts.push(("odometry".to_string(), s.get_publisher_count(node)));
+        }
+        if let Some(s) = pose.imu {
+            counts.push(("imu".to_string(), s.get_publisher_count(node)));
+        }
         lock(&shared.publishers).extend(counts);
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
@@ -284,6 +318,24 @@ pub async fn publisher_counts(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A gyro sample is counted as received; one whose angular velocity is not finite is refused as
+    /// `bad_imu`, naming the topic.
+    #[test]
+    fn a_gyro_sample_that_is_not_finite_is_refused() {
+        let shared = Shared::new(Duration::from_secs(5));
+        let mut imu = Imu::default();
+        imu.header.stamp.sec = 3;
+        imu.angular_velocity.z = 0.5;
+        let (input, frame) = imu_input("/imu", &shared, imu.clone()).unwrap();
+        assert_eq!(input.stamp(), Stamp(3_000_000_000));
+        assert!(frame.is_none());
+        imu.angular_velocity.y = f64::INFINITY;
+        let (reason, detail) = imu_input("/imu", &shared, imu).unwrap_err();
+        assert_eq!(reason, "bad_imu");
+        assert!(detail.contains("/imu"), "{detail}");
+        assert_eq!(lock(&shared.received).get("imu"), Some(&2));
+    }
 
     /// A robot gets a burst of `node.fleet_history` keyframes, then `node.fleet_rate` a second; another
     /// robot's allowance is its own.

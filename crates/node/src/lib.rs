@@ -6,7 +6,8 @@
 //! parameters), [`inputs`] (one reception task per subscription), [`worker`] (the pipeline's thread and
 //! the publishers), [`diagnostics`], [`rosout`] (the log on `/rosout`), [`services`] (`~/save_map`, `~/relocalized`), [`map_store`] (the map on disk), [`convert`] (the node's message
 //! types and conversions to them), [`tf`] (extrinsics from `/tf_static`), [`backends`] (the optional `pose_graph_tools_msgs/PoseGraph` and
-//! LIO-SAM outputs), [`merge`] (inputs back in stamp order). Topics and parameters: README_NODE.md.
+//! LIO-SAM outputs), [`merge`] (inputs back in stamp order), [`odometry`] (the radar odometry as `~/odometry`
+//! and `/tf`). Topics and parameters: README_NODE.md.
 
 #![warn(missing_docs)]
 #![forbid(unsafe_code)]
@@ -21,6 +22,7 @@ pub mod inputs;
 pub mod map_store;
 pub mod merge;
 pub mod node;
+pub mod odometry;
 pub mod rosout;
 pub mod services;
 pub mod shared;

@@ -5,7 +5,10 @@
 //! Entry point: [`StampMerger`]. It releases the oldest item held when every other stream has passed
 //! its stamp (by a message stamped there or later, or because the stream's recent stamp gaps,
 //! [`GAP_MARGIN`] and [`GAPS_KEPT`], say its next message cannot be that early), when the item has
-//! waited `timeout`, or when the other streams are idle; ties keep the arrival order.
+//! waited `timeout`, or when the other streams are idle; ties keep the arrival order. A stream that
+//! has sent nothing yet counts as having sent when the first item of any stream came: while the
+//! inputs start, its first message is waited for (at most `timeout` per item), so that the sensor
+//! whose driver happens to be delivered first does not go ahead of an earlier-stamped one.
 //! docs/algorithm.md, "Input order", has the rule in full and why the stamp gaps bound the wait.
 
 use std::collections::VecDeque;
@@ -75,6 +78,8 @@ pub struct StampMerger<T> {
     idle: Duration,
     seq: u64,
     held: usize,
+    /// When the first item of any stream came.
+    started: Option<Instant>,
 }
 
 impl<T> StampMerger<T> {
@@ -93,6 +98,7 @@ impl<T> StampMerger<T> {
             idle,
             seq: 0,
             held: 0,
+            started: None,
         }
     }
 
@@ -115,6 +121,7 @@ impl<T> StampMerger<T> {
         s.queue.insert(at, (stamp, self.seq, now, item));
         s.note_stamp(stamp);
         s.last_arrival = Some(now);
+        self.started.get_or_insert(now);
         self.seq += 1;
         self.held += 1;
     }
@@ -138,6 +145,7 @@ impl<T> StampMerger<T> {
             j == i
                 || s.passed(*stamp)
                 || s.last_arrival
+                    .or(self.started)
                     .is_none_or(|a| now.saturating_duration_since(a) >= self.idle)
         });
         if waited || others_past {
@@ -177,12 +185,20 @@ mod tests {
         m.push(0, Stamp(10), t0, "radar 10");
         assert_eq!(
             m.pop_ready(t0),
-            Some("radar 10"),
-            "odometry never seen: not waited for"
+            None,
+            "the inputs start: odometry's first message is waited for"
         );
         m.push(1, Stamp(5), t0, "odom 5");
-        m.push(0, Stamp(20), t0, "radar 20");
         assert_eq!(m.pop_ready(t0), Some("odom 5"));
+        assert_eq!(
+            m.pop_ready(t0),
+            None,
+            "radar 10 waits for odometry to pass 10"
+        );
+        m.push(1, Stamp(12), t0, "odom 12");
+        assert_eq!(m.pop_ready(t0), Some("radar 10"));
+        m.push(0, Stamp(20), t0, "radar 20");
+        assert_eq!(m.pop_ready(t0), Some("odom 12"));
         assert_eq!(
             m.pop_ready(t0),
             None,
@@ -211,6 +227,20 @@ mod tests {
         assert_eq!(m.pop_any(), Some("radar 3 (backwards)"));
         assert_eq!(m.pop_any(), Some("radar 30"));
         assert_eq!(m.len(), 0);
+    }
+
+    /// A stream that never sends delays the first items by at most `timeout`, and none once the
+    /// others have flowed for `idle` without it.
+    #[test]
+    fn a_silent_stream_is_waited_for_only_while_the_inputs_start() {
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        let mut m = StampMerger::new(2, ms(200), ms(1000));
+        m.push(0, Stamp(10), t0, "radar 10");
+        assert_eq!(m.pop_ready(t0 + ms(100)), None);
+        assert_eq!(m.pop_ready(t0 + ms(200)), Some("radar 10"), "timeout");
+        m.push(0, Stamp(20), t0 + ms(1000), "radar 20");
+        assert_eq!(m.pop_ready(t0 + ms(1000)), Some("radar 20"), "idle");
     }
 
     /// Two radars at 10 Hz, half a period apart: once their rates are known, an item goes as soon as the

@@ -27,12 +27,10 @@ use super::services::SaveRequests;
 use super::shared::{Inbox, Shared, Work};
 use super::tf::static_extrinsics;
 use super::worker::{Controls, Worker};
-use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::{Config, Pipeline};
-use dc_loc_core::validate::ConfigError;
 use dc_loc_io::params::live::LiveParams;
 use dc_loc_io::params::node::{NodeSettings, all_params, describe};
-use dc_loc_io::params::{ParamError, ParamSet, apply};
+use dc_loc_io::params::{ParamSet, apply};
 
 /// Runs the node (`args` as from `std::env::args`); returns the process exit code.
 pub fn main(args: &[String]) -> i32 {
@@ -84,14 +82,6 @@ pub fn start_up(ros_args: &RosArgs) -> Result<StartUp, NodeError> {
     let params = ros_args.param_set()?;
     let (settings, rest) = NodeSettings::take_from(&params)?;
     let cfg = apply(&rest)?;
-    if cfg.odometry.source == OdometrySource::RadarImu {
-        // The node has no `sensor_msgs/Imu` subscription: without the gyro one radar coasts.
-        return Err(NodeError::Param(ParamError::Invalid(ConfigError::new(
-            "odometry.source",
-            "`radar_imu` is served by `dc_loc run` and `dc_loc revisits`, not yet by the node \
-             (it does not subscribe to `imu.topic`); use `radar` (two or more radars) or `topic`",
-        ))));
-    }
     let map = if settings.extrinsics_from_tf {
         None
     } else {
@@ -165,7 +155,7 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         None => load_map(&cfg).map_err(NodeError::Map)?,
     };
     let subs = Subscriptions::new(&mut node, ros_args, &cfg, &settings)?;
-    let outputs = outputs(&mut node, ros_args)?;
+    let outputs = outputs(&mut node, ros_args, &cfg)?;
 
     let shared = Arc::new(Shared::new(Duration::from_secs_f64(settings.warn_interval)));
     let (tx, rx) = std::sync::mpsc::sync_channel::<Work>(settings.queue_size);

@@ -1,7 +1,7 @@
 //! The worker thread: owns the [`Pipeline`], takes the queued inputs in stamp order across topics
 //! ([`StampMerger`], at most `node.sync_timeout` of waiting) so that the pipeline sees the sequence
-//! `dc_loc run` reads from a bag, and publishes closures, markers and the submap as they come,
-//! diagnostics every `node.diagnostics_period`; the map is saved by [`MapSaver`].
+//! `dc_loc run` reads from a bag, and publishes closures, markers, the submap and the radar odometry
+//! as they come, diagnostics every `node.diagnostics_period`; the map is saved by [`MapSaver`].
 
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
@@ -15,6 +15,7 @@ use super::diagnostics::{Diagnostics, Measures, Report};
 use super::endpoints::Outputs;
 use super::map_store::MapSaver;
 use super::merge::StampMerger;
+use super::odometry::{odometry_msg, odometry_tf};
 use super::services::{SaveRequest, TriggerResponse, relocalized};
 use super::shared::{Shared, Work, receive_time};
 use dc_loc_core::fleet::{FleetState, wire};
@@ -23,6 +24,7 @@ use dc_loc_core::keyframe_db::KeyframeRecord;
 use dc_loc_core::loop_closure::LoopClosure;
 use dc_loc_core::math::{Iso3, Stamp};
 use dc_loc_core::msgs::builtin_interfaces::Time;
+use dc_loc_core::odometry::OdometryEstimate;
 use dc_loc_core::output::loop_closure_msg;
 use dc_loc_core::pipeline::{Event, Pipeline};
 use dc_loc_io::params::live::LiveParams;
@@ -110,7 +112,7 @@ impl Worker {
         controls: Controls,
     ) -> Self {
         let mut markers = Markers {
-            frame: "odom".into(),
+            frame: settings.odom_frame.clone(),
             cap: pipeline.config().map.max_keyframes,
             points: BTreeMap::new(),
             edges: VecDeque::new(),
@@ -150,7 +152,7 @@ impl Worker {
     /// the map again and returns the final save's error, if any.
     pub fn run(mut self, rx: Receiver<Work>) -> Result<(), String> {
         let n_radars = self.pipeline.config().radar_names.len();
-        // Streams: each radar, then odometry.
+        // Streams: each radar, then the pose input (odometry or gyro).
         let mut merger: StampMerger<Work> = StampMerger::new(
             n_radars + 1,
             Duration::from_secs_f64(self.settings.sync_timeout),
@@ -313,7 +315,7 @@ impl Worker {
             self.pipeline.stats().keyframes,
         );
         // Give reliable readers a moment to fetch the last samples before the writers go away.
-        if published > 0 {
+        if published > 0 || self.measures.odometry_published > 0 {
             std::thread::sleep(Duration::from_millis(300));
         }
         saved
@@ -367,8 +369,7 @@ impl Worker {
                     changed = true;
                 }
                 Event::Rejected { .. } => {}
-                // The radar odometry's samples are not published by the node.
-                Event::Odometry(_) => {}
+                Event::Odometry(e) => self.publish_odometry(&e),
                 // Counted in the pipeline's stats; warned here, rate-limited.
                 Event::Dropped { reason, detail } => self.shared.warn(reason.name(), &detail),
                 Event::EmptyScan { detail } => self.shared.warn("empty_cloud", &detail),
@@ -442,6 +443,22 @@ impl Worker {
         );
     }
 
+    /// A radar odometry sample on `~/odometry` and, with `node.odometry_tf`, on `/tf`.
+    fn publish_odometry(&mut self, e: &OdometryEstimate) {
+        let frame = &self.settings.odom_frame;
+        if let Some(p) = &self.out.odometry {
+            match p.publish(odometry_msg(e, frame, &self.body_frame)) {
+                Ok(()) => self.measures.odometry_published += 1,
+                Err(e) => log::debug!("odometry: {e:?}"),
+            }
+        }
+        if let Some(p) = &self.out.tf
+            && let Err(e) = p.publish(odometry_tf(e, frame, &self.body_frame))
+        {
+            log::debug!("/tf: {e:?}");
+        }
+    }
+
     /// A new keyframe to the fleet (`node.fleet`).
     fn share_keyframe(&self, record: &KeyframeRecord, fleet: &FleetState) {
         let Some(p) = &self.out.keyframes else { return };
@@ -505,7 +522,7 @@ impl Worker {
     }
 }
 
-/// The merger's stream of an input (each radar, then odometry) and its stamp.
+/// The merger's stream of an input (each radar, then the pose input: odometry or gyro) and its stamp.
 fn stream_of(w: &Work, n_radars: usize) -> (usize, Stamp) {
     match w {
         Work::Input { input, .. } => match input.as_ref() {

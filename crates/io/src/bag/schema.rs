@@ -26,7 +26,7 @@ pub const CLOCK: &str = "rosgraph_msgs/msg/Clock";
 pub const LOOP_CLOSURE: &str = "dc_loc/msg/LoopClosure";
 /// `geometry_msgs/msg/PoseStamped` (read as ground truth; the writer has no schema for it).
 pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
-/// `sensor_msgs/msg/Imu` (read only; the writer has no schema for it).
+/// `sensor_msgs/msg/Imu` (a gyro, read with `odometry.source: radar_imu`).
 pub const IMU: &str = "sensor_msgs/msg/Imu";
 /// `radar_msgs/msg/RadarScan` (read only; the writer has no schema for it).
 pub const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
@@ -259,6 +259,35 @@ geometry_msgs/TwistWithCovariance twist
 "#,
     },
     MsgFile {
+        name: "sensor_msgs/msg/Imu",
+        type_hash: "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+        text: r#"# This is a message to hold data from an IMU (Inertial Measurement Unit)
+#
+# Accelerations should be in m/s^2 (not in g's), and rotational velocity should be in rad/sec
+#
+# If the covariance of the measurement is known, it should be filled in (if all you know is the
+# variance of each measurement, e.g. from the datasheet, just put those along the diagonal)
+# A covariance matrix of all zeros will be interpreted as "covariance unknown", and to use the
+# data a covariance will have to be assumed or gotten from some other source
+#
+# If you have no estimate for one of the data elements (e.g. your IMU doesn't produce an
+# orientation estimate), please set element 0 of the associated covariance matrix to -1
+# If you are interpreting this message, please check for a value of -1 in the first element of each
+# covariance matrix, and disregard the associated estimate.
+
+std_msgs/Header header
+
+geometry_msgs/Quaternion orientation
+float64[9] orientation_covariance # Row major about x, y, z axes
+
+geometry_msgs/Vector3 angular_velocity
+float64[9] angular_velocity_covariance # Row major about x, y, z axes
+
+geometry_msgs/Vector3 linear_acceleration
+float64[9] linear_acceleration_covariance # Row major x, y z
+"#,
+    },
+    MsgFile {
         name: "rosgraph_msgs/msg/Clock",
         type_hash: "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
         text: r#"# This message communicates the current time.
@@ -281,7 +310,7 @@ builtin_interfaces/Time clock
 ];
 
 /// Top-level message types the bag writer knows (they have a schema text and a hash).
-pub const KNOWN_TYPES: &[&str] = &[POINT_CLOUD2, ODOMETRY, TF_MESSAGE, CLOCK, LOOP_CLOSURE];
+pub const KNOWN_TYPES: &[&str] = &[POINT_CLOUD2, ODOMETRY, IMU, TF_MESSAGE, CLOCK, LOOP_CLOSURE];
 
 /// The ROS primitive type names of `.msg` fields (rosbag2's list).
 const PRIMITIVES: &[&str] = &[

@@ -35,6 +35,11 @@ pub struct NodeSettings {
     pub log_level: String,
     /// `node.map_frame`: frame id of the `~/relocalized` poses.
     pub map_frame: String,
+    /// `node.odom_frame`: frame id of `~/odometry` and of the keyframes' poses while no odometry
+    /// message has named one.
+    pub odom_frame: String,
+    /// `node.odometry_tf`: broadcast the radar odometry's `odom_frame -> body_frame` on `/tf`.
+    pub odometry_tf: bool,
     /// `node.extrinsics_from_tf`: take the radars' extrinsics from `/tf_static` at start.
     pub extrinsics_from_tf: bool,
     /// `node.tf_timeout`: longest wait, s, for those transforms.
@@ -173,6 +178,8 @@ impl Default for NodeSettings {
             markers_period: 1.0,
             log_level: String::new(),
             map_frame: "map".into(),
+            odom_frame: "odom".into(),
+            odometry_tf: false,
             extrinsics_from_tf: false,
             tf_timeout: 10.0,
             backends: BackendSettings::default(),
@@ -252,6 +259,19 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         name: "node.map_frame",
         doc: "Frame id of the `~/relocalized` poses: the odometry frame of the earlier session (the \
               loaded map) the robot was found in.",
+    },
+    NodeParam {
+        name: "node.odom_frame",
+        doc: "Frame id of the radar odometry on `~/odometry` (`odometry.source: radar | radar_imu`) \
+              and of the keyframe poses on `~/markers` and in the back-end outputs; with \
+              `odometry.source: topic` the odometry messages' own `header.frame_id` replaces it.",
+    },
+    NodeParam {
+        name: "node.odometry_tf",
+        doc: "Broadcast the radar odometry (`odometry.source: radar | radar_imu`) as the transform \
+              `node.odom_frame -> body_frame` on `/tf`, one per sample. Off by default: most robots \
+              already have a node publishing that transform, and two publishers of one transform \
+              make tf2 jump between them.",
     },
     NodeParam {
         name: "node.extrinsics_from_tf",
@@ -371,6 +391,11 @@ impl NodeSettings {
             ("node.log_level".into(), Value::from(self.log_level.clone())),
             ("node.map_frame".into(), Value::from(self.map_frame.clone())),
             (
+                "node.odom_frame".into(),
+                Value::from(self.odom_frame.clone()),
+            ),
+            ("node.odometry_tf".into(), Value::Bool(self.odometry_tf)),
+            (
                 "node.extrinsics_from_tf".into(),
                 Value::Bool(self.extrinsics_from_tf),
             ),
@@ -447,6 +472,9 @@ impl NodeSettings {
         v.require("node.map_frame", !self.map_frame.is_empty(), || {
             "must not be empty".into()
         });
+        v.require("node.odom_frame", !self.odom_frame.is_empty(), || {
+            "must not be empty".into()
+        });
         v.require(
             "node.log_level",
             LOG_LEVELS.contains(&self.log_level.as_str()),
@@ -487,6 +515,17 @@ impl NodeSettings {
                     s.extrinsics_from_tf = v
                         .as_bool()
                         .ok_or_else(|| type_error(name, "a boolean", v))?
+                }
+                "node.odometry_tf" => {
+                    s.odometry_tf = v
+                        .as_bool()
+                        .ok_or_else(|| type_error(name, "a boolean", v))?
+                }
+                "node.odom_frame" => {
+                    s.odom_frame = v
+                        .as_str()
+                        .ok_or_else(|| type_error(name, "a string", v))?
+                        .to_string()
                 }
                 "node.map_frame" => {
                     s.map_frame = v

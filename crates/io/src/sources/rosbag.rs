@@ -1,14 +1,15 @@
 //! A bag (rosbag2 MCAP or ROS 1) as the pipeline's input stream: [`BagInputs`] reads the radar and
-//! odometry topics of a configuration (and optionally a ground-truth topic, `nav_msgs/Odometry` or
+//! pose topics of a configuration (and optionally a ground-truth topic, `nav_msgs/Odometry` or
 //! `geometry_msgs/PoseStamped`) in log-time order (a ROS 1 bag: in file order).
 //!
 //! Radar clouds (`sensor_msgs/PointCloud2`, or `radar_msgs/RadarScan` for a radar whose
 //! `radars.<name>.message` is `radar_scan`) come from `radars.<name>.topic` (radar index = position in
-//! `radar_names`), odometry from
-//! `odometry.topic`. Bad messages never stop a run: a message that does not decode, an odometry pose
-//! that is not finite, a cloud whose `header.frame_id` is not the radar's configured `frame_id` (when
-//! that is not empty), or damage in the bag file itself come out as [`InputIssue`]s and the stream
-//! goes on. A configuration that does not fit the bag (a configured topic missing, or of another type,
+//! `radar_names`). The pose input follows `odometry.source`: `nav_msgs/Odometry` from
+//! `odometry.topic` with `topic`; nothing with `radar` (the radars make the odometry); the
+//! `sensor_msgs/Imu` gyro from `imu.topic` with `radar_imu`. Bad messages never stop a run: a message
+//! that does not decode, an odometry pose or a gyro rate that is not finite, a cloud whose
+//! `header.frame_id` is not the radar's configured `frame_id` (when that is not empty), or damage in
+//! the bag file itself come out as [`InputIssue`]s and the stream goes on. A configuration that does not fit the bag (a configured topic missing, or of another type,
 //! or in a ROS 1 bag of another definition than the type's standard one) is refused up front by
 //! [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is replaced by the bag's log
 //! time. A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
@@ -18,13 +19,14 @@ use std::collections::BTreeMap;
 
 use crate::bag::{BagError, BagReader, Messages, ros1, schema};
 use dc_loc_core::input::{
-    Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, radar_scan_input,
+    Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, imu_input, radar_scan_input,
 };
 use dc_loc_core::math::{Iso3, Stamp};
 use dc_loc_core::msgs::geometry_msgs::PoseStamped;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
-use dc_loc_core::msgs::sensor_msgs::PointCloud2;
+use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
+use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::radar::RadarMessage;
 
@@ -39,7 +41,7 @@ pub enum BagInputError {
         "parameter `{parameter}`: topic {topic} is not in the bag {bag} (its topics: {available})"
     )]
     MissingTopic {
-        /// The parameter naming the topic (`radars.front.topic`, `odometry.topic`, or
+        /// The parameter naming the topic (`radars.front.topic`, `odometry.topic`, `imu.topic` or
         /// `ground_truth_topic`).
         parameter: String,
         /// The topic.
@@ -82,6 +84,8 @@ enum Route {
     /// topic's message type.
     Radar(Vec<(usize, String)>, RadarMessage),
     Odometry,
+    /// The gyro (`odometry.source: radar_imu`).
+    Imu,
     /// Ground truth as `nav_msgs/Odometry` (false) or `geometry_msgs/PoseStamped` (true).
     GroundTruth(bool),
 }
@@ -119,7 +123,7 @@ pub struct BagInputs {
 }
 
 impl BagInputs {
-    /// Prepares to read the radar and odometry topics of `cfg` (and `ground_truth_topic`, a
+    /// Prepares to read the radar and pose topics of `cfg` (and `ground_truth_topic`, a
     /// `nav_msgs/Odometry` or `geometry_msgs/PoseStamped` topic, when given) from `reader`.
     ///
     /// Fails when a configured topic is missing from the bag or has another type (in a ROS 1 bag: or
@@ -147,14 +151,19 @@ impl BagInputs {
                 list.push((i, rc.frame_id.clone()));
             }
         }
-        wanted.push((
-            "odometry.topic".into(),
-            cfg.odometry.topic.clone(),
-            schema::ODOMETRY,
-        ));
-        routes
-            .entry(cfg.odometry.topic.clone())
-            .or_insert(Route::Odometry);
+        let pose_input = match cfg.odometry.source {
+            OdometrySource::Topic => Some(("odometry.topic", &cfg.odometry.topic, Route::Odometry)),
+            OdometrySource::Radar => None,
+            OdometrySource::RadarImu => Some(("imu.topic", &cfg.imu.topic, Route::Imu)),
+        };
+        if let Some((parameter, topic, route)) = pose_input {
+            let expected = match route {
+                Route::Imu => schema::IMU,
+                _ => schema::ODOMETRY,
+            };
+            wanted.push((parameter.into(), topic.clone(), expected));
+            routes.entry(topic.clone()).or_insert(route);
+        }
         if let Some(gt) = ground_truth_topic {
             let pose_stamped = reader
                 .topic(gt)
@@ -280,6 +289,16 @@ impl Iterator for BagInputs {
                         },
                     }
                 }
+                Route::Imu => match msg.decode::<Imu>() {
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                    Ok(imu) => match header_stamp(&imu.header, msg.log_time) {
+                        Err(reason) => Err(issue(msg.log_time, reason)),
+                        Ok(stamp) => match imu_input(stamp, &imu) {
+                            Some(input) => Ok(input),
+                            None => Err(issue(stamp, IssueReason::NonFiniteRate)),
+                        },
+                    },
+                },
                 Route::GroundTruth(true) => match msg.decode::<PoseStamped>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(p) => match header_stamp(&p.header, msg.log_time) {

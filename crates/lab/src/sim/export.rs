@@ -8,7 +8,9 @@
 //! each radar's scans on its topic ([`SimDrive::to_config`]) as `PointCloud2` in its frame with FLOAT32
 //! `x, y, z, v_r, rcs` ([`CloudLayout::radar_f32`]); the drifting odometry on `/odom` (`odom` ->
 //! `base_link`, the simulator's `odom_frame` and `body_frame`) and the true pose and twist on
-//! [`GROUND_TRUTH_TOPIC`] (frame `map`), both `nav_msgs/msg/Odometry`; at the start, a
+//! [`GROUND_TRUTH_TOPIC`] (frame `map`), both `nav_msgs/msg/Odometry`; with a simulated gyro
+//! (`imu.rate`), its samples as `sensor_msgs/msg/Imu` on `imu.topic` in the body frame (angular
+//! velocity only: no orientation, its covariance's first element -1); at the start, a
 //! `tf2_msgs/msg/TFMessage` on [`TF_STATIC_TOPIC`] with every radar's extrinsic `base_link -> <radar
 //! frame>`, offered transient local as tf2's static broadcaster does.
 
@@ -91,6 +93,11 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
     let tf_topic = bag.add_topic(TF_STATIC_TOPIC, schema::TF_MESSAGE)?;
     let odom_topic = bag.add_topic(&cfg.odometry.topic, schema::ODOMETRY)?;
     let gt_topic = bag.add_topic(GROUND_TRUTH_TOPIC, schema::ODOMETRY)?;
+    let imu_topic = if drive.imu.is_empty() {
+        None
+    } else {
+        Some(bag.add_topic(&cfg.imu.topic, schema::IMU)?)
+    };
     let mut radar_topics = Vec::new();
     for (_, rc) in cfg.radar_list() {
         radar_topics.push((
@@ -113,6 +120,11 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
             .into_iter()
             .map(|(_, rc)| count(&rc.topic, schema::POINT_CLOUD2)),
     );
+    // The gyro's count, last, when there is one.
+    let imu_count = counts.len();
+    if imu_topic.is_some() {
+        counts.push(count(&cfg.imu.topic, schema::IMU));
+    }
 
     // The extrinsics once, at the start.
     let start = drive.setup.start;
@@ -152,8 +164,13 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
                 )?;
                 counts[1].count += 1;
             }
-            // The bag writer has no `sensor_msgs/Imu` schema: the gyro stays out of bags.
-            SimEventRef::Imu(_) => {}
+            SimEventRef::Imu(i) => {
+                if let Some(topic) = imu_topic {
+                    let sigma = sim.imu.noise_density * sim.imu.rate.sqrt();
+                    bag.write(topic, i.stamp, &i.to_msg(&sim.body_frame, sigma))?;
+                    counts[imu_count].count += 1;
+                }
+            }
             SimEventRef::Scan(s) => {
                 let r = s.scan.radar;
                 let Some((topic, frame_id)) = radar_topics.get(r) else {
@@ -183,13 +200,18 @@ pub fn write_bag(drive: &SimDrive, dir: &Path) -> Result<(PathBuf, Vec<TopicCoun
 /// configuration of the drive ([`SimDrive::to_config`]) as a params YAML for node [`NODE_NAME`].
 pub fn export_drive(drive: &SimDrive, dir: &Path) -> Result<ExportSummary, ExportError> {
     let (bag_dir, topics) = write_bag(drive, dir)?;
-    let header = format!(
+    let mut header = format!(
         "dc_loc parameters for the simulated drive in this bag directory (written by `dc_loc sim`):\n{}\n\
          Run it with: dc_loc run --bag {} --params {} --out closures.jsonl",
         drive_description(&drive.setup.config),
         bag_dir.display(),
         bag_dir.join(PARAMS_FILE).display()
     );
+    if !drive.imu.is_empty() {
+        header.push_str(
+            "\nWithout the wheel odometry, from the radar and the gyro: add -p odometry.source:=radar_imu",
+        );
+    }
     let params_file = bag_dir.join(PARAMS_FILE);
     std::fs::write(&params_file, params_yaml(&drive.to_config(), &header)).map_err(|source| {
         ExportError::Io {
@@ -247,6 +269,56 @@ mod tests {
 
     use super::*;
     use crate::sim::{RadarPreset, SimConfig};
+
+    /// A drive with a gyro: its samples on `imu.topic` as `sensor_msgs/Imu`, each as simulated, and
+    /// the params file says how to run on them.
+    #[test]
+    fn the_simulated_gyro_goes_into_the_bag() {
+        use crate::sim::config::LapConfig;
+        use crate::sim::imu::ImuSimConfig;
+        use crate::sim::simulate;
+        use dc_loc_core::msgs::sensor_msgs::Imu;
+        use dc_loc_io::bag::BagReader;
+
+        let cfg = SimConfig {
+            laps: vec![LapConfig::default()],
+            imu: ImuSimConfig::at_100_hz(),
+            ..SimConfig::default()
+        };
+        let drive = simulate(&cfg).unwrap();
+        let dir = std::env::temp_dir().join(format!("dc_loc_gyro_bag_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let summary = export_drive(&drive, &dir).unwrap();
+        let imu = summary.topics.iter().find(|t| t.topic == "/imu").unwrap();
+        assert_eq!(
+            (imu.type_name, imu.count),
+            (schema::IMU, drive.imu.len() as u64)
+        );
+        let reader = BagReader::open(&summary.bag_dir).unwrap();
+        let got: Vec<Imu> = reader
+            .messages_on(&["/imu"])
+            .unwrap()
+            .map(|m| m.unwrap().decode::<Imu>().unwrap())
+            .collect();
+        assert_eq!(got.len(), drive.imu.len());
+        for (m, s) in got.iter().zip(&drive.imu) {
+            assert_eq!(Stamp::from(m.header.stamp), s.stamp);
+            assert_eq!(m.header.frame_id, cfg.body_frame);
+            let w = &m.angular_velocity;
+            assert_eq!(
+                [w.x, w.y, w.z],
+                [
+                    s.angular_velocity.x,
+                    s.angular_velocity.y,
+                    s.angular_velocity.z
+                ]
+            );
+            assert_eq!(m.orientation_covariance[0], -1.0);
+        }
+        let params = std::fs::read_to_string(&summary.params_file).unwrap();
+        assert!(params.contains("odometry.source:=radar_imu"), "{params}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn params_yaml_applies_back_to_the_config() {

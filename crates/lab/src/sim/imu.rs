@@ -4,6 +4,9 @@
 
 use crate::sim::route::Trajectory;
 use dc_loc_core::math::{Stamp, Vec3};
+use dc_loc_core::msgs::geometry_msgs::{Quaternion, Vector3};
+use dc_loc_core::msgs::sensor_msgs::Imu;
+use dc_loc_core::msgs::std_msgs::Header;
 use dc_loc_core::validate::{Range, Validator};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -63,6 +66,42 @@ pub struct ImuSample {
     pub angular_velocity: Vec3,
     /// The bias it carries, rad/s.
     pub bias: f64,
+}
+
+impl ImuSample {
+    /// The sample as a gyro-only `sensor_msgs/Imu` in `frame_id`: no orientation (its covariance's
+    /// first element -1, as the message asks), the angular velocity with the white noise's variance on
+    /// the diagonal (`sigma^2`, rad^2/s^2, `0` when unknown), no acceleration (first element -1).
+    pub fn to_msg(&self, frame_id: &str, sigma: f64) -> Imu {
+        let w = self.angular_velocity;
+        let unknown = {
+            let mut c = [0.0; 9];
+            c[0] = -1.0;
+            c
+        };
+        let var = sigma * sigma;
+        Imu {
+            header: Header {
+                stamp: self.stamp.into(),
+                frame_id: frame_id.to_string(),
+            },
+            orientation: Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 1.0,
+            },
+            orientation_covariance: unknown,
+            angular_velocity: Vector3 {
+                x: w.x,
+                y: w.y,
+                z: w.z,
+            },
+            angular_velocity_covariance: [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var],
+            linear_acceleration: Vector3::default(),
+            linear_acceleration_covariance: unknown,
+        }
+    }
 }
 
 /// The gyro's samples over the drive, from `start`, drawn from the random stream `seed`.

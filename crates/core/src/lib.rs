@@ -23,6 +23,7 @@ pub mod odometry;
 pub mod output;
 pub mod pipeline;
 pub mod place;
+pub mod pose_noise;
 pub mod radar;
 pub mod registration;
 pub mod repeats;

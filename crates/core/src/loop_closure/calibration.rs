@@ -44,6 +44,14 @@ pub fn moved_frames_covariance(t_match_query: &Iso2, e: Vec3, amounts: [f64; 2],
     j * j.transpose() * (std * std)
 }
 
+/// Covariance over `(x, y, yaw)` that independent errors of the two submaps' frames, each of
+/// covariance `motion`, add to the closure `t_match_query`: the registration finds
+/// `Exp(xi_m) T Exp(-xi_q)`, to first order `delta = xi_q - Ad_{T^-1} xi_m`.
+pub fn submap_motion_covariance(t_match_query: &Iso2, motion: &Mat3) -> Mat3 {
+    let a = se2_adjoint(&t_match_query.inverse());
+    motion + a * motion * a.transpose()
+}
+
 /// `cov6` (ROS order) with the planar covariance `c` over `(x, y, yaw)` added to its x, y and yaw rows
 /// and columns.
 pub fn add_planar(cov6: &Mat6, c: &Mat3) -> Mat6 {

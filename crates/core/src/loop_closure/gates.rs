@@ -10,7 +10,9 @@
 
 use std::collections::BTreeMap;
 
-use super::calibration::{add_planar, calibration_covariance, clock_covariance};
+use super::calibration::{
+    add_planar, calibration_covariance, clock_covariance, submap_motion_covariance,
+};
 use super::decision::vouching;
 use super::drift::{
     Prior, heading_drift_covariance, inconsistency, predict, reach_chi2, translation_std,
@@ -18,7 +20,7 @@ use super::drift::{
 };
 use super::{Alignment, LoopClosure, LoopConfig, RejectReason, Standing};
 use crate::keyframe_db::KeyframeRecord;
-use crate::math::{Iso2, iso3_from_iso2, se2_log};
+use crate::math::{Iso2, Mat3, iso3_from_iso2, se2_log};
 use crate::registration::{
     PreparedSubmap, RegistrationConfig, RegistrationError, RegistrationResult, common_view,
     overlap_near, slide_overlap,
@@ -57,6 +59,9 @@ pub struct Pair<'a> {
     pub speeds: [f64; 2],
     /// Mean path length of each submap's scans behind its keyframe, query and candidate, m.
     pub arms: [f64; 2],
+    /// Covariance of each submap's frame from the odometry's motion between its scans
+    /// ([`crate::submap::Submap::motion`]), taken for both.
+    pub motion: Mat3,
 }
 
 /// A closure that passed the gates before the prediction and slide tests.
@@ -182,11 +187,13 @@ fn judged(r: &RegistrationResult) -> RegistrationResult {
 }
 
 /// The closure a result gives: its covariance with the calibration's share (`loop.extrinsic_std`,
-/// `loop.clock_std`) and the heading drift's within its two submaps (`loop.drift_yaw_rate`).
+/// `loop.clock_std`), the heading drift's within its two submaps (`loop.drift_yaw_rate`) and the
+/// odometry's motion noise within them ([`Pair::motion`]).
 fn closure(p: &Pair<'_>, r: &RegistrationResult, lc: &LoopConfig) -> LoopClosure {
     let shares = calibration_covariance(&r.t_target_source, lc.extrinsic_std)
         + clock_covariance(&r.t_target_source, p.speeds, lc.clock_std)
-        + heading_drift_covariance(&r.t_target_source, p.arms, lc);
+        + heading_drift_covariance(&r.t_target_source, p.arms, lc)
+        + submap_motion_covariance(&r.t_target_source, &p.motion);
     LoopClosure {
         query_id: p.query.id,
         match_id: p.cand.id,
@@ -610,6 +617,7 @@ mod tests {
                 target: &self.map,
                 speeds: [0.0, 0.0],
                 arms: [0.0, 0.0],
+                motion: Mat3::zeros(),
             }
         }
         fn gate(&self, r: RegistrationResult) -> Result<Gated, Refusal> {

@@ -32,7 +32,7 @@ use std::sync::Arc;
 use crate::keyframe_db::{
     Candidate, CandidateQuery, KeyframeDb, KeyframeRecord, Origin, SessionPrior,
 };
-use crate::math::{Iso3, Mat6, Stamp, iso2_from_iso3};
+use crate::math::{Iso3, Mat3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
 use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
 
@@ -163,6 +163,8 @@ pub struct LoopCloser {
     state: Session,
     /// Time from the oldest to the newest scan of the last submap, s.
     submap_span: f64,
+    /// The last submap's [`crate::submap::Submap::motion`].
+    submap_motion: Mat3,
 }
 
 impl LoopCloser {
@@ -179,6 +181,7 @@ impl LoopCloser {
             session,
             state: Session::new(session),
             submap_span: 0.0,
+            submap_motion: Mat3::zeros(),
         }
     }
 
@@ -188,6 +191,15 @@ impl LoopCloser {
     pub fn note_submap_span(&mut self, seconds: f64) {
         if seconds.is_finite() && seconds >= 0.0 {
             self.submap_span = seconds;
+        }
+    }
+
+    /// The newest keyframe's submap's uncertainty from the odometry's motion
+    /// ([`crate::submap::Submap::motion`]): the odometry's noise is the same along a drive, so every
+    /// submap of it, the candidates' too, carries about as much ([`Pair::motion`]).
+    pub fn note_submap_motion(&mut self, motion: Mat3) {
+        if motion.iter().all(|v| v.is_finite()) {
+            self.submap_motion = motion;
         }
     }
 
@@ -313,6 +325,7 @@ impl LoopCloser {
                 target: &target,
                 speeds,
                 arms,
+                motion: self.submap_motion,
             };
             let passed = match gate(&self.gates(), &pair, res) {
                 Ok(gated) => vec![(gated, target.clone())],
@@ -499,6 +512,7 @@ impl LoopCloser {
                 target: &target,
                 speeds,
                 arms,
+                motion: self.submap_motion,
             };
             let verdict = gate(&g, &pair, res).and_then(|gated| {
                 if later {

@@ -21,6 +21,7 @@ use super::fit::{StepScan, TwistRefusal, doppler_information};
 use super::gyro::{FrameCheck, Gyro, GyroBias, GyroCounts, frame_advice};
 use super::integrate::{PlanarIntegrator, StepMotion};
 use crate::math::{Iso3, Mat3, Stamp, Vec3};
+use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::radar::doppler::RadarModel;
 use crate::radar::ego_motion::EgoMotionConfig;
@@ -46,6 +47,8 @@ pub struct OdometryEstimate {
     pub t_odom_body: Iso3,
     /// Covariance of `(x m, y m, yaw rad)` of the pose, odometry frame.
     pub covariance: Mat3,
+    /// The same uncertainty in the form that gives the covariance of the motion between two samples.
+    pub noise: PoseNoise,
     /// Body twist `(v_x m/s, v_y m/s, yaw rate rad/s)`, body frame.
     pub twist: Vec3,
     /// Its covariance.
@@ -285,6 +288,7 @@ impl RadarOdometry {
             stamp: last,
             t_odom_body: integrator.pose(),
             covariance: integrator.covariance(bias_variance),
+            noise: integrator.noise(bias_variance),
             twist,
             twist_covariance: covariance,
             coasting,
@@ -353,6 +357,7 @@ fn start_of_track(stamp: Stamp) -> OdometryEstimate {
         stamp,
         t_odom_body: Iso3::identity(),
         covariance: Mat3::zeros(),
+        noise: PoseNoise::zero(),
         twist: Vec3::zeros(),
         twist_covariance: Mat3::zeros(),
         coasting: false,

@@ -16,6 +16,7 @@
 //! noise, which would shrink it by the square root of the steps.
 
 use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, iso3_from_iso2};
+use crate::pose_noise::{PoseNoise, shear};
 use nalgebra::{Isometry2, Matrix2};
 
 /// One step's motion: body velocity and heading change with their covariance, and how much of the
@@ -74,7 +75,17 @@ impl PlanarIntegrator {
     /// Covariance of `(x, y, theta)` in the odometry frame with a gyro bias of variance
     /// `bias_variance` (0 without a gyro).
     pub fn covariance(&self, bias_variance: f64) -> Mat3 {
-        self.white + self.sensitivity * self.sensitivity.transpose() * bias_variance
+        self.noise(bias_variance).covariance()
+    }
+
+    /// The pose's uncertainty with a gyro bias of variance `bias_variance`, in the form that gives
+    /// the covariance of the motion between two poses.
+    pub fn noise(&self, bias_variance: f64) -> PoseNoise {
+        PoseNoise {
+            white: self.white,
+            sensitivity: self.sensitivity,
+            bias_variance,
+        }
     }
 
     /// Moves the pose to `stamp` by `m`.
@@ -85,7 +96,7 @@ impl PlanarIntegrator {
         let (s, c) = theta_m.sin_cos();
         let rot = Matrix2::new(c, -s, s, c);
         let d = rot * m.velocity * dt;
-        let f = Mat3::new(1.0, 0.0, -d.y, 0.0, 1.0, d.x, 0.0, 0.0, 1.0);
+        let f = shear(d);
         // Derivative in (v_x, v_y, dtheta): the velocity through R dt, the heading change through
         // the mid-step heading (half of it) and the heading itself.
         let mut g = Mat3::zeros();
@@ -185,5 +196,46 @@ mod tests {
         assert!((reference.sensitivity.z + steps as f64 * dt).abs() < 1e-9);
         let with_bias = reference.covariance(1e-4);
         assert!(with_bias[(2, 2)] > predicted[(2, 2)] + 1e-4 * 24.0);
+    }
+
+    /// The motion between two poses of a track is what a track started at the earlier pose
+    /// integrates over the same steps, turned by the earlier heading: white errors and bias alike.
+    #[test]
+    fn the_motion_between_two_poses_is_a_fresh_track_over_the_same_steps() {
+        let (dt, split, bias_variance) = (0.05, 25, 1e-4);
+        let mut whole = PlanarIntegrator::new(Stamp(0));
+        let mut earlier = None;
+        let mut fresh: Option<PlanarIntegrator> = None;
+        for k in 0..60 {
+            let mut m = motion(Vec2::new(10.0, 0.3), 0.02 * (k as f64 * 0.2).sin() + 0.01);
+            m.dtheta_per_bias = -dt;
+            let t = Stamp::from_secs_f64((k + 1) as f64 * dt);
+            whole.step(t, &m);
+            if let Some(f) = fresh.as_mut() {
+                f.step(t, &m);
+            }
+            if k + 1 == split {
+                earlier = Some(whole);
+                fresh = Some(PlanarIntegrator::new(t));
+            }
+        }
+        let (a, fresh) = (earlier.unwrap(), fresh.unwrap());
+        let shift = whole.pose2().translation.vector - a.pose2().translation.vector;
+        let motion = whole
+            .noise(bias_variance)
+            .since(&a.noise(bias_variance), shift);
+        let mut turn = Mat3::identity();
+        let (s, c) = a.theta.sin_cos();
+        turn.fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&Matrix2::new(c, -s, s, c));
+        let expected = turn * fresh.covariance(bias_variance) * turn.transpose();
+        let scale = expected.abs().max();
+        assert!(scale > 1e-3, "{expected}");
+        assert!(
+            (motion - expected).abs().max() < 1e-9 * scale,
+            "{motion} against {expected}"
+        );
+        // Not the whole track's covariance: the steps before `a` are left out.
+        assert!(whole.covariance(bias_variance)[(2, 2)] > 2.0 * expected[(2, 2)]);
     }
 }

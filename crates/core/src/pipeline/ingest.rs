@@ -11,10 +11,13 @@ use crate::input::InputLimits;
 use crate::math::{Iso3, Stamp};
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::odometry::RadarOdometry;
+use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::radar::consistency::{DopplerMonitor, Verdict};
 use crate::radar::doppler::RadarModel;
-use crate::submap::{OdometryBuffer, OdometryConfig, OdometryError, Submap, SubmapBuilder};
+use crate::submap::{
+    OdometryBuffer, OdometryConfig, OdometryError, Submap, SubmapBuilder, add_motion_noise,
+};
 
 /// Most scans held while waiting for odometry to cover their stamps.
 const MAX_PENDING: usize = 256;
@@ -146,9 +149,15 @@ impl Ingest {
         self.pending.len()
     }
 
-    /// The current rolling submap.
+    /// The current rolling submap, its points' covariances grown by the odometry's motion between
+    /// the scans where the odometry gives its uncertainty (the radar odometry does).
     pub fn submap(&self) -> Option<Submap> {
-        self.builder.build()
+        let mut sub = self.builder.build()?;
+        let stamps: Vec<Stamp> = sub.scans.iter().map(|s| s.stamp).collect();
+        if let Some(motion) = self.odom.motion_to(&stamps, sub.anchor_stamp) {
+            add_motion_noise(&mut sub, &motion);
+        }
+        Some(sub)
     }
 
     /// Whether an input at `stamp` may go on. A stamp out of line with the newest input (more than
@@ -236,6 +245,7 @@ impl Ingest {
         cfg: &OdometryConfig,
         stamp: Stamp,
         t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
         stats: &mut PipelineStats,
         out: &mut Vec<Event>,
     ) -> OdometryCheck {
@@ -269,7 +279,7 @@ impl Ingest {
             reset = true;
         }
         self.jump = None;
-        match self.odom.push(stamp, t_odom_body) {
+        match self.odom.push(stamp, t_odom_body, noise) {
             Ok(()) => {}
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
                 // Within the tolerance: an out-of-order sample, not a restart.

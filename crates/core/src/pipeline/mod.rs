@@ -29,6 +29,7 @@ use crate::loop_closure::{Decision, Decisions, LoopCloser};
 use crate::math::{Iso3, Stamp, iso2_from_iso3};
 use crate::msgs::dc_loc::Keyframe as KeyframeMsg;
 use crate::odometry::OdometryEstimate;
+use crate::pose_noise::PoseNoise;
 use crate::radar::RadarScan;
 use crate::registration::PreparedSubmap;
 use crate::submap::{SpeedScale, Submap};
@@ -173,7 +174,7 @@ impl Pipeline {
             }
             Input::Odometry { stamp, t_odom_body } => match self.ingest.radar_odometry() {
                 Some(r) => r.ignore_topic(),
-                None => self.odometry(*stamp, *t_odom_body, &mut out),
+                None => self.odometry(*stamp, *t_odom_body, None, &mut out),
             },
             Input::Imu {
                 stamp,
@@ -217,14 +218,20 @@ impl Pipeline {
         }
     }
 
-    fn odometry(&mut self, stamp: Stamp, t_odom_body: Iso3, out: &mut Vec<Event>) {
+    fn odometry(
+        &mut self,
+        stamp: Stamp,
+        t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
+        out: &mut Vec<Event>,
+    ) {
         if !self.time(stamp, "odometry", out) {
             return;
         }
         let odometry = &self.cfg.odometry;
         match self
             .ingest
-            .odometry(odometry, stamp, t_odom_body, &mut self.stats, out)
+            .odometry(odometry, stamp, t_odom_body, noise, &mut self.stats, out)
         {
             OdometryCheck::Dropped => return,
             OdometryCheck::Reset => self.last_keyframe = None,
@@ -262,7 +269,7 @@ impl Pipeline {
     fn radar_odometry(&mut self, estimates: Vec<OdometryEstimate>, out: &mut Vec<Event>) {
         for e in estimates {
             out.push(Event::Odometry(Box::new(e)));
-            self.odometry(e.stamp, e.t_odom_body, out);
+            self.odometry(e.stamp, e.t_odom_body, Some(e.noise), out);
         }
         self.stats.radar_odometry = self.ingest.radar_odometry().map(|r| r.stats());
     }
@@ -297,6 +304,7 @@ impl Pipeline {
             self.loops
                 .note_submap_span(last.stamp.secs_since(first.stamp));
         }
+        self.loops.note_submap_motion(submap.motion);
         let id = self.next_id;
         let path = self.ingest.path_distance();
         let rec = KeyframeRecord::from_submap(

@@ -11,6 +11,7 @@
 
 use crate::math::{Iso3, Mat3, Stamp, Vec2, Vec3, interpolate_iso3};
 use crate::odometry::OdometrySource;
+use crate::pose_noise::{PoseNoise, shear};
 use crate::radar::RadarScan;
 use crate::radar::consistency::{self, Verdict};
 use crate::radar::doppler::{BodyPoint, RadarModel};
@@ -118,11 +119,14 @@ impl OdometryConfig {
     }
 }
 
-/// Stamped odometry poses `t_odom_body`, interpolated at arbitrary stamps.
+/// Stamped odometry poses `t_odom_body`, interpolated at arbitrary stamps, with their uncertainty
+/// when the odometry gives it in the form [`PoseNoise`] (the radar odometry does).
 #[derive(Debug, Clone)]
 pub struct OdometryBuffer {
     cfg: OdometryConfig,
     samples: VecDeque<(Stamp, Iso3)>,
+    /// Per sample, in step with `samples`.
+    noise: VecDeque<Option<PoseNoise>>,
 }
 
 impl OdometryBuffer {
@@ -131,12 +135,18 @@ impl OdometryBuffer {
         OdometryBuffer {
             cfg,
             samples: VecDeque::new(),
+            noise: VecDeque::new(),
         }
     }
 
     /// Appends a sample. Stamps must not go backwards (the caller decides whether to [`Self::clear`]);
     /// a repeated stamp replaces the previous sample.
-    pub fn push(&mut self, stamp: Stamp, t_odom_body: Iso3) -> Result<(), OdometryError> {
+    pub fn push(
+        &mut self,
+        stamp: Stamp,
+        t_odom_body: Iso3,
+        noise: Option<PoseNoise>,
+    ) -> Result<(), OdometryError> {
         let finite = t_odom_body.translation.vector.iter().all(|v| v.is_finite())
             && t_odom_body.rotation.coords.iter().all(|v| v.is_finite());
         if !finite {
@@ -148,12 +158,15 @@ impl OdometryBuffer {
             }
             if stamp == newest {
                 self.samples.pop_back();
+                self.noise.pop_back();
             }
         }
         self.samples.push_back((stamp, t_odom_body));
+        self.noise.push_back(noise);
         while let (Some(&(old, _)), true) = (self.samples.front(), self.samples.len() > 2) {
             if stamp.secs_since(old) > self.cfg.buffer_duration {
                 self.samples.pop_front();
+                self.noise.pop_front();
             } else {
                 break;
             }
@@ -164,6 +177,7 @@ impl OdometryBuffer {
     /// Forgets every sample (after time went backwards).
     pub fn clear(&mut self) {
         self.samples.clear();
+        self.noise.clear();
     }
 
     /// The newest sample.
@@ -184,42 +198,88 @@ impl OdometryBuffer {
     /// The body pose at `at`, interpolated between the bracketing samples (linear translation, geodesic
     /// rotation), or extrapolated up to `max_extrapolation` past the newest one.
     pub fn pose_at(&self, at: Stamp) -> Result<Iso3, OdometryError> {
+        let (i, j, t) = self.bracket(at)?;
+        let (a, b) = (self.samples[i].1, self.samples[j].1);
+        Ok(if i == j {
+            b
+        } else {
+            interpolate_iso3(&a, &b, t)
+        })
+    }
+
+    /// Covariance of `(x, y, yaw)` (odometry frame) of the pose at `to` given the pose at each of
+    /// `stamps` (each at or before `to`): the errors the odometry's steps between them add, each step's
+    /// own ([`PoseNoise::since`] of its two samples) turned to `to` by the heading error it carries, a
+    /// step cut by a stamp taking its share in time. `None` when the odometry gives no uncertainty or
+    /// cannot place `to`. The steps' bias parts add as if independent: over a submap's second they are
+    /// small beside the white errors.
+    pub fn motion_to(&self, stamps: &[Stamp], to: Stamp) -> Option<Vec<Mat3>> {
+        let end = self.pose_at(to).ok()?.translation.vector.xy();
+        let position = |j: usize| self.samples[j].1.translation.vector.xy();
+        let mut steps = Vec::with_capacity(self.samples.len());
+        for j in 1..self.samples.len() {
+            let own = self.noise[j]?.since(&self.noise[j - 1]?, position(j) - position(j - 1));
+            let turn = shear(end - position(j));
+            steps.push(turn * own * turn.transpose());
+        }
+        let share = |j: usize, from: Stamp| {
+            let (t0, t1) = (self.samples[j - 1].0, self.samples[j].0);
+            // The newest step also stands for the motion extrapolated past it.
+            let t1_cut = if j + 1 == self.samples.len() {
+                to
+            } else {
+                t1.min(to)
+            };
+            let overlap = t1_cut.secs_since(t0.max(from));
+            (overlap / t1.secs_since(t0).max(1e-9)).max(0.0)
+        };
+        Some(
+            stamps
+                .iter()
+                .map(|&from| {
+                    (1..self.samples.len())
+                        .map(|j| steps[j - 1] * share(j, from))
+                        .sum()
+                })
+                .collect(),
+        )
+    }
+
+    /// The samples `(i, j)` a stamp lies between and the fraction of the way from `i` to `j` (past 1
+    /// when extrapolating; `i == j` with one sample or a stamp on the newest).
+    fn bracket(&self, at: Stamp) -> Result<(usize, usize, f64), OdometryError> {
         let newest = self.samples.back().map(|s| s.0);
-        let (Some(&(t0, _)), Some(&(tn, pn))) = (self.samples.front(), self.samples.back()) else {
+        let (Some(&(t0, _)), Some(&(tn, _))) = (self.samples.front(), self.samples.back()) else {
             return Err(OdometryError::NotYet { at, newest });
         };
         if at < t0 {
             return Err(OdometryError::TooOld { at, oldest: t0 });
         }
+        let last = self.samples.len() - 1;
         if at >= tn {
             if at.secs_since(tn) > self.cfg.max_extrapolation {
                 return Err(OdometryError::NotYet { at, newest });
             }
-            if at == tn || self.samples.len() < 2 {
-                return Ok(pn);
+            if at == tn || last == 0 {
+                return Ok((last, last, 1.0));
             }
-            let (tp, pp) = self.samples[self.samples.len() - 2];
-            return self.between((tp, pp), (tn, pn), at);
+            return self.between(last - 1, last, at);
         }
         // First sample strictly after `at`.
-        let i = self.samples.partition_point(|s| s.0 <= at);
-        self.between(self.samples[i - 1], self.samples[i], at)
+        let j = self.samples.partition_point(|s| s.0 <= at);
+        self.between(j - 1, j, at)
     }
 
-    fn between(
-        &self,
-        a: (Stamp, Iso3),
-        b: (Stamp, Iso3),
-        at: Stamp,
-    ) -> Result<Iso3, OdometryError> {
-        let gap = b.0.secs_since(a.0);
+    fn between(&self, i: usize, j: usize, at: Stamp) -> Result<(usize, usize, f64), OdometryError> {
+        let (a, b) = (self.samples[i].0, self.samples[j].0);
+        let gap = b.secs_since(a);
         if gap > self.cfg.max_gap {
             return Err(OdometryError::Gap { at, gap });
         }
         if gap <= 0.0 {
-            return Ok(b.1);
+            return Ok((j, j, 1.0));
         }
-        Ok(interpolate_iso3(&a.1, &b.1, at.secs_since(a.0) / gap))
+        Ok((i, j, at.secs_since(a) / gap))
     }
 
     /// Body velocity (body frame, m/s) and yaw rate (rad/s) at `at`, by differences of the interpolated
@@ -374,6 +434,10 @@ pub struct Submap {
     pub scans: Vec<SubmapScan>,
     /// The correction of the odometry's distances the scans were placed with.
     pub speed_scale: SpeedScale,
+    /// Covariance of `(x, y, yaw)` of the frame the points pin down as a whole against the anchor,
+    /// from the odometry's motion between the scans (zero when the odometry gives no uncertainty):
+    /// the scans' pose errors share the steps between them, so they do not average out.
+    pub motion: Mat3,
 }
 
 impl Submap {
@@ -628,6 +692,7 @@ impl SubmapBuilder {
             points: Vec::with_capacity(order.iter().map(|s| s.points.len()).sum()),
             scans: Vec::with_capacity(order.len()),
             speed_scale,
+            motion: Mat3::zeros(),
         };
         for (k, (s, position)) in order.iter().zip(&positions).enumerate() {
             let t_anchor_body = Iso3::from_parts(
@@ -707,6 +772,51 @@ impl SubmapBuilder {
 
 /// Deceleration of hard braking, m/s^2: bounds how fast the body's true speed changes.
 const HARD_BRAKING: f64 = 8.0;
+
+/// Adds to each point's covariance what the odometry's motion between its scan and the anchor is
+/// uncertain by, and sets [`Submap::motion`]; `motion` holds per scan (as `sub.scans`) the covariance
+/// of the anchor's pose given the scan's, odometry frame ([`OdometryBuffer::motion_to`]). A scan's
+/// pose relative to the anchor is off by `(dt, dtheta)` with that covariance turned into the anchor
+/// frame; a point at `q` in the anchor frame moves by `dt + perp(q) dtheta`.
+pub fn add_motion_noise(sub: &mut Submap, motion: &[Mat3]) {
+    let (_, _, yaw) = sub.t_odom_anchor.rotation.euler_angles();
+    let (s, c) = yaw.sin_cos();
+    let turn = Mat3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
+    let motion: Vec<Mat3> = motion.iter().map(|m| turn * m * turn.transpose()).collect();
+    let spread = |q: &Vec3, m: &Mat3| {
+        let j = nalgebra::Matrix2x3::new(1.0, 0.0, -q.y, 0.0, 1.0, q.x);
+        j * m * j.transpose()
+    };
+    sub.motion = common_motion(&motion, &sub.points);
+    for p in &mut sub.points {
+        let m = &motion[p.scan as usize];
+        let (extra, extra_raw) = (spread(&p.p, m), spread(&p.p_raw, m));
+        let mut block = p.cov.fixed_view_mut::<2, 2>(0, 0);
+        block += extra;
+        let mut block = p.cov_raw.fixed_view_mut::<2, 2>(0, 0);
+        block += extra_raw;
+    }
+}
+
+/// Covariance of the points' weighted mean pose error, each scan weighted by its share of the points:
+/// `sum_k sum_l w_k w_l C_kl`, where two scans' errors share the steps from the later of them to the
+/// anchor, `C_kl = motion[max(k, l)]` (`motion` per scan, oldest first, the anchor last).
+fn common_motion(motion: &[Mat3], points: &[SubmapPoint]) -> Mat3 {
+    if points.is_empty() {
+        return Mat3::zeros();
+    }
+    let mut w = vec![0.0; motion.len()];
+    for p in points {
+        w[p.scan as usize] += 1.0 / points.len() as f64;
+    }
+    let mut before = 0.0;
+    let mut out = Mat3::zeros();
+    for (m, wk) in motion.iter().zip(&w) {
+        out += m * (wk * wk + 2.0 * wk * before);
+        before += wk;
+    }
+    out
+}
 
 /// `v` lies within the bound of one of `priors` (velocity, bound), or there are none.
 fn within_a_prior(v: &Vec3, priors: &[(Vec3, f64)]) -> bool {

@@ -10,7 +10,8 @@ fn odom_circle(buf: &mut OdometryBuffer, t_end: f64, rate: f64) {
     let n = (t_end * rate) as usize;
     for i in 0..=n {
         let t = i as f64 / rate;
-        buf.push(Stamp::from_secs_f64(t), circle_pose(t)).unwrap();
+        buf.push(Stamp::from_secs_f64(t), circle_pose(t), None)
+            .unwrap();
     }
 }
 
@@ -68,7 +69,7 @@ fn interpolation_on_a_circle_and_its_limits() {
     // Backwards time is refused and changes nothing.
     let before = buf.len();
     assert!(matches!(
-        buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0)),
+        buf.push(Stamp::from_secs_f64(1.0), circle_pose(1.0), None),
         Err(OdometryError::TimeWentBackwards { .. })
     ));
     assert_eq!(buf.len(), before);
@@ -77,9 +78,9 @@ fn interpolation_on_a_circle_and_its_limits() {
 #[test]
 fn gaps_are_not_bridged() {
     let mut buf = OdometryBuffer::new(OdometryConfig::default());
-    buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0))
+    buf.push(Stamp::from_secs_f64(0.0), circle_pose(0.0), None)
         .unwrap();
-    buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0))
+    buf.push(Stamp::from_secs_f64(2.0), circle_pose(2.0), None)
         .unwrap();
     assert!(matches!(
         buf.pose_at(Stamp::from_secs_f64(1.0)),
@@ -88,7 +89,8 @@ fn gaps_are_not_bridged() {
     assert!(
         buf.push(
             Stamp::from_secs_f64(3.0),
-            Iso3::translation(f64::NAN, 0.0, 0.0)
+            Iso3::translation(f64::NAN, 0.0, 0.0),
+            None
         )
         .is_err()
     );
@@ -143,7 +145,8 @@ fn circle_submap_with(odom_pose: impl Fn(f64) -> Iso3, cfg: SubmapConfig) -> Sub
     let mut odom = OdometryBuffer::new(OdometryConfig::default());
     for i in 0..=150 {
         let t = i as f64 / 50.0;
-        odom.push(Stamp::from_secs_f64(t), odom_pose(t)).unwrap();
+        odom.push(Stamp::from_secs_f64(t), odom_pose(t), None)
+            .unwrap();
     }
     let radar = RadarModel {
         t_body_radar: iso3_from_xyz_rpy(3.4, 0.0, 0.5, 0.0, 0.0, 0.0),
@@ -588,4 +591,130 @@ fn the_doppler_fit_uses_the_points_the_height_band_cuts() {
     let rep = b.add_scan(&scan, Iso3::identity(), None).unwrap();
     assert!(rep.doppler_fit);
     assert_eq!((rep.kept, rep.dynamic, rep.out_of_band), (3, 1, road));
+}
+
+/// Each point of an older scan gains the scatter that the anchor's pose error relative to that scan
+/// gives it in the anchor frame, checked against poses drawn from that error; the anchor's own points
+/// gain nothing; the submap's own frame takes the scans' shared error.
+#[test]
+fn the_motion_between_a_scan_and_the_anchor_spreads_its_points() {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let radar = RadarModel {
+        t_body_radar: Iso3::identity(),
+        beta: 0.04,
+        noise: RadarNoise::default(),
+    };
+    let pose = |x: f64, y: f64, yaw: f64| iso3_from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw);
+    let (p0, pa) = (
+        pose(100.0, 50.0, 0.3),
+        pose(100.0 + 2.0 * 0.3f64.cos(), 50.0 + 2.0 * 0.3f64.sin(), 0.35),
+    );
+    let a = Mat3::new(0.1, 0.0, 0.0, 0.03, 0.08, 0.0, 0.002, -0.001, 0.006);
+    let sigma = a * a.transpose();
+    let mut b = SubmapBuilder::new(
+        SubmapConfig::default(),
+        EgoMotionConfig::default(),
+        vec![radar],
+    );
+    b.add_scan(&static_scan(0.0, 20.0), p0, None).unwrap();
+    b.add_scan(&static_scan(0.1, 20.0), pa, None).unwrap();
+    let plain = b.build().unwrap();
+    let mut spread = plain.clone();
+    add_motion_noise(&mut spread, &[sigma, Mat3::zeros()]);
+    // The frame takes the older scan's error times the square of its share of the points.
+    let share = plain.points.iter().filter(|p| p.scan == 0).count() as f64 / plain.len() as f64;
+    let (_, _, yaw_a) = pa.rotation.euler_angles();
+    let turn = nalgebra::Rotation2::new(yaw_a);
+    let mut in_anchor = Mat3::identity();
+    in_anchor
+        .fixed_view_mut::<2, 2>(0, 0)
+        .copy_from(turn.inverse().matrix());
+    let expected = in_anchor * sigma * in_anchor.transpose() * share * share;
+    assert!((spread.motion - expected).abs().max() < 1e-12 * expected.abs().max());
+
+    let chol = sigma.cholesky().unwrap().l();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+    let draws: Vec<Vec3> = (0..20_000)
+        .map(|_| chol * Vec3::from_fn(|_, _| StandardNormal.sample(&mut rng)))
+        .collect();
+    let ta = pa.translation.vector.xy();
+    for (p, q) in plain.points.iter().zip(&spread.points) {
+        let extra = (q.cov - p.cov).fixed_view::<2, 2>(0, 0).into_owned();
+        if p.scan == 1 {
+            assert!(extra.abs().max() < 1e-12, "the anchor's own point: {extra}");
+            continue;
+        }
+        // The point in the odometry frame, seen from anchors drawn around the true one.
+        let x = (pa * nalgebra::Point3::from(p.p)).coords.xy();
+        let seen: Vec<Vec2> = draws
+            .iter()
+            .map(|d| nalgebra::Rotation2::new(yaw_a + d.z).inverse() * (x - ta - d.xy()))
+            .collect();
+        let mean = seen.iter().sum::<Vec2>() / seen.len() as f64;
+        let scatter = seen
+            .iter()
+            .map(|s| (s - mean) * (s - mean).transpose())
+            .sum::<nalgebra::Matrix2<f64>>()
+            / seen.len() as f64;
+        let scale = scatter.abs().max();
+        assert!(
+            (scatter - extra).abs().max() < 0.05 * scale,
+            "point at {:?}: {scatter} drawn, {extra} added",
+            p.p.xy()
+        );
+    }
+}
+
+/// The steps' own errors, each turned to the end by the heading error it carries, add up to the
+/// motion between two samples of a dead-reckoned track; a stamp halfway through a step takes half of
+/// it, and an odometry without uncertainty gives none.
+#[test]
+fn the_steps_between_two_samples_add_up_to_their_motion() {
+    use crate::odometry::integrate::{PlanarIntegrator, StepMotion};
+    let mut track = PlanarIntegrator::new(Stamp(0));
+    let mut buf = OdometryBuffer::new(OdometryConfig::default());
+    buf.push(Stamp(0), track.pose(), Some(track.noise(0.0)))
+        .unwrap();
+    let mut samples = vec![track];
+    for k in 1..=12 {
+        let m = StepMotion {
+            velocity: Vec2::new(15.0, 0.2),
+            dtheta: 0.01 * k as f64,
+            covariance: Mat3::from_diagonal(&Vec3::new(0.01, 0.02, 1e-5)),
+            dtheta_per_bias: 0.0,
+        };
+        track.step(Stamp::from_secs_f64(0.1 * k as f64), &m);
+        buf.push(track.stamp(), track.pose(), Some(track.noise(0.0)))
+            .unwrap();
+        samples.push(track);
+    }
+    let xy = |i: &PlanarIntegrator| i.pose2().translation.vector;
+    let (from, to) = (&samples[3], &samples[12]);
+    let whole = to.noise(0.0).since(&from.noise(0.0), xy(to) - xy(from));
+    let got = buf.motion_to(&[from.stamp()], to.stamp()).unwrap()[0];
+    assert!(
+        (got - whole).abs().max() < 1e-9 * whole.abs().max(),
+        "{got} against {whole}"
+    );
+
+    let half = Stamp::from_secs_f64(1.15);
+    let [last, between] = buf
+        .motion_to(&[samples[11].stamp(), half], to.stamp())
+        .unwrap()[..]
+    else {
+        unreachable!()
+    };
+    assert!((between - last * 0.5).abs().max() < 1e-9 * last.abs().max());
+
+    let mut plain = OdometryBuffer::new(OdometryConfig::default());
+    plain.push(Stamp(0), Iso3::identity(), None).unwrap();
+    plain
+        .push(Stamp::from_secs_f64(0.1), Iso3::identity(), None)
+        .unwrap();
+    assert!(
+        plain
+            .motion_to(&[Stamp(0)], Stamp::from_secs_f64(0.1))
+            .is_none()
+    );
 }

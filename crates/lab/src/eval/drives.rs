@@ -297,6 +297,7 @@ mod tests {
                 points: Vec::new(),
                 scans: Vec::new(),
                 speed_scale: dc_loc_core::submap::SpeedScale::Unavailable,
+                motion: dc_loc_core::math::Mat3::zeros(),
             }),
             estimated_speeds: Vec::new(),
         }

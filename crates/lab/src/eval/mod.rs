@@ -284,7 +284,7 @@ impl Collector {
     /// Feeds a ground-truth pose (map frame) and speed.
     fn push_ground_truth(&mut self, stamp: Stamp, t_map_body: Iso3, speed: f64) {
         let prev = self.gt.newest();
-        if self.gt.push(stamp, t_map_body).is_err() || !speed.is_finite() {
+        if self.gt.push(stamp, t_map_body, None).is_err() || !speed.is_finite() {
             self.bad_ground_truth += 1;
             return;
         }

@@ -18,7 +18,7 @@ pub mod cli;
 
 pub use dc_loc_core::{
     cdr, cloud, fleet, growing_index, input, keyframe_db, loop_closure, math, msgs, odometry,
-    output, pipeline, place, radar, registration, runner, submap, validate,
+    output, pipeline, place, radar, registration, repeats, runner, submap, validate,
 };
 pub use dc_loc_io::sources as io;
 pub use dc_loc_io::{bag, params};

@@ -894,3 +894,103 @@ fn example_params_files_are_accepted() {
         }
     }
 }
+
+/// Misconfiguration through `dc_loc run`, each named once: a velocity field the clouds do not have
+/// (the missing name and the clouds' fields with their datatypes, one line, then counted), a wrong
+/// `frame_id` (the frame and the configured one, one line, then counted), the effective configuration
+/// at start (hidden by `--quiet-config`), radars left on the default noise, and a params file whose
+/// only section names the node in another namespace.
+#[test]
+fn misconfiguration_is_named_once() {
+    let t0 = 1_700_000_000_000_000_000i64;
+    let ms = |k: i64| Stamp(t0 + k * 1_000_000);
+    let dir = scratch("misconfig").join("bag");
+    let mut w = BagWriter::create(&dir).unwrap();
+    let odom = w.add_topic("/odom", schema::ODOMETRY).unwrap();
+    let radar = w.add_topic("/radar/points", schema::POINT_CLOUD2).unwrap();
+    for i in 0..60 {
+        w.write(odom, ms(50 * i), &odometry(ms(50 * i), 0.5 * i as f64))
+            .unwrap();
+        let frame = if i % 2 == 0 { "radar" } else { "radar_rear" };
+        w.write(radar, ms(50 * i + 25), &cloud(ms(50 * i + 25), frame))
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let out_file = dir.parent().unwrap().join("c.jsonl");
+    let lines = |s: &str, what: &str| s.lines().filter(|l| l.contains(what)).count();
+
+    let shipped = format!("{REPO}/params/dc_loc.yaml");
+    let args = [
+        "run",
+        "--bag",
+        dir.to_str().unwrap(),
+        "--params",
+        &shipped,
+        "-p",
+        "radars.front.fields.velocity:=v",
+        "--out",
+        out_file.to_str().unwrap(),
+    ];
+    let out = common::run_dc_loc(&args, "warn,dc_loc=info");
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stderr}");
+    let missing = "radar `front`: field `v` (velocity) is not in the cloud; its fields: x FLOAT32, \
+                   y FLOAT32, z FLOAT32, v_r FLOAT32, rcs FLOAT32";
+    assert_eq!(lines(&stderr, missing), 1, "{stderr}");
+    let frame = "frame_id `radar_rear` is not the configured `radar`";
+    assert_eq!(lines(&stderr, frame), 1, "{stderr}");
+    assert!(stdout.contains("dropped inputs: bad_cloud 30"), "{stdout}");
+    assert!(
+        stdout.contains("skipped messages: frame_mismatch 30"),
+        "{stdout}"
+    );
+    assert_eq!(lines(&stderr, "effective configuration"), 1, "{stderr}");
+    assert_eq!(
+        lines(&stderr, "  radars.front.fields.velocity: \"v\""),
+        1,
+        "{stderr}"
+    );
+    assert_eq!(lines(&stderr, "not set; the defaults"), 0, "{stderr}");
+
+    // A section for node /dc_loc read as /robot1/dc_loc: nothing applies, the noise keeps the
+    // defaults; both said once; the configuration not logged.
+    let params = dir.parent().unwrap().join("robot.yaml");
+    std::fs::write(
+        &params,
+        "dc_loc:\n  ros__parameters:\n    body_frame: base_link\n",
+    )
+    .unwrap();
+    let args = [
+        "run",
+        "--bag",
+        dir.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--namespace",
+        "/robot1",
+        "--quiet-config",
+        "--out",
+        out_file.to_str().unwrap(),
+    ];
+    let out = common::run_dc_loc(&args, "warn,dc_loc=info");
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert_eq!(lines(&stderr, "effective configuration"), 0, "{stderr}");
+    assert_eq!(
+        lines(
+            &stderr,
+            "no section applies to node `/robot1/dc_loc` (sections: `dc_loc`)"
+        ),
+        1,
+        "{stderr}"
+    );
+    assert_eq!(
+        lines(
+            &stderr,
+            "radar `front`: radars.front.beta, radars.front.sigma_range, \
+             radars.front.sigma_velocity, radars.front.sigma_azimuth not set"
+        ),
+        1,
+        "{stderr}"
+    );
+}

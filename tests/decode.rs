@@ -264,6 +264,7 @@ fn every_error_names_its_cause() {
         DecodeError::MissingField {
             role: "velocity",
             name: "v_r".into(),
+            available: "x FLOAT32, y FLOAT32, z FLOAT32, rcs FLOAT32".into(),
         },
     );
     check(
@@ -272,6 +273,7 @@ fn every_error_names_its_cause() {
         DecodeError::MissingField {
             role: "velocity_x",
             name: "vx".into(),
+            available: "x FLOAT32, y FLOAT32, z FLOAT32, v_r FLOAT32, rcs FLOAT32".into(),
         },
     );
     let no_velocity = FieldsConfig {
@@ -801,4 +803,29 @@ fn mutated_cloud(rng: &mut StdRng) -> PointCloud2 {
         }
     }
     c
+}
+
+/// A missing field's error says what a user needs to fix the name: the configured name, its role, and
+/// every field of the cloud with its datatype (and count when not 1), unknown datatypes as their code.
+#[test]
+fn a_missing_field_names_the_clouds_fields() {
+    let mut c = radar_cloud(2);
+    c.fields[2].count = 3;
+    c.fields[4].datatype = PointField::INT8;
+    c.fields.push(PointField {
+        name: "odd".into(),
+        offset: 0,
+        datatype: 42,
+        count: 1,
+    });
+    let fields = FieldsConfig {
+        velocity: "v".into(),
+        ..FieldsConfig::default()
+    };
+    let e = decode_detections(&c, &fields).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "field `v` (velocity) is not in the cloud; its fields: x FLOAT32, y FLOAT32, z FLOAT32[3], \
+         v_r FLOAT32, rcs INT8, odd datatype 42"
+    );
 }

@@ -801,6 +801,34 @@ fn bad_parameters_stop_the_start_naming_them() {
     assert!(text(&out.stderr).contains("ROS_DOMAIN_ID"));
 }
 
+/// A params file whose only section names the node in the root namespace, given to the node started
+/// in `/robot1`, is warned about naming the file's sections and the node's name (the start is then
+/// refused by a bad override, so that no DDS is needed).
+#[test]
+fn a_params_file_for_another_namespace_is_named() {
+    let dir = scratch("namespace");
+    std::fs::create_dir_all(&dir).unwrap();
+    let params = dir.join("robot.yaml");
+    std::fs::write(
+        &params,
+        "dc_loc:\n  ros__parameters:\n    body_frame: base_link\n",
+    )
+    .unwrap();
+    let out = run_node(&[
+        "--ros-args",
+        "-r",
+        "__ns:=/robot1",
+        "--params-file",
+        params.to_str().unwrap(),
+        "-p",
+        "node.queue_size:=0",
+    ]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let warning = "no section applies to node `/robot1/dc_loc` (sections: `dc_loc`)";
+    assert_eq!(err.matches(warning).count(), 1, "{err}");
+}
+
 #[test]
 fn parameters_remapping_and_namespace_as_ros2_users_see_them() {
     let _serial = serial();

@@ -1,7 +1,7 @@
 //! The node's start-up refusals and its map file as an operator meets them: out-of-range node
-//! settings and DDS security requests stop the start with exit code 2 and the cause; a map another
-//! node holds is refused naming the holder, and the holder keeps and saves it; files a killed writer
-//! left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
+//! settings and DDS security requests stop the start with exit code 2 and the cause; a radar left on
+//! the default noise is warned about once at start; a map another node holds is refused naming the
+//! holder, and the holder keeps and saves it; files a killed writer left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
 //! `<map>.new.1`, never over an earlier session. No Python here: the node runs alone on a domain of
 //! its own, on loopback.
 
@@ -100,6 +100,23 @@ fn out_of_range_node_settings_stop_the_start() {
             "{p}: the message does not name {name}: {err}"
         );
     }
+}
+
+/// A radar whose noise sigmas no parameter sets is warned about once at start, naming the unset
+/// parameters (its `beta`, set here, is not named) and whose values the defaults are.
+#[test]
+fn a_radar_left_on_the_default_noise_is_named_at_start() {
+    let dir = scratch("default_noise");
+    std::fs::create_dir_all(&dir).unwrap();
+    let child = start(&dir.join("map.dcmap"), &["-p", "radars.front.beta:=0.005"]);
+    let (_, err) = interrupt(child);
+    let warning = "radar `front`: radars.front.sigma_range, radars.front.sigma_velocity, \
+                   radars.front.sigma_azimuth not set; the defaults";
+    assert_eq!(err.matches(warning).count(), 1, "{err}");
+    assert!(
+        err.contains("ARS408-21") && !err.contains("radars.front.beta, "),
+        "{err}"
+    );
 }
 
 #[test]

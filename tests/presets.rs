@@ -1097,3 +1097,22 @@ fn extrinsics_are_the_dataset_calibrations() {
         "NTU4DRadLM",
     );
 }
+
+/// Every preset sets each radar's `beta` and noise sigmas: none of them is left on the defaults
+/// (which describe an ARS408-21), so none warns at start.
+#[test]
+fn every_preset_sets_its_radars_noise() {
+    use dc_loc::params::ParamSet;
+    use dc_loc::params::checks::defaulted_noise;
+    for entry in std::fs::read_dir(Path::new(REPO).join("params/examples")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "yaml") {
+            continue;
+        }
+        let file = path.file_name().unwrap().to_string_lossy().into_owned();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let set = ParamSet::from_yaml(&text, "/", "dc_loc").unwrap();
+        let warnings = defaulted_noise(&set, &load(&file));
+        assert!(warnings.is_empty(), "{file}: {warnings:?}");
+    }
+}

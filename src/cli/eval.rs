@@ -116,6 +116,7 @@ pub fn collect(
     let mut collector = Collector::new(cfg, eval).map_err(|e| CliError::Usage(e.to_string()))?;
     let bar = bar(inputs.total_messages(), "messages");
     let (mut ground_truth, mut radar, mut odometry, mut skipped) = (0u64, 0u64, 0u64, 0u64);
+    let mut causes = crate::repeats::Repeats::default();
     for item in inputs {
         bar.inc(1);
         match item {
@@ -130,7 +131,7 @@ pub fn collect(
             }
             Err(issue) => {
                 skipped += 1;
-                log::warn!("skipped: {issue}");
+                issue.log_once(&mut causes);
             }
         }
     }

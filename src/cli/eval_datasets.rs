@@ -308,7 +308,8 @@ pub fn write_records(
     out.flush()
 }
 
-/// Drives a fresh [`Collector`] for `cfg` over `inputs`; skipped messages are warned about. `tick` is
+/// Drives a fresh [`Collector`] for `cfg` over `inputs`; skipped messages are warned about, the first
+/// of each topic and cause. `tick` is
 /// called per radar message and per skipped message. Returns the keyframes and the pipeline's counts.
 fn collect_drive(
     cfg: &Config,
@@ -317,6 +318,7 @@ fn collect_drive(
     mut tick: impl FnMut(),
 ) -> Result<(Vec<crate::eval::EvalKeyframe>, PipelineStats), CliError> {
     let mut collector = Collector::new(cfg, eval).map_err(|e| CliError::Usage(e.to_string()))?;
+    let mut causes = crate::repeats::Repeats::default();
     for input in inputs {
         match input {
             Ok(input) => {
@@ -327,7 +329,7 @@ fn collect_drive(
             }
             Err(issue) => {
                 tick();
-                log::warn!("skipped: {issue}");
+                issue.log_once(&mut causes);
             }
         }
     }

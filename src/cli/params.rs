@@ -7,6 +7,7 @@
 use std::path::Path;
 
 use super::CliError;
+use crate::params::checks::{defaulted_noise, section_mismatch};
 use crate::params::node::NodeSettings;
 use crate::params::{ParamError, ParamSet, apply, flatten_config};
 use crate::pipeline::Config;
@@ -20,14 +21,14 @@ pub fn load_params(
     overrides: &[String],
 ) -> Result<Config, CliError> {
     let file = params.display();
-    let mut set = read_params(params, namespace, node_name)?;
-    if set.entries().is_empty() {
-        log::warn!(
-            "{file} has no parameters for node {node_name} (namespace {namespace}): running with the defaults"
-        );
-    }
+    let mut set = read_params(params, namespace, node_name, true)?;
     add_overrides(&mut set, overrides)?;
-    pipeline_config(&set).map_err(|e| CliError::Usage(format!("parameters ({file} and -p): {e}")))
+    let cfg = pipeline_config(&set)
+        .map_err(|e| CliError::Usage(format!("parameters ({file} and -p): {e}")))?;
+    for warning in defaulted_noise(&set, &cfg) {
+        log::warn!("{warning}");
+    }
+    Ok(cfg)
 }
 
 /// The configuration for a dataset whose radars `template` describes: `template`'s parameters, then the
@@ -43,7 +44,7 @@ pub fn dataset_config(
         set.set(name, value);
     }
     if let Some(p) = params {
-        for (name, value) in read_params(p, "/", node_name)?.entries() {
+        for (name, value) in read_params(p, "/", node_name, true)?.entries() {
             set.set(name.clone(), value.clone());
         }
     }
@@ -66,7 +67,7 @@ pub fn node_settings(
     overrides: &[String],
 ) -> Result<NodeSettings, CliError> {
     let mut set = match params {
-        Some(p) => read_params(p, namespace, node_name)?,
+        Some(p) => read_params(p, namespace, node_name, false)?,
         None => ParamSet::default(),
     };
     add_overrides(&mut set, overrides)?;
@@ -75,13 +76,23 @@ pub fn node_settings(
     Ok(settings)
 }
 
-/// The parameters of node `/namespace/node_name` in the params file `path`.
-fn read_params(path: &Path, namespace: &str, node_name: &str) -> Result<ParamSet, CliError> {
+/// The parameters of node `/namespace/node_name` in the params file `path`; with `check`, a file none of
+/// whose sections applies to the node is warned about (the file is read twice, for the pipeline and
+/// for the node's own settings: one of them checks).
+fn read_params(
+    path: &Path,
+    namespace: &str,
+    node_name: &str,
+    check: bool,
+) -> Result<ParamSet, CliError> {
     let file = path.display();
     let text = std::fs::read_to_string(path)
         .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))?;
-    ParamSet::from_yaml(&text, namespace, node_name)
-        .map_err(|e| CliError::Usage(format!("--params {file}: {e}")))
+    let bad = |e: ParamError| CliError::Usage(format!("--params {file}: {e}"));
+    if check && let Some(warning) = section_mismatch(&text, namespace, node_name).map_err(bad)? {
+        log::warn!("--params {file}: {warning}");
+    }
+    ParamSet::from_yaml(&text, namespace, node_name).map_err(bad)
 }
 
 fn add_overrides(set: &mut ParamSet, overrides: &[String]) -> Result<(), CliError> {

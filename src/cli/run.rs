@@ -15,8 +15,7 @@ use super::source::{Dataset, Segment, SourceArgs};
 use super::{CliError, progress};
 use crate::input::IssueReason;
 use crate::output::ClosureRecord;
-use crate::params::flatten_config;
-use crate::params::node::NodeSettings;
+use crate::params::node::{NodeSettings, describe};
 use crate::pipeline::{Event, Pipeline};
 use crate::runner::{RunItem, RunReport, run_inputs};
 
@@ -39,6 +38,9 @@ pub struct RunArgs {
     /// Node namespace (for `/<ns>/<node>:` sections of the params file).
     #[arg(long, default_value = "/")]
     pub namespace: String,
+    /// Do not log the effective configuration (every parameter's value) at start.
+    #[arg(long)]
+    pub quiet_config: bool,
 }
 
 /// Runs `dc_loc run`.
@@ -77,8 +79,12 @@ pub fn main(args: &RunArgs) -> Result<(), CliError> {
     };
     let mut reports = Vec::new();
     let mut radar_names = Vec::new();
+    let mut described = None;
     for segment in segments {
         radar_names.push(segment.config.radar_names.clone());
+        if !args.quiet_config {
+            log_config(&segment, &node, &mut described);
+        }
         reports.push(run_segment(segment, &node, &mut sink, &bar)?);
     }
     progress::clear(&bar);
@@ -125,6 +131,19 @@ struct ClosureSink<'a> {
     odometry_samples: u64,
 }
 
+/// Logs the effective configuration of `segment` (every parameter, as the node logs it at start), unless
+/// it is the one logged last (`described`): the segments of a dataset mostly share one.
+fn log_config(segment: &Segment<'_>, node: &NodeSettings, described: &mut Option<String>) {
+    let text = describe(&segment.config, node);
+    if described.as_ref() != Some(&text) {
+        log::info!(
+            "{}: effective configuration (--quiet-config hides it):\n{text}",
+            segment.label
+        );
+        *described = Some(text);
+    }
+}
+
 /// One segment through a fresh pipeline, its closures into `sink`.
 fn run_segment(
     segment: Segment<'_>,
@@ -144,9 +163,6 @@ fn run_segment(
         radars.join(", "),
         cfg.odometry.topic
     );
-    for (name, value) in flatten_config(&cfg) {
-        log::debug!("parameter {name} = {value}");
-    }
     let body_frame = cfg.body_frame.clone();
     let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;
     pipeline.set_input_limits(node.limits);

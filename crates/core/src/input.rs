@@ -128,6 +128,24 @@ impl IssueReason {
             IssueReason::BadStamp { .. } => "bad_stamp",
         }
     }
+
+    /// What repeats from message to message when the cause is a misconfiguration: the reason's name,
+    /// and for a frame mismatch the frame found (see [`crate::repeats`]).
+    pub fn cause(&self) -> String {
+        match self {
+            IssueReason::FrameMismatch { got, .. } => format!("frame_mismatch `{got}`"),
+            other => other.name().to_string(),
+        }
+    }
+}
+
+impl InputIssue {
+    /// Logs the issue in full the first time of its cause (topic and [`IssueReason::cause`]) in
+    /// `repeats`, at debug level after; every one is counted there.
+    pub fn log_once(&self, repeats: &mut crate::repeats::Repeats) {
+        let cause = format!("{}: {}", self.topic, self.reason.cause());
+        repeats.warn_first(module_path!(), &cause, &format!("skipped: {self}"));
+    }
 }
 
 /// A message of a source that was skipped, and why.

@@ -26,6 +26,7 @@ pub mod place;
 pub mod pose_noise;
 pub mod radar;
 pub mod registration;
+pub mod repeats;
 pub mod runner;
 pub mod submap;
 pub mod validate;

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use crate::input::{Input, InputIssue};
 use crate::math::Stamp;
 use crate::pipeline::{Event, Pipeline, PipelineStats};
+use crate::repeats::Repeats;
 
 /// What [`run_inputs`] hands to its closure, in stream order: each input or issue, then the events the
 /// input produced.
@@ -34,6 +35,8 @@ pub struct RunReport {
     pub first_stamp: Option<Stamp>,
     /// Skipped messages by [`IssueReason::name`].
     pub issues: BTreeMap<&'static str, u64>,
+    /// Skipped messages by topic and cause; the first of each cause is logged in full.
+    pub issue_causes: Repeats,
     /// The pipeline's counters after [`Pipeline::finish`].
     pub stats: PipelineStats,
 }
@@ -46,7 +49,8 @@ impl RunReport {
 }
 
 /// Drives `pipeline` through a whole input stream, then [`Pipeline::finish`]; every input, issue and
-/// event goes to `on_item`. Issues are logged (`warn`) and counted, never fatal.
+/// event goes to `on_item`. Issues are counted, never fatal, and logged (`warn`) the first time of
+/// each topic and cause ([`InputIssue::log_once`]).
 pub fn run_inputs<I, F>(pipeline: &mut Pipeline, inputs: I, mut on_item: F) -> RunReport
 where
     I: IntoIterator<Item = Result<Input, InputIssue>>,
@@ -75,7 +79,7 @@ where
                 }
             }
             Err(issue) => {
-                log::warn!("skipped: {issue}");
+                issue.log_once(&mut report.issue_causes);
                 *report.issues.entry(issue.reason.name()).or_default() += 1;
                 on_item(RunItem::Issue(&issue));
             }

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 
+use dc_loc_io::params::checks::section_mismatch;
 use dc_loc_io::params::{ParamError, ParamSet};
 
 /// What is wrong with the command line or the environment (exit code 2, the message names the
@@ -257,11 +258,17 @@ impl RosArgs {
                             path: path.display().to_string(),
                             reason: e.to_string(),
                         })?;
+                    let bad = |e: ParamError| ArgsError::ParamsFile {
+                        path: path.display().to_string(),
+                        reason: e.to_string(),
+                    };
+                    if let Some(w) =
+                        section_mismatch(&text, &self.namespace, &self.node_name).map_err(bad)?
+                    {
+                        log::warn!("--params-file {}: {w}", path.display());
+                    }
                     let file = ParamSet::from_yaml(&text, &self.namespace, &self.node_name)
-                        .map_err(|e| ArgsError::ParamsFile {
-                            path: path.display().to_string(),
-                            reason: e.to_string(),
-                        })?;
+                        .map_err(bad)?;
                     for (n, v) in file.entries() {
                         set.set(n.clone(), v.clone());
                     }

@@ -129,9 +129,16 @@ fn radar_of(
         .iter()
         .find(|(_, _, frame)| frame.is_empty() || frame == got)
     else {
+        let configured: Vec<String> = radars
+            .iter()
+            .map(|(_, name, frame)| format!("`{frame}` (radars.{name}.frame_id)"))
+            .collect();
         return Err((
             "unknown_frame",
-            format!("{topic}: frame_id `{got}` is not a configured radar frame"),
+            format!(
+                "{topic}: frame_id `{got}` is not a configured radar frame: {}",
+                configured.join(", ")
+            ),
         ));
     };
     shared.count_received(name);
@@ -335,6 +342,35 @@ mod tests {
         assert_eq!(reason, "bad_imu");
         assert!(detail.contains("/imu"), "{detail}");
         assert_eq!(lock(&shared.received).get("imu"), Some(&2));
+    }
+
+    /// A cloud whose `frame_id` no radar of its topic has is refused as `unknown_frame`, naming the
+    /// frame and each radar's configured one; a configured frame is counted under its radar.
+    #[test]
+    fn an_unknown_frame_is_refused_naming_the_configured_frames() {
+        let shared = Shared::new(Duration::from_secs(5));
+        let radars: TopicRadars = vec![
+            (0, "front".into(), "ARS_548".into()),
+            (1, "rear".into(), "radar_rear".into()),
+        ];
+        let limits = InputLimits::default();
+        let mut cloud = PointCloud2::default();
+        cloud.header.frame_id = "radar_1".into();
+        let Err((reason, detail)) =
+            radar_input("/points", &radars, &limits, &shared, cloud.clone())
+        else {
+            panic!("an unknown frame was taken");
+        };
+        assert_eq!(reason, "unknown_frame");
+        assert_eq!(
+            detail,
+            "/points: frame_id `radar_1` is not a configured radar frame: `ARS_548` \
+             (radars.front.frame_id), `radar_rear` (radars.rear.frame_id)"
+        );
+        cloud.header.frame_id = "radar_rear".into();
+        let (input, _) = radar_input("/points", &radars, &limits, &shared, cloud).unwrap();
+        assert!(matches!(input, Input::Radar { radar: 1, .. }));
+        assert_eq!(lock(&shared.received).get("rear"), Some(&1));
     }
 
     /// A robot gets a burst of `node.fleet_history` keyframes, then `node.fleet_rate` a second; another

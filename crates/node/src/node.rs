@@ -28,6 +28,7 @@ use super::shared::{Inbox, Shared, Work};
 use super::tf::static_extrinsics;
 use super::worker::{Controls, Worker};
 use dc_loc_core::pipeline::{Config, Pipeline};
+use dc_loc_io::params::checks::defaulted_noise;
 use dc_loc_io::params::live::LiveParams;
 use dc_loc_io::params::node::{NodeSettings, all_params, describe};
 use dc_loc_io::params::{ParamSet, apply};
@@ -82,6 +83,9 @@ pub fn start_up(ros_args: &RosArgs) -> Result<StartUp, NodeError> {
     let params = ros_args.param_set()?;
     let (settings, rest) = NodeSettings::take_from(&params)?;
     let cfg = apply(&rest)?;
+    for warning in defaulted_noise(&params, &cfg) {
+        log::warn!("{warning}");
+    }
     let map = if settings.extrinsics_from_tf {
         None
     } else {

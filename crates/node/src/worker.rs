@@ -370,8 +370,8 @@ impl Worker {
                 }
                 Event::Rejected { .. } => {}
                 Event::Odometry(e) => self.publish_odometry(&e),
-                // Counted in the pipeline's stats; warned here, rate-limited.
-                Event::Dropped { reason, detail } => self.shared.warn(reason.name(), &detail),
+                // Counted in the pipeline's stats and logged there, the first of each cause in full.
+                Event::Dropped { .. } => {}
                 Event::EmptyScan { detail } => self.shared.warn("empty_cloud", &detail),
                 Event::TimeReset { previous, got } => self.shared.warn(
                     "time_reset",

@@ -9,6 +9,7 @@ use crate::keyframe_db::KeyframeRecord;
 use crate::loop_closure::{LoopClosure, RejectReason};
 use crate::math::{Iso3, Stamp};
 use crate::odometry::{OdometryEstimate, RadarOdometryStats};
+use crate::repeats::Repeats;
 use crate::submap::Submap;
 
 /// Why an input was dropped.
@@ -154,6 +155,9 @@ pub struct PipelineStats {
     pub doppler_warnings: BTreeMap<usize, (Stamp, String)>,
     /// Inputs dropped, by reason.
     pub dropped: BTreeMap<DropReason, u64>,
+    /// Inputs dropped, by cause (`reason: what it concerns`, e.g. `bad_cloud: radar `front`: field
+    /// `v_r` (velocity) is not in the cloud; ...`): the first of each cause is logged in full.
+    pub drop_causes: Repeats,
     /// Candidates rejected, by reason.
     pub rejected: BTreeMap<RejectReason, u64>,
     /// Time resets (stamps going backwards).
@@ -196,13 +200,18 @@ pub struct RobotCounts {
     pub refused: u64,
 }
 
-/// Counts a dropped input and reports it.
+/// Counts a dropped input, logs it in full the first time of its cause (`reason` and `cause`: what it
+/// concerns, without stamps or counts, e.g. the radar) and at debug level after, and reports it.
 pub(crate) fn dropped(
     stats: &mut PipelineStats,
     out: &mut Vec<Event>,
     reason: DropReason,
+    cause: &str,
     detail: String,
 ) {
     *stats.dropped.entry(reason).or_default() += 1;
+    let key = format!("{}: {cause}", reason.name());
+    let message = format!("dropped input ({}): {detail}", reason.name());
+    stats.drop_causes.warn_first(module_path!(), &key, &message);
     out.push(Event::Dropped { reason, detail });
 }

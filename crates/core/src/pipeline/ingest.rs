@@ -202,7 +202,7 @@ impl Ingest {
                 )
             };
             let detail = format!("{what} at {:.3} s, {detail}", stamp.as_secs_f64());
-            dropped(stats, out, reason, detail);
+            dropped(stats, out, reason, what, detail);
             return TimeCheck::Dropped;
         }
         self.out_of_line = None;
@@ -260,7 +260,13 @@ impl Ingest {
             };
             if run < ODOMETRY_RESET_AFTER {
                 self.jump = Some((sample, run));
-                dropped(stats, out, DropReason::BadOdometry, why);
+                dropped(
+                    stats,
+                    out,
+                    DropReason::BadOdometry,
+                    "implausible motion",
+                    why,
+                );
                 return OdometryCheck::Dropped;
             }
             log::warn!(
@@ -278,11 +284,17 @@ impl Ingest {
             Err(OdometryError::TimeWentBackwards { newest, got }) => {
                 // Within the tolerance: an out-of-order sample, not a restart.
                 let detail = format!("odometry out of order: {got:?} after {newest:?}");
-                dropped(stats, out, DropReason::BadOdometry, detail);
+                dropped(stats, out, DropReason::BadOdometry, "out of order", detail);
                 return OdometryCheck::Dropped;
             }
             Err(e) => {
-                dropped(stats, out, DropReason::BadOdometry, e.to_string());
+                dropped(
+                    stats,
+                    out,
+                    DropReason::BadOdometry,
+                    "refused",
+                    e.to_string(),
+                );
                 return OdometryCheck::Dropped;
             }
         }
@@ -308,26 +320,30 @@ impl Ingest {
         out: &mut Vec<Event>,
     ) -> Option<RadarScan> {
         let Some(name) = cfg.radar_names.get(radar) else {
+            let detail = format!("radar index {radar}");
             dropped(
                 stats,
                 out,
                 DropReason::UnknownRadar,
-                format!("radar index {radar}"),
+                &detail,
+                detail.clone(),
             );
             return None;
         };
         let Some(rc) = cfg.radars.get(name) else {
+            let detail = format!("radar `{name}`");
             dropped(
                 stats,
                 out,
                 DropReason::UnknownRadar,
-                format!("radar `{name}`"),
+                &detail,
+                detail.clone(),
             );
             return None;
         };
         if let Err(e) = self.limits.check(cloud) {
             let detail = format!("radar `{name}`: {e}");
-            dropped(stats, out, DropReason::CloudTooLarge, detail);
+            dropped(stats, out, DropReason::CloudTooLarge, name, detail);
             return None;
         }
         match decode_detections(cloud, &rc.fields) {
@@ -341,8 +357,9 @@ impl Ingest {
                 })
             }
             Err(e) => {
+                // The error names the layout, not the message: it is the cause itself.
                 let detail = format!("radar `{name}`: {e}");
-                dropped(stats, out, DropReason::BadCloud, detail);
+                dropped(stats, out, DropReason::BadCloud, &detail, detail.clone());
                 None
             }
         }
@@ -363,7 +380,7 @@ impl Ingest {
         };
         let name = cfg.radar_names.get(scan.radar).map_or("?", String::as_str);
         let detail = format!("radar `{name}`: {e}");
-        dropped(stats, out, DropReason::CloudTooLarge, detail);
+        dropped(stats, out, DropReason::CloudTooLarge, name, detail);
         false
     }
 
@@ -392,7 +409,7 @@ impl Ingest {
                 "radar `{name}`: a second scan stamped {:.3} s",
                 scan.stamp.as_secs_f64()
             );
-            dropped(stats, out, DropReason::DuplicateStamp, detail);
+            dropped(stats, out, DropReason::DuplicateStamp, name, detail);
             return;
         }
         self.last_scan_stamp.insert(scan.radar, scan.stamp);
@@ -403,7 +420,7 @@ impl Ingest {
                 "no odometry up to {:.3} s; dropped the oldest waiting scan",
                 old.stamp.as_secs_f64()
             );
-            dropped(stats, out, DropReason::QueueFull, detail);
+            dropped(stats, out, DropReason::QueueFull, "", detail);
         }
         let at = self.pending.partition_point(|s| s.stamp <= scan.stamp);
         self.pending.insert(at, scan);
@@ -423,8 +440,10 @@ impl Ingest {
                 Ok(p) => p,
                 Err(OdometryError::NotYet { .. }) => return None,
                 Err(e) => {
+                    let name = cfg.radar_names.get(scan.radar).map_or("?", String::as_str);
                     self.pending.pop_front();
-                    dropped(stats, out, DropReason::NoOdometry, e.to_string());
+                    let detail = format!("radar `{name}`: {e}");
+                    dropped(stats, out, DropReason::NoOdometry, name, detail);
                     continue;
                 }
             };
@@ -432,7 +451,13 @@ impl Ingest {
             let prior = self.odom.velocity_at(scan.stamp, 0.05);
             let Some(rep) = self.builder.add_scan(&scan, pose, prior) else {
                 let detail = format!("radar index {}", scan.radar);
-                dropped(stats, out, DropReason::UnknownRadar, detail);
+                dropped(
+                    stats,
+                    out,
+                    DropReason::UnknownRadar,
+                    &detail,
+                    detail.clone(),
+                );
                 continue;
             };
             stats.scans += 1;
@@ -487,7 +512,7 @@ impl Ingest {
                 "input ended before odometry reached {:.3} s",
                 s.stamp.as_secs_f64()
             );
-            dropped(stats, out, DropReason::NoOdometry, detail);
+            dropped(stats, out, DropReason::NoOdometry, "input ended", detail);
         }
     }
 }

@@ -243,7 +243,14 @@ impl Pipeline {
     fn scan(&mut self, scan: RadarScan, out: &mut Vec<Event>) {
         if scan.radar >= self.cfg.radar_names.len() {
             let detail = format!("radar index {}", scan.radar);
-            dropped(&mut self.stats, out, DropReason::UnknownRadar, detail);
+            let cause = detail.clone();
+            dropped(
+                &mut self.stats,
+                out,
+                DropReason::UnknownRadar,
+                &cause,
+                detail,
+            );
             return;
         }
         if !self.time(scan.stamp, "radar scan", out) {
@@ -373,7 +380,14 @@ impl Pipeline {
             Ok(k) => k,
             Err(e) => {
                 let detail = format!("keyframe {} of robot {}: {e}", msg.id, msg.robot_id);
-                dropped(&mut self.stats, out, DropReason::BadKeyframe, detail);
+                let cause = format!("robot {}", msg.robot_id);
+                dropped(
+                    &mut self.stats,
+                    out,
+                    DropReason::BadKeyframe,
+                    &cause,
+                    detail,
+                );
                 return;
             }
         };
@@ -386,10 +400,12 @@ impl Pipeline {
                     "keyframe {} of session {} carries this node's robot id {}: give every robot its own node.robot_id",
                     k.record.id, k.record.session, k.robot
                 );
+                let cause = format!("robot {}", k.robot);
                 dropped(
                     &mut self.stats,
                     out,
                     DropReason::KeyframeSameRobotId,
+                    &cause,
                     detail,
                 );
             }
@@ -432,7 +448,8 @@ impl Pipeline {
                     self.db.foreign().count(k.robot),
                     self.db.len()
                 );
-                dropped(&mut self.stats, out, reason, detail);
+                let cause = format!("robot {}", k.robot);
+                dropped(&mut self.stats, out, reason, &cause, detail);
             }
         }
     }

@@ -203,3 +203,45 @@ fn other_robots_keyframes_are_counted_by_robot() {
         "a malformed keyframe names no robot reliably"
     );
 }
+
+/// A cloud without the configured velocity field is dropped as `bad_cloud` with a detail naming the
+/// field and the cloud's fields; every such cloud is counted, all under one cause (logged once).
+#[test]
+fn a_missing_field_is_one_cause_counted_per_cloud() {
+    use crate::cloud::{CloudLayout, encode_detections};
+    use crate::msgs::std_msgs::Header;
+    let mut cfg = Config::default();
+    if let Some(r) = cfg.radars.get_mut("front") {
+        r.fields.velocity = "v".into();
+    }
+    let mut p = Pipeline::new(cfg).expect("config");
+    let det = Detection {
+        p_radar: Vec3::new(10.0, 1.0, 0.0),
+        v_r: -1.0,
+        rcs: Some(1.0),
+    };
+    let mut details = Vec::new();
+    for k in 0..5 {
+        let header = Header {
+            stamp: Stamp::from_secs_f64(1.0 + 0.1 * f64::from(k)).into(),
+            frame_id: "radar".into(),
+        };
+        let cloud = encode_detections(&[det], &CloudLayout::radar_f32(), header).unwrap();
+        for e in p.push(&Input::Radar { radar: 0, cloud }) {
+            if let Event::Dropped { reason, detail } = e {
+                assert_eq!(reason, DropReason::BadCloud);
+                details.push(detail);
+            }
+        }
+    }
+    assert_eq!(details.len(), 5);
+    assert_eq!(
+        details[0],
+        "radar `front`: field `v` (velocity) is not in the cloud; its fields: x FLOAT32, y FLOAT32, \
+         z FLOAT32, v_r FLOAT32, rcs FLOAT32"
+    );
+    assert_eq!(p.stats().dropped[&DropReason::BadCloud], 5);
+    let causes = p.stats().drop_causes.counts();
+    assert_eq!(causes.len(), 1, "{causes:?}");
+    assert_eq!(causes[&format!("bad_cloud: {}", details[0])], 5);
+}

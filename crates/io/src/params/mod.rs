@@ -11,8 +11,10 @@
 //! and to print the effective one). Parts: [`node`] (the node's own settings, `use_sim_time` and
 //! `node.*`), [`live`] (what changes at run time), [`file`] (params files written), [`reference`]
 //! (every parameter's default, range and description: `dc_loc params`, README_NODE.md), [`tiers`]
-//! (sensor setup, tuning knobs, constants).
+//! (sensor setup, tuning knobs, constants), [`checks`] (what a params file leaves to chance: sections
+//! that miss the node, radars on the default noise).
 
+pub mod checks;
 pub mod constants;
 pub mod file;
 pub mod live;
@@ -142,6 +144,7 @@ pub fn fully_qualified(namespace: &str, node_name: &str) -> String {
     }
 }
 
+/// Whether the params file section `key` applies to node `fq` (`/ns/node_name`), as ROS 2 decides.
 fn node_key_matches(key: &str, fq: &str, node_name: &str) -> bool {
     let key = key.trim();
     if key == "/**" || key == "**" {

@@ -224,7 +224,9 @@ pub const NODE_PARAMS: &[NodeParam] = &[
     },
     NodeParam {
         name: "node.warn_interval",
-        doc: "Seconds between two warnings of one kind (the suppressed ones are counted in the next).",
+        doc: "Seconds between two warnings of one kind of message refused at reception (the \
+              suppressed ones are counted in the next); an input the pipeline drops is logged once \
+              per cause.",
     },
     NodeParam {
         name: "node.sync_timeout",

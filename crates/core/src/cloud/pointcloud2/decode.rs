@@ -18,12 +18,15 @@ pub enum DecodeError {
         role: &'static str,
     },
     /// A required field is not in the cloud.
-    #[error("field `{name}` ({role}) is not in the cloud")]
+    #[error("field `{name}` ({role}) is not in the cloud; its fields: {available}")]
     MissingField {
         /// What the field holds.
         role: &'static str,
         /// The configured field name.
         name: String,
+        /// The cloud's fields with their datatypes (`x FLOAT32, y FLOAT32, RCS INT8`), so that the
+        /// right name can be read off the message.
+        available: String,
     },
     /// A field that is read has a datatype code outside `PointField::INT8..=FLOAT64`.
     #[error("field `{name}` has unsupported datatype code {datatype}")]
@@ -248,7 +251,28 @@ fn required_field(
     find_field(cloud, name)?.ok_or_else(|| DecodeError::MissingField {
         role,
         name: name.to_string(),
+        available: field_list(cloud),
     })
+}
+
+/// The cloud's fields as `name DATATYPE` (`[count]` when not 1), comma-separated, in message order.
+pub(crate) fn field_list(cloud: &PointCloud2) -> String {
+    if cloud.fields.is_empty() {
+        return "none".into();
+    }
+    cloud
+        .fields
+        .iter()
+        .map(|f| {
+            let kind = ScalarType::from_datatype(f.datatype)
+                .map_or_else(|| format!("datatype {}", f.datatype), |t| t.name().into());
+            match f.count {
+                1 => format!("{} {kind}", f.name),
+                n => format!("{} {kind}[{n}]", f.name),
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn resolve_layout(

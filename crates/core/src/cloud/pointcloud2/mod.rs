@@ -82,6 +82,20 @@ impl ScalarType {
         }
     }
 
+    /// The `PointField` constant's name (`FLOAT32`, `INT8`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            ScalarType::I8 => "INT8",
+            ScalarType::U8 => "UINT8",
+            ScalarType::I16 => "INT16",
+            ScalarType::U16 => "UINT16",
+            ScalarType::I32 => "INT32",
+            ScalarType::U32 => "UINT32",
+            ScalarType::F32 => "FLOAT32",
+            ScalarType::F64 => "FLOAT64",
+        }
+    }
+
     /// Size of one element, bytes.
     pub fn size(self) -> usize {
         match self {

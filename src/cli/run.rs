@@ -158,10 +158,10 @@ fn run_segment(
         .map(|(n, r)| format!("{n} on {}", r.topic))
         .collect();
     log::info!(
-        "{}: radars {}; odometry on {}",
+        "{}: radars {}; {}",
         segment.label,
         radars.join(", "),
-        cfg.odometry.topic
+        cfg.pose_input()
     );
     let body_frame = cfg.body_frame.clone();
     let mut pipeline = Pipeline::new(cfg).map_err(|e| CliError::Usage(e.to_string()))?;

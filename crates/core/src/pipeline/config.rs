@@ -6,7 +6,7 @@
 use crate::keyframe_db::{MapConfig, MapShape, RadarMount};
 use crate::loop_closure::LoopConfig;
 use crate::math::Iso3;
-use crate::odometry::ImuConfig;
+use crate::odometry::{ImuConfig, OdometrySource};
 use crate::place::PlaceConfig;
 use crate::radar::RadarConfig;
 use crate::radar::ego_motion::EgoMotionConfig;
@@ -106,6 +106,18 @@ impl Config {
             .iter()
             .filter_map(|n| self.radars.get(n).map(|r| (n.as_str(), r)))
             .collect()
+    }
+
+    /// Where the body pose comes from, as a log line says it (`odometry.source`).
+    pub fn pose_input(&self) -> String {
+        match self.odometry.source {
+            OdometrySource::Topic => format!("odometry on {}", self.odometry.topic),
+            OdometrySource::Radar => "odometry from the radars' Doppler".into(),
+            OdometrySource::RadarImu => format!(
+                "odometry from the radars' Doppler and the gyro on {}",
+                self.imu.topic
+            ),
+        }
     }
 
     /// The radars' frame ids (the child frames their extrinsics are transforms to), those set, each

@@ -9,8 +9,8 @@ use dc_loc::math::iso2_from_iso3;
 use dc_loc::odometry::{OdometrySource, RadarOdometry, RadarOdometryStats};
 use dc_loc::pipeline::{Config, Pipeline};
 use dc_loc::radar::doppler::RadarModel;
+use dc_loc::sim::config::ImuSimConfig;
 use dc_loc::sim::config::LapConfig;
-use dc_loc::sim::imu::ImuSimConfig;
 use dc_loc::sim::inputs::{ScanEncoding, SimInputs};
 use dc_loc::sim::{NoiseModel, RadarPreset, SimConfig, SimDrive, simulate};
 

@@ -94,6 +94,7 @@ mod tests {
             t_odom_body: iso3_from_xyz_rpy(3.0, -2.0, 0.0, 0.0, 0.0, 0.5),
             // Distinct entries, so that a misplaced one shows.
             covariance: Mat3::new(1.0, 0.2, 0.3, 0.2, 2.0, 0.4, 0.3, 0.4, 3.0),
+            noise: dc_loc_core::pose_noise::PoseNoise::zero(),
             twist: Vec3::new(10.0, -0.5, 0.1),
             twist_covariance: Mat3::new(4.0, 0.5, 0.6, 0.5, 5.0, 0.7, 0.6, 0.7, 6.0),
             coasting: false,

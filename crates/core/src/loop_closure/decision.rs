@@ -13,8 +13,33 @@
 use super::drift::{
     alignment_distance, anchored_inconsistency, closure_disagreement, vouches, within_reach,
 };
-use super::session::{Held, QueryPlace};
 use super::{Alignment, LoopClosure, LoopConfig};
+use crate::math::Iso2;
+
+/// Where a closure's query keyframe lies: its id, path length and odometry pose.
+#[derive(Debug, Clone, Copy)]
+pub struct QueryPlace {
+    /// The query keyframe's id.
+    pub id: u64,
+    /// Its path length, m.
+    pub path: f64,
+    /// Its odometry pose.
+    pub t_odom_body: Iso2,
+}
+
+/// A closure waiting for confirmation, with the alignment it implies and the number of agreeing
+/// closures (itself included) it needs.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Held {
+    pub(crate) closure: LoopClosure,
+    pub(crate) alignment: Alignment,
+    pub(crate) needed: usize,
+    /// The query keyframe's odometry heading, rad.
+    pub(crate) heading: f64,
+    /// It lies beyond the drift model: its confirmation must span a turn
+    /// ([`BEYOND_DRIFT_TURN`]).
+    pub(crate) turn: bool,
+}
 
 /// Gate on the agreement of two closures' alignments (the 99.9 % chi-square quantile, 3 dof).
 pub(crate) const CONFIRM_CHI2: f64 = 16.27;

@@ -23,8 +23,9 @@ pub mod gates;
 mod session;
 
 pub use config::LoopConfig;
+pub use decision::QueryPlace;
 pub use decision::{AlignmentState, ClosureState, Moved, Standing};
-pub use session::{Alignment, Outcome, QueryPlace, Session};
+pub use session::{Alignment, Outcome, Session};
 
 use rayon::prelude::*;
 use std::sync::Arc;

@@ -10,7 +10,7 @@ use super::judge::{
     Collected, RevisitReport, judge, keyframe_truth, measured_drift, reverse_radius,
 };
 use super::odometry::{OdometryTrackSample, measure_odometry};
-use crate::sim::imu::ImuSimConfig;
+use crate::sim::config::ImuSimConfig;
 use crate::sim::inputs::{ScanEncoding, SimInputs};
 use crate::sim::{
     NoiseModel, RadarPreset, SimConfig, SimDrive, WorldFamily, config::LapConfig, simulate,

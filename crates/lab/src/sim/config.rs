@@ -50,7 +50,7 @@ pub struct SimConfig {
     /// Wheel/gyro odometry error model.
     pub odometry: OdometrySimConfig,
     /// The gyro (default: none).
-    pub imu: crate::sim::imu::ImuSimConfig,
+    pub imu: ImuSimConfig,
     /// Ground-truth pose rate, Hz (default 50).
     pub ground_truth_rate: f64,
     /// Map frame id of the ground truth (default `map`).
@@ -626,5 +626,49 @@ mod tests {
         assert_eq!(c.seed, 3);
         assert_eq!(c.noise.model, NoiseModel::StudentT);
         assert_eq!(c.laps, SimConfig::default().laps);
+    }
+}
+
+/// The gyro's error model.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImuSimConfig {
+    /// Sample rate, Hz (default 0: no IMU).
+    pub rate: f64,
+    /// Bias at the start, rad/s (default 0.2 deg/s: a consumer MEMS gyro after power-up).
+    pub bias: f64,
+    /// Random walk of the bias, rad/s/sqrt(s) (default 1e-4).
+    pub bias_walk: f64,
+    /// White noise density, rad/s/sqrt(Hz) (default 0.003); a sample's standard deviation is this
+    /// times the square root of the rate.
+    pub noise_density: f64,
+}
+
+impl Default for ImuSimConfig {
+    fn default() -> Self {
+        ImuSimConfig {
+            rate: 0.0,
+            bias: 0.2f64.to_radians(),
+            bias_walk: 1e-4,
+            noise_density: 0.003,
+        }
+    }
+}
+
+impl ImuSimConfig {
+    /// A 100 Hz gyro with the default errors.
+    pub fn at_100_hz() -> Self {
+        ImuSimConfig {
+            rate: 100.0,
+            ..ImuSimConfig::default()
+        }
+    }
+
+    /// Declares each field's range (see [`Validator`]).
+    pub fn check(&self, v: &mut Validator) {
+        v.range("rate", self.rate, Range::closed(0.0, 2000.0));
+        v.range("bias", self.bias, Range::FINITE);
+        v.non_negative("bias_walk", self.bias_walk);
+        v.non_negative("noise_density", self.noise_density);
     }
 }

@@ -274,8 +274,8 @@ mod tests {
     /// the params file says how to run on them.
     #[test]
     fn the_simulated_gyro_goes_into_the_bag() {
+        use crate::sim::config::ImuSimConfig;
         use crate::sim::config::LapConfig;
-        use crate::sim::imu::ImuSimConfig;
         use crate::sim::simulate;
         use dc_loc_core::msgs::sensor_msgs::Imu;
         use dc_loc_io::bag::BagReader;

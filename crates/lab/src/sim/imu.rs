@@ -2,60 +2,15 @@
 //! own rate ([`simulate_imu`]). The IMU frame is the body frame. Off by default (`rate` 0), so that
 //! drives without it are unchanged.
 
+use crate::sim::config::ImuSimConfig;
 use crate::sim::route::Trajectory;
 use dc_loc_core::math::{Stamp, Vec3};
 use dc_loc_core::msgs::geometry_msgs::{Quaternion, Vector3};
 use dc_loc_core::msgs::sensor_msgs::Imu;
 use dc_loc_core::msgs::std_msgs::Header;
-use dc_loc_core::validate::{Range, Validator};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, StandardNormal};
-use serde::{Deserialize, Serialize};
-
-/// The gyro's error model.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ImuSimConfig {
-    /// Sample rate, Hz (default 0: no IMU).
-    pub rate: f64,
-    /// Bias at the start, rad/s (default 0.2 deg/s: a consumer MEMS gyro after power-up).
-    pub bias: f64,
-    /// Random walk of the bias, rad/s/sqrt(s) (default 1e-4).
-    pub bias_walk: f64,
-    /// White noise density, rad/s/sqrt(Hz) (default 0.003); a sample's standard deviation is this
-    /// times the square root of the rate.
-    pub noise_density: f64,
-}
-
-impl Default for ImuSimConfig {
-    fn default() -> Self {
-        ImuSimConfig {
-            rate: 0.0,
-            bias: 0.2f64.to_radians(),
-            bias_walk: 1e-4,
-            noise_density: 0.003,
-        }
-    }
-}
-
-impl ImuSimConfig {
-    /// A 100 Hz gyro with the default errors.
-    pub fn at_100_hz() -> Self {
-        ImuSimConfig {
-            rate: 100.0,
-            ..ImuSimConfig::default()
-        }
-    }
-
-    /// Declares each field's range (see [`Validator`]).
-    pub fn check(&self, v: &mut Validator) {
-        v.range("rate", self.rate, Range::closed(0.0, 2000.0));
-        v.range("bias", self.bias, Range::FINITE);
-        v.non_negative("bias_walk", self.bias_walk);
-        v.non_negative("noise_density", self.noise_density);
-    }
-}
 
 /// One gyro sample with its truth.
 #[derive(Debug, Clone, Copy, PartialEq)]

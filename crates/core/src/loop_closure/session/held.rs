@@ -8,24 +8,11 @@
 use std::collections::BTreeMap;
 
 use super::super::decision::{
-    ClosureState, Moved, Need, agreeing, apart, confirms, expired, refuted, replaced, unreachable,
+    ClosureState, Held, Moved, Need, agreeing, apart, confirms, expired, refuted, replaced,
+    unreachable,
 };
 use super::super::{LoopClosure, LoopConfig};
 use super::{Alignment, QueryPlace};
-
-/// A closure waiting for confirmation, with the alignment it implies and the number of agreeing
-/// closures (itself included) it needs.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Held {
-    pub(crate) closure: LoopClosure,
-    pub(crate) alignment: Alignment,
-    pub(crate) needed: usize,
-    /// The query keyframe's odometry heading, rad.
-    pub(crate) heading: f64,
-    /// It lies beyond the drift model: its confirmation must span a turn
-    /// ([`BEYOND_DRIFT_TURN`](super::super::decision::BEYOND_DRIFT_TURN)).
-    pub(crate) turn: bool,
-}
 
 /// What [`HeldClosures::offer`] did with a closure.
 #[derive(Debug)]

@@ -12,14 +12,13 @@ mod search_again;
 
 use std::collections::BTreeMap;
 
+pub(crate) use super::decision::QueryPlace;
 pub use alignments::Alignment;
-pub(crate) use held::Held;
 
 use super::decision::{
     AlignmentState, ClosureState, Moved, Standing, alone_enough, need, overturns, vouched,
 };
 use super::{LoopClosure, LoopConfig};
-use crate::math::Iso2;
 use alignments::Alignments;
 use held::HeldClosures;
 use search_again::SearchAgain;
@@ -32,20 +31,9 @@ impl Session {
     }
 
     /// The closures held to `session`.
-    pub(crate) fn held_to(&self, session: u32) -> &[Held] {
+    pub(crate) fn held_to(&self, session: u32) -> &[super::decision::Held] {
         self.held.of(session)
     }
-}
-
-/// Where a closure's query keyframe lies: its id, path length and odometry pose.
-#[derive(Debug, Clone, Copy)]
-pub struct QueryPlace {
-    /// The query keyframe's id.
-    pub id: u64,
-    /// Its path length, m.
-    pub path: f64,
-    /// Its odometry pose.
-    pub t_odom_body: Iso2,
 }
 
 /// What [`Session::accept`] did with a closure that passed the gates.
@@ -303,7 +291,7 @@ mod tests {
     use super::Standing::{BeyondDrift, Unconfirmed, Vouched};
     use super::fixtures::*;
     use super::*;
-    use crate::math::Vec2;
+    use crate::math::{Iso2, Vec2};
 
     /// A closure to another robot's session held for confirmation is dropped once that robot's node
     /// shares an alignment to this session that it lies far beyond (the street matched 300 m along

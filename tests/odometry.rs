@@ -60,7 +60,7 @@ fn radar_odometry(
         track.extend(
             samples
                 .iter()
-                .map(|e| (e.stamp, iso2_from_iso3(&e.t_odom_body), e.covariance)),
+                .map(|e| (e.stamp, iso2_from_iso3(&e.t_odom_body), e.covariance())),
         );
     }
     (track, est.stats())

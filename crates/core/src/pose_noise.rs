@@ -39,7 +39,7 @@ impl PoseNoise {
 
     /// Covariance of `(x, y, theta)` of this pose given the `earlier` one, odometry frame: the
     /// errors of the steps between them. `shift` is this pose's position minus the earlier one's.
-    /// Negative eigenvalues that interpolation between samples may leave are cut to zero.
+    /// Negative eigenvalues that rounding may leave are cut to zero.
     pub fn since(&self, earlier: &PoseNoise, shift: Vec2) -> Mat3 {
         let f = shear(shift);
         let white = self.white - f * earlier.white * f.transpose();
@@ -48,15 +48,6 @@ impl PoseNoise {
         let mut eig = (0.5 * (c + c.transpose())).symmetric_eigen();
         eig.eigenvalues.iter_mut().for_each(|l| *l = l.max(0.0));
         eig.recompose()
-    }
-
-    /// The noise a fraction `t` (0 to 1) of the way from `self` to `other`, linearly.
-    pub fn lerp(&self, other: &PoseNoise, t: f64) -> PoseNoise {
-        PoseNoise {
-            white: self.white + (other.white - self.white) * t,
-            sensitivity: self.sensitivity + (other.sensitivity - self.sensitivity) * t,
-            bias_variance: self.bias_variance + (other.bias_variance - self.bias_variance) * t,
-        }
     }
 }
 

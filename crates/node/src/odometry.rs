@@ -49,7 +49,7 @@ pub fn odometry_msg(e: &OdometryEstimate, odom_frame: &str, body_frame: &str) ->
         child_frame_id: body_frame.to_string(),
         pose: PoseWithCovariance {
             pose: Pose::from(&e.t_odom_body),
-            covariance: ros_covariance(&e.covariance),
+            covariance: ros_covariance(&e.covariance()),
         },
         twist: TwistWithCovariance {
             twist: Twist {
@@ -93,8 +93,11 @@ mod tests {
             stamp: Stamp(12_500_000_000),
             t_odom_body: iso3_from_xyz_rpy(3.0, -2.0, 0.0, 0.0, 0.0, 0.5),
             // Distinct entries, so that a misplaced one shows.
-            covariance: Mat3::new(1.0, 0.2, 0.3, 0.2, 2.0, 0.4, 0.3, 0.4, 3.0),
-            noise: dc_loc_core::pose_noise::PoseNoise::zero(),
+            noise: dc_loc_core::pose_noise::PoseNoise {
+                white: Mat3::new(1.0, 0.2, 0.3, 0.2, 2.0, 0.4, 0.3, 0.4, 3.0),
+                sensitivity: Vec3::zeros(),
+                bias_variance: 0.0,
+            },
             twist: Vec3::new(10.0, -0.5, 0.1),
             twist_covariance: Mat3::new(4.0, 0.5, 0.6, 0.5, 5.0, 0.7, 0.6, 0.7, 6.0),
             coasting: false,
@@ -114,7 +117,7 @@ mod tests {
             0.0, 0.0, 0.0, 0.0, u,   0.0,
             0.3, 0.4, 0.0, 0.0, 0.0, 3.0,
         ];
-        assert_eq!(ros_covariance(&estimate().covariance), want);
+        assert_eq!(ros_covariance(&estimate().covariance()), want);
         let m = odometry_msg(&estimate(), "odom", "base_link");
         assert_eq!(m.pose.covariance, want);
         // The twist's: v_x, v_y, yaw rate.

@@ -45,9 +45,8 @@ pub struct OdometryEstimate {
     pub stamp: Stamp,
     /// Body pose in the odometry frame.
     pub t_odom_body: Iso3,
-    /// Covariance of `(x m, y m, yaw rad)` of the pose, odometry frame.
-    pub covariance: Mat3,
-    /// The same uncertainty in the form that gives the covariance of the motion between two samples.
+    /// The pose's uncertainty, in the form that also gives the covariance of the motion between two
+    /// samples ([`OdometryEstimate::covariance`] is the pose's own).
     pub noise: PoseNoise,
     /// Body twist `(v_x m/s, v_y m/s, yaw rate rad/s)`, body frame.
     pub twist: Vec3,
@@ -55,6 +54,13 @@ pub struct OdometryEstimate {
     pub twist_covariance: Mat3,
     /// The step's fit was refused and the twist is the previous one.
     pub coasting: bool,
+}
+
+impl OdometryEstimate {
+    /// Covariance of `(x m, y m, yaw rad)` of the pose, odometry frame.
+    pub fn covariance(&self) -> Mat3 {
+        self.noise.covariance()
+    }
 }
 
 /// Counters of the radar odometry.
@@ -287,7 +293,6 @@ impl RadarOdometry {
         out.push(OdometryEstimate {
             stamp: last,
             t_odom_body: integrator.pose(),
-            covariance: integrator.covariance(bias_variance),
             noise: integrator.noise(bias_variance),
             twist,
             twist_covariance: covariance,
@@ -356,7 +361,6 @@ fn start_of_track(stamp: Stamp) -> OdometryEstimate {
     OdometryEstimate {
         stamp,
         t_odom_body: Iso3::identity(),
-        covariance: Mat3::zeros(),
         noise: PoseNoise::zero(),
         twist: Vec3::zeros(),
         twist_covariance: Mat3::zeros(),

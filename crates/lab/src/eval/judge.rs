@@ -146,7 +146,7 @@ impl Collected {
                 } => self.rejections.push((query_id, reason.name().to_string())),
                 Event::Odometry(o) => {
                     self.odometry
-                        .push((o.stamp, iso2_from_iso3(&o.t_odom_body), o.covariance))
+                        .push((o.stamp, iso2_from_iso3(&o.t_odom_body), o.covariance()))
                 }
                 _ => {}
             }

@@ -8,8 +8,10 @@
 //! 2. each scan is fitted and the radars' information summed ([`super::fit`]), with the previous
 //!    step's twist as the prior against large movers;
 //! 3. with a gyro: its mean rate around the scans against the Doppler yaw rate (where that is
-//!    observable) updates the bias ([`GyroBias`]) and the frame check; its rate, bias removed, joins
-//!    the fit as a yaw-rate measurement, and its mean over the step turns the heading;
+//!    observable) updates the bias ([`GyroBias`]) and the frame check; so does a step in which every
+//!    radar stands still, against a yaw rate of zero (a body whose radars do not move does not
+//!    turn: this is what gives one radar's gyro its bias, at the first stop); its rate, bias
+//!    removed, joins the fit as a yaw-rate measurement, and its mean over the step turns the heading;
 //! 4. a step the fit refuses coasts on the previous twist, its covariance grown by the motion the
 //!    body may have made meanwhile;
 //! 5. the pose and its covariance are integrated ([`PlanarIntegrator`]).
@@ -37,6 +39,11 @@ const PRIOR_AGE: f64 = 0.5;
 const ACCELERATION_GAIN: f64 = 0.3;
 /// Shortest window the gyro is averaged over around a step's scans, s.
 const MIN_GYRO_WINDOW: f64 = 0.04;
+/// A step whose radars all move slower than this stands still, m/s.
+const STANDSTILL_SPEED: f64 = 0.05;
+/// Standard deviation of the yaw rate of a body standing still, rad/s: a radar on a hand-held rig
+/// turned about a point near it still moves a few cm/s per rad/s.
+const STANDSTILL_YAW_SIGMA: f64 = 0.01;
 
 /// One odometry sample of the estimator.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -246,7 +253,8 @@ impl RadarOdometry {
         let doppler = info.solve(None);
         let centre = mean_stamp(&group);
         let half = 0.5 * last.secs_since(first).max(MIN_GYRO_WINDOW);
-        let gyro = self.gyro_step(&doppler, centre, half, start, last);
+        let still = info.fastest.is_some_and(|v| v < STANDSTILL_SPEED);
+        let gyro = self.gyro_step(&doppler, still, centre, half, start, last);
         let fitted = info.solve(gyro.map(|g| g.yaw_rate));
         let dt = last.secs_since(start);
         let (twist, covariance, coasting) = match (fitted, self.previous) {
@@ -302,11 +310,13 @@ impl RadarOdometry {
     }
 
     /// The gyro's part in a step: the bias and the frame check updated against the Doppler yaw
-    /// rate (when observable), and the gyro's yaw rate around the scans and heading change over
-    /// `[start, end]`, bias removed. `None` without a usable gyro.
+    /// rate (when observable; else the bias against zero when the radars stand `still`), and the
+    /// gyro's yaw rate around the scans and heading change over `[start, end]`, bias removed. `None`
+    /// without a usable gyro.
     fn gyro_step(
         &mut self,
         doppler: &Result<super::fit::PlanarTwist, TwistRefusal>,
+        still: bool,
         centre: Stamp,
         half: f64,
         start: Stamp,
@@ -333,6 +343,9 @@ impl RadarOdometry {
                 return None;
             }
             g.bias.update(around - w, var + around_var);
+        } else if still {
+            g.bias
+                .update(around, STANDSTILL_YAW_SIGMA.powi(2) + around_var);
         }
         let heading = if dt > 0.0 {
             let mean = g.gyro.mean_rate(start, end).unwrap_or(around);

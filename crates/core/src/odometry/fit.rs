@@ -127,6 +127,8 @@ pub struct DopplerInformation {
     pub vector: Vec3,
     /// Each scan's outcome, in input order.
     pub scans: Vec<ScanOutcome>,
+    /// The largest planar speed a radar of the step measured, m/s (`None`: no scan was fitted).
+    pub fastest: Option<f64>,
 }
 
 /// A fitted planar body twist.
@@ -167,10 +169,12 @@ pub fn doppler_information(
         information: Mat3::zeros(),
         vector: Vec3::zeros(),
         scans: Vec::with_capacity(scans.len()),
+        fastest: None,
     };
     for s in scans {
         let a = radar_velocity_map(&s.t_body_radar);
         let result = fit_scan(s, prior.map(|x| a * x), cfg).map(|(u, c, n)| {
+            info.fastest = Some(info.fastest.unwrap_or(0.0).max(u.norm()));
             let u = u + a * s.shift;
             let w = c.try_inverse().unwrap_or_else(Mat3::zeros);
             let w2 = w.fixed_view::<2, 2>(0, 0).into_owned();
@@ -214,7 +218,7 @@ fn fit_scan(
     }
     let n = fit.num_inliers as f64;
     let spread = fit.rms.powi(2) * n / (n - 2.0).max(1.0);
-    let mut c = fit.covariance * (scan.sigma_velocity.powi(2) / spread).max(1.0);
+    let mut c = fit.unit_covariance * scan.sigma_velocity.powi(2).max(spread);
     c[(2, 2)] = 1.0;
     Ok((u, c, fit.num_inliers))
 }

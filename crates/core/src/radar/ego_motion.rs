@@ -116,6 +116,10 @@ pub struct VelocityFit {
     pub v_radar: Vec3,
     /// Covariance of `v_radar` from the inliers' residual spread, (m/s)^2.
     pub covariance: Mat3,
+    /// Covariance of `v_radar` per unit variance of a radial velocity, `(A^T A)^-1` over the static
+    /// detections: scaled by a known noise variance it stays right where the residuals are all zero
+    /// (a radar whose Doppler bins put every static return of a standing rig at exactly 0 m/s).
+    pub unit_covariance: Mat3,
     /// Per detection (input order): true when static (consistent with `v_radar`).
     pub inliers: Vec<bool>,
     /// Number of static detections.
@@ -172,6 +176,7 @@ struct LinearRansac<'a> {
 struct LinearFit {
     x: Vec3,
     covariance: Mat3,
+    unit_covariance: Mat3,
     inliers: Vec<bool>,
     num_inliers: usize,
     rms: f64,
@@ -331,6 +336,7 @@ impl LinearRansac<'_> {
         Ok(LinearFit {
             x,
             covariance: cov * sigma2,
+            unit_covariance: cov,
             inliers: mask,
             num_inliers: count,
             rms: (ss / count as f64).sqrt(),
@@ -388,6 +394,7 @@ pub fn fit_radar_velocity(
     Ok(VelocityFit {
         v_radar: fit.x,
         covariance: fit.covariance,
+        unit_covariance: fit.unit_covariance,
         inliers,
         num_inliers: fit.num_inliers,
         rms: fit.rms,

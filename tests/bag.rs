@@ -1065,3 +1065,60 @@ fn an_unfinished_writer_leaves_only_a_temporary_file() {
         Err(BagError::NoMcapFiles { .. })
     ));
 }
+
+/// A radar with a trigger topic (`radars.<name>.trigger_topic`): each cloud takes the stamp of the
+/// newest trigger before it in the bag plus `trigger_delay`, whatever its own stamp; a cloud before any
+/// trigger, and a second cloud after one trigger, are refused as `no_trigger` and the stream goes on.
+#[test]
+fn clouds_take_their_stamps_from_their_radars_trigger() {
+    use dc_loc::input::Input;
+    use dc_loc::io::rosbag::BagInputs;
+    use dc_loc::odometry::OdometrySource;
+    use dc_loc::pipeline::Config;
+    let log = |ms: i64| Stamp(1_700_000_000_000_000_000 + ms * 1_000_000);
+    let sensor = |ms: i64| Stamp(1_000_000_000_000 + ms * 1_000_000);
+    let dir = scratch("trigger").join("bag");
+    let mut w = BagWriter::create(&dir).unwrap();
+    let radar = w.add_topic("/radar/points", schema::POINT_CLOUD2).unwrap();
+    let trigger = w.add_topic("/radar/trigger", schema::HEADER).unwrap();
+    let zero_stamped = || cloud(Stamp(0), 1);
+    w.write(radar, log(10), &zero_stamped()).unwrap();
+    w.write(trigger, log(20), &header(sensor(0), "trigger"))
+        .unwrap();
+    w.write(radar, log(50), &zero_stamped()).unwrap();
+    w.write(radar, log(60), &cloud(log(60), 1)).unwrap();
+    w.write(trigger, log(120), &header(sensor(100), "trigger"))
+        .unwrap();
+    w.write(radar, log(150), &cloud(log(150), 1)).unwrap();
+    let reader = BagReader::open(&w.finish().unwrap()).unwrap();
+
+    let mut cfg = Config::default();
+    cfg.odometry.source = OdometrySource::Radar;
+    let front = cfg.radars.get_mut("front").unwrap();
+    front.topic = "/radar/points".into();
+    front.frame_id = String::new();
+    front.trigger_topic = "/radar/trigger".into();
+    front.trigger_delay = 0.01;
+    let got: Vec<Result<Stamp, &str>> = BagInputs::new(&reader, &cfg, None)
+        .unwrap()
+        .map(|item| match item {
+            Ok(input @ Input::Radar { .. }) => Ok(input.stamp()),
+            Ok(other) => panic!("{other:?}"),
+            Err(issue) => Err(issue.reason.name()),
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            Err("no_trigger"),
+            Ok(sensor(10)),
+            Err("no_trigger"),
+            Ok(sensor(110)),
+        ]
+    );
+
+    // A trigger topic missing from the bag is named by its parameter.
+    cfg.radars.get_mut("front").unwrap().trigger_topic = "/elsewhere".into();
+    let e = BagInputs::new(&reader, &cfg, None).err().expect("refused");
+    assert!(e.to_string().contains("radars.front.trigger_topic"), "{e}");
+}

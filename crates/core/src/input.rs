@@ -14,6 +14,7 @@ use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::radar_msgs::RadarScan as RadarScanMsg;
 use crate::msgs::sensor_msgs::PointCloud2;
 use crate::msgs::std_msgs::Header;
+use crate::radar::trigger::{TriggerError, TriggerStamps};
 use crate::radar::{Detection, RadarScan};
 
 /// One input of the pipeline, from any source.
@@ -69,6 +70,19 @@ impl Input {
             | Input::GroundTruth { stamp, .. } => *stamp,
         }
     }
+
+    /// A radar input with its stamp from its radar's trigger (unchanged for a radar without a trigger
+    /// topic, and for every other input); refused when there is no trigger to take.
+    pub fn with_trigger_stamp(mut self, triggers: &mut TriggerStamps) -> Result<Self, IssueReason> {
+        match &mut self {
+            Input::Radar { radar, cloud } => {
+                cloud.header.stamp = triggers.stamp(*radar, cloud.header.stamp.into())?.into();
+            }
+            Input::Scan(scan) => scan.stamp = triggers.stamp(scan.radar, scan.stamp)?,
+            _ => {}
+        }
+        Ok(self)
+    }
 }
 
 /// A source's own error (a bag reader's, a dataset reader's), carried by [`IssueReason`].
@@ -104,6 +118,9 @@ pub enum IssueReason {
     /// A dataset file (a nuScenes sweep, a View-of-Delft frame) that is missing or does not parse.
     #[error("unreadable file: {0}")]
     Unreadable(String),
+    /// A scan of a radar that takes its stamps from a trigger topic, with no trigger to take.
+    #[error("no stamp from the radar's trigger: {0}")]
+    NoTrigger(#[from] TriggerError),
     /// A header stamp whose `nanosec` is 1e9 or more.
     #[error("header stamp {sec} s {nanosec} ns is not a time (nanosec must be below 1e9)")]
     BadStamp {
@@ -126,6 +143,7 @@ impl IssueReason {
             IssueReason::Foreign(_) => "undecodable_foreign",
             IssueReason::Unreadable(_) => "unreadable_file",
             IssueReason::BadStamp { .. } => "bad_stamp",
+            IssueReason::NoTrigger(_) => "no_trigger",
         }
     }
 

@@ -3,6 +3,7 @@
 //! outputs and the optional back-end outputs of `node.pose_graph_output` and `node.lio_sam_output`)
 //! and the service servers.
 
+use std::sync::Mutex;
 use std::sync::mpsc::SyncSender;
 use std::time::Duration;
 
@@ -26,10 +27,12 @@ use dc_loc_core::msgs::dc_loc::{Keyframe as KeyframeMsg, LoopClosure as LoopClos
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::rosgraph_msgs::Clock;
 use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
+use dc_loc_core::msgs::std_msgs::Header;
 use dc_loc_core::msgs::tf2_msgs::TFMessage;
 use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::radar::RadarMessage;
+use dc_loc_core::radar::trigger::TriggerStamps;
 use dc_loc_io::params::node::{FleetSettings, NodeSettings};
 
 /// The node's publishers, owned by the worker thread.
@@ -56,6 +59,9 @@ pub struct Outputs {
     pub tf: Option<Publisher<TFMessage>>,
 }
 
+/// A trigger topic, the radars (indices in `radar_names`) it triggers, and its subscription.
+type TriggerSubscription = (String, Vec<usize>, Subscription<Header>);
+
 /// The node's input subscriptions.
 pub struct Subscriptions {
     /// Per radar topic (several radars may share one; the frame id tells them apart).
@@ -64,6 +70,10 @@ pub struct Subscriptions {
     odometry: Option<(String, Subscription<Odometry>)>,
     /// `imu.topic`, with `odometry.source: radar_imu`.
     imu: Option<(String, Subscription<Imu>)>,
+    /// Per trigger topic (`radars.<name>.trigger_topic`): the radars it triggers.
+    triggers: Vec<TriggerSubscription>,
+    /// The radars' newest triggers, which their scans take their stamps from.
+    trigger_stamps: Mutex<TriggerStamps>,
     clock: Option<Subscription<Clock>>,
     /// `~/save_map`.
     save_map: Server<TriggerRequest, TriggerResponse>,
@@ -117,6 +127,7 @@ impl Subscriptions {
             radars.push((topic, topic_radars, sub));
         }
         let (odometry, imu) = pose_input(node, ros_args, cfg)?;
+        let triggers = trigger_subscriptions(node, ros_args, cfg)?;
         let clock = if use_sim_time {
             Some(subscribe(node, "/clock", "rosgraph_msgs", "Clock", 10)?)
         } else {
@@ -154,6 +165,8 @@ impl Subscriptions {
             radars,
             odometry,
             imu,
+            triggers,
+            trigger_stamps: Mutex::new(TriggerStamps::new(cfg.trigger_delays())),
             clock,
             keyframes,
             save_map,
@@ -176,20 +189,32 @@ impl Subscriptions {
         save_requests: SyncSender<SaveRequest>,
     ) -> Option<String> {
         let mut tasks: Vec<futures::future::BoxFuture<'_, ()>> = Vec::new();
+        let stamps = &self.trigger_stamps;
         for (topic, radars, sub) in &self.radars {
             let shared = r.shared.clone();
             match sub {
                 RadarSubscription::Cloud(sub) => {
                     tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
-                        inputs::radar_input(topic, radars, &limits, &shared, c)
+                        let input = inputs::radar_input(topic, radars, &limits, &shared, c);
+                        inputs::trigger_stamped(topic, stamps, input)
                     })))
                 }
                 RadarSubscription::Scan(sub) => {
                     tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |s| {
-                        inputs::radar_scan(topic, radars, &limits, &shared, s)
+                        let input = inputs::radar_scan(topic, radars, &limits, &shared, s);
+                        inputs::trigger_stamped(topic, stamps, input)
                     })))
                 }
             }
+        }
+        for (topic, radars, sub) in &self.triggers {
+            tasks.push(Box::pin(inputs::triggers(
+                topic,
+                sub,
+                radars,
+                stamps,
+                r.clone(),
+            )));
         }
         if let Some((topic, sub)) = &self.odometry {
             let shared = r.shared.clone();
@@ -241,6 +266,31 @@ impl Subscriptions {
             }
         }
     }
+}
+
+/// One `std_msgs/Header` subscription per trigger topic (`radars.<name>.trigger_topic`), with the
+/// radars (indices in `radar_names`) it triggers, with the radars' QoS.
+fn trigger_subscriptions(
+    node: &mut Node,
+    ros_args: &RosArgs,
+    cfg: &Config,
+) -> Result<Vec<TriggerSubscription>, NodeError> {
+    let mut by_topic: std::collections::BTreeMap<String, Vec<usize>> = Default::default();
+    for (i, (_, rc)) in cfg.radar_list().into_iter().enumerate() {
+        if !rc.trigger_topic.is_empty() {
+            by_topic
+                .entry(ros_args.resolve_topic(&rc.trigger_topic))
+                .or_default()
+                .push(i);
+        }
+    }
+    let mut subs = Vec::new();
+    for (topic, radars) in by_topic {
+        let sub = subscribe(node, &topic, "std_msgs", "Header", INPUT_DEPTH)?;
+        log::info!("radar triggers on {topic}");
+        subs.push((topic, radars, sub));
+    }
+    Ok(subs)
 }
 
 /// The pose input `odometry.source` asks for: `nav_msgs/Odometry` on `odometry.topic` (`topic`), none

@@ -4,8 +4,8 @@
 //! that is not used is counted by reason.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures::StreamExt;
@@ -22,6 +22,7 @@ use dc_loc_core::msgs::radar_msgs::RadarScan;
 use dc_loc_core::msgs::rosgraph_msgs::Clock;
 use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
 use dc_loc_core::msgs::std_msgs::Header;
+use dc_loc_core::radar::trigger::TriggerStamps;
 use dc_loc_io::params::node::FleetSettings;
 
 /// A message whose zero `header.stamp` the receive time replaces (drivers that leave it unset), as
@@ -160,6 +161,55 @@ pub fn radar_input(
         return Err(("cloud_too_large", format!("{topic}: {e}")));
     }
     Ok((Input::Radar { radar, cloud }, None))
+}
+
+/// A radar input with its stamp from its radar's trigger (`radars.<name>.trigger_topic`), refused
+/// (`no_trigger`) when no trigger has arrived since the radar's previous scan.
+pub fn trigger_stamped(
+    topic: &str,
+    triggers: &Mutex<TriggerStamps>,
+    received: Result<(Input, Option<String>), Refusal>,
+) -> Result<(Input, Option<String>), Refusal> {
+    let (input, frame) = received?;
+    match input.with_trigger_stamp(&mut lock(triggers)) {
+        Ok(input) => Ok((input, frame)),
+        Err(e) => Err((e.name(), format!("{topic}: {e}"))),
+    }
+}
+
+/// Takes every trigger on `topic` (a `std_msgs/Header` at the start of each frame of `radars`) off
+/// DDS until the stream ends: its stamp (a zero one: the receive time) becomes those radars' newest
+/// trigger; a stamp that is not a time is refused (`bad_stamp`).
+pub async fn triggers(
+    topic: &str,
+    sub: &Subscription<Header>,
+    radars: &[usize],
+    stamps: &Mutex<TriggerStamps>,
+    r: Reception,
+) {
+    let mut stream = std::pin::pin!(sub.async_stream());
+    while let Some(item) = stream.next().await {
+        let header = match item {
+            Ok((m, _)) => m,
+            Err(e) => {
+                r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
+                continue;
+            }
+        };
+        let stamp = match header_stamp(&header, Stamp(0)) {
+            Ok(Stamp(0)) => receive_time(&r.shared, r.use_sim_time),
+            Ok(stamp) => stamp,
+            Err(e) => {
+                r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
+                continue;
+            }
+        };
+        r.shared.count_received("trigger");
+        let mut stamps = lock(stamps);
+        for &radar in radars {
+            stamps.trigger(radar, stamp);
+        }
+    }
 }
 
 /// A `radar_msgs/RadarScan` of `topic` as the input of the radar its `frame_id` names, refused as a
@@ -342,6 +392,30 @@ mod tests {
         assert_eq!(reason, "bad_imu");
         assert!(detail.contains("/imu"), "{detail}");
         assert_eq!(lock(&shared.received).get("imu"), Some(&2));
+    }
+
+    /// A cloud of a radar with a trigger topic takes the newest trigger's stamp plus the delay; one
+    /// with no trigger since the previous cloud is refused as `no_trigger`, naming the topic; a
+    /// radar without a trigger topic keeps its cloud's stamp.
+    #[test]
+    fn a_cloud_takes_its_stamp_from_the_trigger_once() {
+        let triggers = Mutex::new(TriggerStamps::new(vec![None, Some(0.5)]));
+        let cloud = |radar, sec| {
+            let mut cloud = PointCloud2::default();
+            cloud.header.stamp.sec = sec;
+            Ok((Input::Radar { radar, cloud }, None))
+        };
+        let stamp = |r: Result<(Input, Option<String>), Refusal>| r.map(|(i, _)| i.stamp());
+        let (reason, detail) = stamp(trigger_stamped("/r", &triggers, cloud(1, 9))).unwrap_err();
+        assert_eq!(reason, "no_trigger");
+        assert!(detail.contains("/r"), "{detail}");
+        lock(&triggers).trigger(1, Stamp(2_000_000_000));
+        let got = stamp(trigger_stamped("/r", &triggers, cloud(1, 9)));
+        assert_eq!(got, Ok(Stamp(2_500_000_000)));
+        let got = stamp(trigger_stamped("/r", &triggers, cloud(1, 9)));
+        assert_eq!(got.map_err(|e| e.0), Err("no_trigger"));
+        let got = stamp(trigger_stamped("/r", &triggers, cloud(0, 9)));
+        assert_eq!(got, Ok(Stamp(9_000_000_000)));
     }
 
     /// A cloud whose `frame_id` no radar of its topic has is refused as `unknown_frame`, naming the

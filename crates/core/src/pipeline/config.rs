@@ -108,6 +108,20 @@ impl Config {
             .collect()
     }
 
+    /// Per radar (in `radar_names` order): its trigger delay when it takes its stamps from a trigger
+    /// topic ([`crate::radar::trigger`]).
+    pub fn trigger_delays(&self) -> Vec<Option<f64>> {
+        self.radar_names
+            .iter()
+            .map(|n| {
+                self.radars
+                    .get(n)
+                    .filter(|r| !r.trigger_topic.is_empty())
+                    .map(|r| r.trigger_delay)
+            })
+            .collect()
+    }
+
     /// Where the body pose comes from, as a log line says it (`odometry.source`).
     pub fn pose_input(&self) -> String {
         match self.odometry.source {

@@ -69,6 +69,14 @@ pub struct RadarConfig {
     pub message: RadarMessage,
     /// Expected `header.frame_id` (default `radar`); empty accepts any.
     pub frame_id: String,
+    /// A `std_msgs/Header` topic published at the start of each of the radar's frames (default
+    /// empty: none). When set, each scan takes the stamp of the newest trigger that arrived before
+    /// it plus `trigger_delay`, in place of its own: for drivers that stamp their clouds with zero
+    /// or with another clock than the IMU's. A scan with no new trigger is dropped (`no_trigger`).
+    pub trigger_topic: String,
+    /// Time from a trigger to the instant its scan stands for, s (default 0; half the frame's chirp
+    /// time puts it mid-frame).
+    pub trigger_delay: f64,
     /// Radar frame in the body frame: x, y, z (m), roll, pitch, yaw (rad). Default: 0.
     pub extrinsic: [f64; 6],
     /// Doppler range coupling `beta = f_c / K`, s (default 0.04, the ARS408-21 per the paper).
@@ -90,6 +98,8 @@ impl Default for RadarConfig {
             topic: "/radar/points".into(),
             message: RadarMessage::PointCloud2,
             frame_id: "radar".into(),
+            trigger_topic: String::new(),
+            trigger_delay: 0.0,
             extrinsic: [0.0; 6],
             beta: 0.04,
             fields: FieldsConfig::default(),
@@ -125,6 +135,11 @@ impl RadarConfig {
             format!("element {} is not finite", bad.unwrap_or_default())
         });
         v.range("beta", self.beta, Range::NON_NEGATIVE.below(1.0));
+        v.range(
+            "trigger_delay",
+            self.trigger_delay,
+            Range::NON_NEGATIVE.below(1.0),
+        );
         v.positive("sigma_range", self.sigma_range);
         v.positive("sigma_velocity", self.sigma_velocity);
         v.positive("sigma_azimuth", self.sigma_azimuth);

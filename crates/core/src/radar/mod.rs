@@ -8,6 +8,7 @@ pub mod config;
 pub mod consistency;
 pub mod doppler;
 pub mod ego_motion;
+pub mod trigger;
 
 pub use config::{FieldsConfig, RadarConfig, RadarMessage};
 

@@ -28,6 +28,8 @@ pub const LOOP_CLOSURE: &str = "dc_loc/msg/LoopClosure";
 pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
 /// `sensor_msgs/msg/Imu` (a gyro, read with `odometry.source: radar_imu`).
 pub const IMU: &str = "sensor_msgs/msg/Imu";
+/// `std_msgs/msg/Header` (a radar's trigger, `radars.<name>.trigger_topic`).
+pub const HEADER: &str = "std_msgs/msg/Header";
 /// `radar_msgs/msg/RadarScan` (read only; the writer has no schema for it).
 pub const RADAR_SCAN: &str = "radar_msgs/msg/RadarScan";
 
@@ -310,7 +312,15 @@ builtin_interfaces/Time clock
 ];
 
 /// Top-level message types the bag writer knows (they have a schema text and a hash).
-pub const KNOWN_TYPES: &[&str] = &[POINT_CLOUD2, ODOMETRY, IMU, TF_MESSAGE, CLOCK, LOOP_CLOSURE];
+pub const KNOWN_TYPES: &[&str] = &[
+    POINT_CLOUD2,
+    ODOMETRY,
+    IMU,
+    TF_MESSAGE,
+    CLOCK,
+    LOOP_CLOSURE,
+    HEADER,
+];
 
 /// The ROS primitive type names of `.msg` fields (rosbag2's list).
 const PRIMITIVES: &[&str] = &[

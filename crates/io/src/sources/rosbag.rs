@@ -12,7 +12,9 @@
 //! the bag file itself come out as [`InputIssue`]s and the stream goes on. A configuration that does not fit the bag (a configured topic missing, or of another type,
 //! or in a ROS 1 bag of another definition than the type's standard one) is refused up front by
 //! [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is replaced by the bag's log
-//! time. A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
+//! time; a radar with a `trigger_topic` takes its scans' stamps from the `std_msgs/Header` triggers
+//! on that topic instead, the newest one before each scan in file order
+//! ([`dc_loc_core::radar::trigger`]). A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
 //! over the time between them (0 for the first).
 
 use std::collections::BTreeMap;
@@ -26,9 +28,11 @@ use dc_loc_core::msgs::geometry_msgs::PoseStamped;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
 use dc_loc_core::msgs::sensor_msgs::{Imu, PointCloud2};
+use dc_loc_core::msgs::std_msgs::Header;
 use dc_loc_core::odometry::OdometrySource;
 use dc_loc_core::pipeline::Config;
 use dc_loc_core::radar::RadarMessage;
+use dc_loc_core::radar::trigger::TriggerStamps;
 
 /// Why a bag cannot be run with a configuration.
 #[derive(Debug, thiserror::Error)]
@@ -88,6 +92,8 @@ enum Route {
     Imu,
     /// Ground truth as `nav_msgs/Odometry` (false) or `geometry_msgs/PoseStamped` (true).
     GroundTruth(bool),
+    /// `std_msgs/Header` triggers of these radars.
+    Trigger(Vec<usize>),
 }
 
 use schema::RADAR_SCAN;
@@ -119,6 +125,8 @@ pub struct BagInputs {
     last_log_time: Stamp,
     /// The previous `PoseStamped` ground truth: its stamp and pose (for the speed).
     last_pose: Option<(Stamp, Iso3)>,
+    /// The radars' stamps from their triggers.
+    triggers: TriggerStamps,
     total: u64,
 }
 
@@ -149,6 +157,19 @@ impl BagInputs {
                 .or_insert_with(|| Route::Radar(Vec::new(), rc.message))
             {
                 list.push((i, rc.frame_id.clone()));
+            }
+            if !rc.trigger_topic.is_empty() {
+                wanted.push((
+                    format!("radars.{name}.trigger_topic"),
+                    rc.trigger_topic.clone(),
+                    schema::HEADER,
+                ));
+                if let Route::Trigger(list) = routes
+                    .entry(rc.trigger_topic.clone())
+                    .or_insert_with(|| Route::Trigger(Vec::new()))
+                {
+                    list.push(i);
+                }
             }
         }
         let pose_input = match cfg.odometry.source {
@@ -228,6 +249,7 @@ impl BagInputs {
             routes,
             last_log_time: Stamp(0),
             last_pose: None,
+            triggers: TriggerStamps::new(cfg.trigger_delays()),
             total,
         })
     }
@@ -273,6 +295,7 @@ impl Iterator for BagInputs {
                                 cloud.header.stamp = stamp.into();
                                 radar_for(radars, &cloud.header.frame_id)
                                     .map(|radar| Input::Radar { radar, cloud })
+                                    .and_then(|input| input.with_trigger_stamp(&mut self.triggers))
                                     .map_err(|reason| issue(stamp, reason))
                             }
                         },
@@ -285,10 +308,23 @@ impl Iterator for BagInputs {
                             Err(reason) => Err(issue(msg.log_time, reason)),
                             Ok(stamp) => radar_for(radars, &scan.header.frame_id)
                                 .map(|radar| radar_scan_input(radar, stamp, &scan))
+                                .and_then(|input| input.with_trigger_stamp(&mut self.triggers))
                                 .map_err(|reason| issue(stamp, reason)),
                         },
                     }
                 }
+                Route::Trigger(radars) => match msg.decode::<Header>() {
+                    Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
+                    Ok(header) => match header_stamp(&header, msg.log_time) {
+                        Err(reason) => Err(issue(msg.log_time, reason)),
+                        Ok(stamp) => {
+                            for &radar in radars {
+                                self.triggers.trigger(radar, stamp);
+                            }
+                            continue;
+                        }
+                    },
+                },
                 Route::Imu => match msg.decode::<Imu>() {
                     Err(e) => Err(issue(msg.log_time, IssueReason::Decode(Box::new(e)))),
                     Ok(imu) => match header_stamp(&imu.header, msg.log_time) {

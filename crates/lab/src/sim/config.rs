@@ -129,6 +129,8 @@ impl SimConfig {
                     topic: r.topic.clone(),
                     message: RadarMessage::PointCloud2,
                     frame_id: r.frame_id.clone(),
+                    trigger_topic: String::new(),
+                    trigger_delay: 0.0,
                     extrinsic: r.extrinsic,
                     beta: r.beta,
                     fields: FieldsConfig::default(),

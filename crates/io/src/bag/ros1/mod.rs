@@ -56,6 +56,7 @@ pub const KNOWN_TYPES: &[(&str, &str)] = &[
         "d3812c3cbc69362b77dc0b19b345f8f5",
     ),
     ("radar_msgs/msg/RadarScan", RADAR_SCAN_MD5),
+    ("std_msgs/msg/Header", "2176decaecbce78abc3b96ef049fabed"),
 ];
 
 /// md5sum of ros-perception's ROS 1 `radar_msgs/RadarScan` (Header, then `RadarReturn[]` of five

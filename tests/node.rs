@@ -617,6 +617,19 @@ fn one_radar_and_a_gyro_give_the_offline_closures_and_odometry() {
     let imu = d.drive.imu.len() as u64;
     assert_eq!(r.diag("imu.received"), imu, "{:?}", r.diagnostics);
     assert_eq!(r.diag("bad_imu"), 0);
+    // The estimator's counters: nearly every scan fitted, the gyro's samples taken.
+    let steps = r.diag("radar_odometry.steps");
+    assert!(steps > 100, "{:?}", r.diagnostics);
+    assert!(
+        r.diag("radar_odometry.scans_fitted") * 50 >= steps * 49,
+        "{:?}",
+        r.diagnostics
+    );
+    assert!(
+        r.diag("gyro.samples") * 10 >= imu * 9,
+        "{:?}",
+        r.diagnostics
+    );
     let worst = assert_odometry_as_offline(&r, &odometry);
     println!(
         "one radar and a gyro: {} closures and {} odometry samples as dc_loc run (positions within \

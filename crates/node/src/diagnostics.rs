@@ -10,6 +10,7 @@ use super::map_store::SaveStatus;
 use super::shared::{Shared, lock};
 use dc_loc_core::msgs::builtin_interfaces::Time;
 use dc_loc_core::msgs::std_msgs::Header;
+use dc_loc_core::odometry::RadarOdometryStats;
 use dc_loc_core::pipeline::PipelineStats;
 
 /// Rolling latency samples, seconds.
@@ -214,6 +215,48 @@ fn dropped(shared: &Shared, stats: &PipelineStats) -> (Vec<KeyValue>, u64) {
     (values, total)
 }
 
+/// The radar odometry's counters (`odometry.source: radar | radar_imu`): steps, the steps that
+/// coasted and the scans refused by reason, and with a gyro its samples, gaps and bias.
+fn radar_odometry(o: &RadarOdometryStats) -> Vec<KeyValue> {
+    let mut values = vec![
+        kv("radar_odometry.steps", o.steps.to_string()),
+        kv("radar_odometry.scans_fitted", o.scans_fitted.to_string()),
+        kv("radar_odometry.late_scans", o.late_scans.to_string()),
+        kv("radar_odometry.topic_ignored", o.topic_ignored.to_string()),
+    ];
+    for (reason, n) in &o.coasted {
+        values.push(kv(
+            &format!("radar_odometry.coasted.{reason}"),
+            n.to_string(),
+        ));
+    }
+    for (reason, n) in &o.scans_refused {
+        values.push(kv(
+            &format!("radar_odometry.refused.{reason}"),
+            n.to_string(),
+        ));
+    }
+    let Some((bias, sigma)) = o.gyro_bias else {
+        return values;
+    };
+    let g = o.gyro;
+    values.extend([
+        kv("gyro.samples", g.samples.to_string()),
+        kv("gyro.saturated", g.saturated.to_string()),
+        kv("gyro.out_of_order", g.out_of_order.to_string()),
+        kv("gyro.non_finite", g.non_finite.to_string()),
+        kv("gyro.steps_uncovered", o.gyro_gaps.to_string()),
+        kv("gyro.bias", format!("{bias:.6}")),
+        kv("gyro.bias_sigma", format!("{sigma:.6}")),
+        kv("gyro.bias_updates", o.bias_updates.0.to_string()),
+        kv("gyro.bias_refused", o.bias_updates.1.to_string()),
+    ]);
+    if let Some(slope) = o.gyro_wrong_frame {
+        values.push(kv("gyro.wrong_frame_slope", format!("{slope:.3}")));
+    }
+    values
+}
+
 /// Queues, counts, rejections by reason and latencies.
 fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
     let stats = r.stats;
@@ -277,6 +320,9 @@ fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
             proc.push(kv(&format!("{name}.misconfigured"), cause.clone()));
         }
     }
+    if let Some(o) = &stats.radar_odometry {
+        proc.extend(radar_odometry(o));
+    }
     let m = r.measures;
     for (name, l) in [
         ("latency_ms", &m.input_latency),
@@ -290,4 +336,48 @@ fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
         }
     }
     proc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The radar odometry's counters appear under `radar_odometry.*`, each coasting and refusal
+    /// reason with its count, and the gyro's under `gyro.*` only when there is a gyro.
+    #[test]
+    fn radar_odometry_counters_are_reported_by_reason() {
+        let mut o = RadarOdometryStats {
+            steps: 12,
+            scans_fitted: 20,
+            ..Default::default()
+        };
+        o.coasted.insert("no_radar", 2);
+        o.scans_refused.insert("dominated_by_movers", 3);
+        let text = |values: Vec<KeyValue>| -> Vec<String> {
+            values
+                .iter()
+                .map(|v| format!("{}={}", v.key, v.value))
+                .collect()
+        };
+        let got = text(radar_odometry(&o));
+        for want in [
+            "radar_odometry.steps=12",
+            "radar_odometry.scans_fitted=20",
+            "radar_odometry.coasted.no_radar=2",
+            "radar_odometry.refused.dominated_by_movers=3",
+        ] {
+            assert!(got.contains(&want.to_string()), "{want} not in {got:?}");
+        }
+        assert!(!got.iter().any(|k| k.starts_with("gyro.")), "{got:?}");
+        o.gyro_bias = Some((0.007, 0.001));
+        o.gyro.saturated = 4;
+        let got = text(radar_odometry(&o));
+        for want in [
+            "gyro.saturated=4",
+            "gyro.bias=0.007000",
+            "gyro.bias_sigma=0.001000",
+        ] {
+            assert!(got.contains(&want.to_string()), "{want} not in {got:?}");
+        }
+    }
 }

@@ -475,8 +475,8 @@ fn a_connection_of_another_definition_is_refused_naming_it() {
     let e = m.decode::<Odometry>().unwrap_err();
     assert!(matches!(e, BagError::Ros1Definition { .. }), "{e}");
     // A type with no known ROS 1 layout.
-    let e = dc_loc::bag::ros1::definition_fault("std_msgs/msg/Header", "x").unwrap();
-    assert!(e.contains("no ROS 1 layout of std_msgs/Header"), "{e}");
+    let e = dc_loc::bag::ros1::definition_fault("std_msgs/msg/String", "x").unwrap();
+    assert!(e.contains("no ROS 1 layout of std_msgs/String"), "{e}");
 }
 
 #[test]

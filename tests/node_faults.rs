@@ -1,5 +1,5 @@
 //! The node's start-up refusals and its map file as an operator meets them: out-of-range node
-//! settings and DDS security requests stop the start with exit code 2 and the cause; a radar left on
+//! settings stop the start with exit code 2 and the cause (DDS security: tests/security.rs); a radar left on
 //! the default noise is warned about once at start; a map another node holds is refused naming the
 //! holder, and the holder keeps and saves it; files a killed writer left are removed; a refused map with `map.start_empty_on_error` saves to `<map>.new`, then
 //! `<map>.new.1`, never over an earlier session. No Python here: the node runs alone on a domain of
@@ -117,24 +117,6 @@ fn a_radar_left_on_the_default_noise_is_named_at_start() {
         err.contains("ARS408-21") && !err.contains("radars.front.beta, "),
         "{err}"
     );
-}
-
-#[test]
-fn dds_security_is_refused_not_ignored() {
-    let out = run(&["--ros-args", "--enclave", "/dc_loc"], &[]);
-    let err = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.to_lowercase().contains("security"), "{err}");
-    let out = run(
-        &["--ros-args"],
-        &[
-            ("ROS_SECURITY_ENABLE", "true"),
-            ("ROS_SECURITY_STRATEGY", "Enforce"),
-        ],
-    );
-    let err = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("ROS_SECURITY"), "{err}");
 }
 
 #[test]

@@ -41,14 +41,10 @@ pub enum ArgsError {
     /// A `-p` argument that is not `name:=value`.
     #[error(transparent)]
     Param(#[from] ParamError),
-    /// DDS security was asked for (`--enclave`, or `ROS_SECURITY_ENABLE=true` with
-    /// `ROS_SECURITY_STRATEGY=Enforce`): this node cannot enforce it.
-    #[error(
-        "{0}: DDS security (SROS2) is not supported by this node (rustdds has no enforced ROS 2 \
-         security here); refusing to start unsecured. Isolate it instead: a ROS_DOMAIN_ID of its own, \
-         ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, or a network namespace (README_NODE.md, Security)"
-    )]
-    SecurityUnsupported(String),
+    /// DDS security is enforced (`ROS_SECURITY_STRATEGY=Enforce`) and cannot be set up: the cause,
+    /// naming the variable, the enclave or the file.
+    #[error("DDS security (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce): {0}")]
+    Security(String),
     /// An environment variable with an unusable value.
     #[error("environment variable {name}={value:?}: {reason}")]
     Env {
@@ -81,6 +77,8 @@ pub struct RosArgs {
     pub log_level: Option<log::LevelFilter>,
     /// Logs also go to `/rosout` (`--disable-rosout-logs` turns it off).
     pub rosout: bool,
+    /// `--enclave`: the security enclave (`ROS_SECURITY_ENCLAVE_OVERRIDE` overrides it).
+    pub enclave: Option<String>,
     sources: Vec<ParamSource>,
 }
 
@@ -92,6 +90,7 @@ impl Default for RosArgs {
             remaps: Vec::new(),
             log_level: None,
             rosout: true,
+            enclave: None,
             sources: Vec::new(),
         }
     }
@@ -152,10 +151,7 @@ impl RosArgs {
                 "--enable-stdout-logs"
                 | "--disable-stdout-logs"
                 | "--disable-external-lib-logs" => {}
-                "-e" | "--enclave" => {
-                    let enclave = value(&mut it, a)?;
-                    return Err(ArgsError::SecurityUnsupported(format!("{a} {enclave}")));
-                }
+                "-e" | "--enclave" => out.enclave = Some(value(&mut it, a)?),
                 _ => return Err(ArgsError::Unknown(a.clone())),
             }
         }
@@ -333,18 +329,6 @@ impl DdsEnv {
             None if get("ROS_LOCALHOST_ONLY").as_deref() == Some("1") => DiscoveryRange::Localhost,
             None => DiscoveryRange::Subnet,
         };
-        let secure = get("ROS_SECURITY_ENABLE").is_some_and(|v| v.eq_ignore_ascii_case("true"));
-        let strategy = get("ROS_SECURITY_STRATEGY").unwrap_or_default();
-        if secure && strategy.eq_ignore_ascii_case("enforce") {
-            return Err(ArgsError::SecurityUnsupported(
-                "ROS_SECURITY_ENABLE=true with ROS_SECURITY_STRATEGY=Enforce".into(),
-            ));
-        }
-        if secure {
-            log::warn!(
-                "ROS_SECURITY_ENABLE=true: this node does not support DDS security and runs unsecured (ROS_SECURITY_STRATEGY is `{strategy}`, not Enforce)"
-            );
-        }
         Ok(DdsEnv { domain_id, range })
     }
 }
@@ -477,31 +461,12 @@ mod tests {
         ));
     }
 
+    /// `--enclave` names the enclave; security itself is read from the environment
+    /// (`crate::security`).
     #[test]
-    fn security_is_refused_rather_than_ignored() {
-        let env = |pairs: &'static [(&'static str, &'static str)]| {
-            move |k: &str| {
-                pairs
-                    .iter()
-                    .find(|(n, _)| *n == k)
-                    .map(|(_, v)| v.to_string())
-            }
-        };
-        let e = RosArgs::parse(&args("--ros-args --enclave /dc_loc")).unwrap_err();
-        assert!(matches!(e, ArgsError::SecurityUnsupported(_)), "{e}");
-        assert!(e.to_string().contains("not supported"), "{e}");
-        let e = DdsEnv::from_env(env(&[
-            ("ROS_SECURITY_ENABLE", "true"),
-            ("ROS_SECURITY_STRATEGY", "Enforce"),
-        ]))
-        .unwrap_err();
-        assert!(matches!(e, ArgsError::SecurityUnsupported(_)), "{e}");
-        assert!(
-            DdsEnv::from_env(env(&[
-                ("ROS_SECURITY_ENABLE", "true"),
-                ("ROS_SECURITY_STRATEGY", "Permissive"),
-            ]))
-            .is_ok()
-        );
+    fn the_enclave_argument_is_taken() {
+        let a = RosArgs::parse(&args("--ros-args --enclave /robots/car1")).unwrap();
+        assert_eq!(a.enclave.as_deref(), Some("/robots/car1"));
+        assert_eq!(RosArgs::parse(&args("--ros-args")).unwrap().enclave, None);
     }
 }

@@ -24,6 +24,7 @@ pub mod merge;
 pub mod node;
 pub mod odometry;
 pub mod rosout;
+pub mod security;
 pub mod services;
 pub mod shared;
 pub mod tf;

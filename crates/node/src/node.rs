@@ -9,6 +9,7 @@
 //! published), saves the map and ends; entities are dropped before the context.
 
 use std::net::Ipv4Addr;
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
@@ -17,12 +18,13 @@ use std::time::Duration;
 use ros2_client::{Context, Node, NodeName, NodeOptions, ParameterValue};
 use serde_json::Value;
 
-use super::args::{DdsEnv, DiscoveryRange, RosArgs};
+use super::args::{ArgsError, DdsEnv, DiscoveryRange, RosArgs};
 use super::endpoints::{Subscriptions, outputs, tf_static};
 pub use super::error::NodeError;
 use super::error::dds;
 use super::inputs::Reception;
 use super::map_store::{LoadedMap, MapSaver, load_map};
+use super::security::SecurityEnv;
 use super::services::SaveRequests;
 use super::shared::{Inbox, Shared, Work};
 use super::tf::static_extrinsics;
@@ -123,6 +125,8 @@ fn tf_extrinsics(
 
 fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let env = DdsEnv::from_env(|k| std::env::var(k).ok())?;
+    let enclave = SecurityEnv::from_env(|k| std::env::var(k).ok())
+        .enclave_dir(ros_args.enclave.as_deref())?;
     let StartUp {
         mut cfg,
         settings,
@@ -135,15 +139,21 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     let live = Arc::new(LiveParams::new(&params));
     let (save_tx, save_rx) = SaveRequests::channel();
     log::info!(
-        "dc_loc node {} (ROS_DOMAIN_ID {}, discovery {:?}), effective configuration:\n{}",
+        "dc_loc node {} (ROS_DOMAIN_ID {}, discovery {:?}, {}), effective configuration:\n{}",
         ros_args.fully_qualified_name(),
         env.domain_id,
         env.range,
+        enclave
+            .as_ref()
+            .map_or("unsecured".to_string(), |d| format!(
+                "DDS security with the enclave {}",
+                d.display()
+            )),
         describe(&cfg, &settings)
     );
     let runtime = runtime()?;
     let _entered = runtime.enter();
-    let context = dds_context(&env)?;
+    let context = dds_context(&env, enclave.as_deref())?;
     let mut node = make_node(&context, ros_args, &cfg, &settings, live.clone())?;
     super::rosout::forward(node.logging_handle(), ros_args.logger_name());
     let spin_task = tokio::spawn(node.spinner().map_err(dds("spinner"))?.spin());
@@ -239,13 +249,29 @@ fn spawn_worker(
 }
 
 /// The DDS participant and context: loopback only when asked (ros2-client reads neither
-/// `ROS_DOMAIN_ID` nor `ROS_AUTOMATIC_DISCOVERY_RANGE` itself).
-fn dds_context(env: &DdsEnv) -> Result<Context, NodeError> {
-    let mut builder = ros2_client::dds::rustdds::DomainParticipantBuilder::new(env.domain_id);
+/// `ROS_DOMAIN_ID` nor `ROS_AUTOMATIC_DISCOVERY_RANGE` itself), secured with `enclave` when given
+/// (its key unencrypted, as sros2 writes it). A participant the enclave's files do not make (a
+/// certificate not signed by its CA, a document whose signature fails) is a configuration error.
+fn dds_context(env: &DdsEnv, enclave: Option<&Path>) -> Result<Context, NodeError> {
+    use ros2_client::dds::rustdds::{self, DomainParticipantBuilder};
+    let mut builder = DomainParticipantBuilder::new(env.domain_id);
     if env.range != DiscoveryRange::Subnet {
         builder = builder.with_only_networks([Ipv4Addr::LOCALHOST]);
     }
-    let participant = builder.build().map_err(dds("domain participant"))?;
+    if let Some(dir) = enclave {
+        let files = rustdds::DomainParticipantSecurityConfigFiles::with_ros_default_names(
+            dir,
+            String::new(),
+        );
+        builder = builder.builtin_security(files);
+    }
+    let participant = builder.build().map_err(|e| match enclave {
+        Some(dir) => NodeError::Args(ArgsError::Security(format!(
+            "the enclave {} does not make a secured participant: {e:?}",
+            dir.display()
+        ))),
+        None => dds("domain participant")(e),
+    })?;
     Context::from_domain_participant(participant).map_err(dds("context"))
 }
 

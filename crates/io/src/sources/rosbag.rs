@@ -14,16 +14,17 @@
 //! [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is replaced by the bag's log
 //! time; a radar with a `trigger_topic` takes its scans' stamps from the `std_msgs/Header` triggers
 //! on that topic instead, the newest one before each scan in file order
-//! ([`dc_loc_core::radar::trigger`]). A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
-//! over the time between them (0 for the first).
+//! ([`dc_loc_core::radar::trigger`]). A `PoseStamped` ground truth has no twist: its speed is the
+//! distance from the previous pose over the time between them (0 for the first: [`PoseSpeed`]).
 
 use std::collections::BTreeMap;
 
+use super::ground_truth::PoseSpeed;
 use crate::bag::{BagError, BagReader, Messages, ros1, schema};
 use dc_loc_core::input::{
     Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, imu_input, radar_scan_input,
 };
-use dc_loc_core::math::{Iso3, Stamp};
+use dc_loc_core::math::Stamp;
 use dc_loc_core::msgs::geometry_msgs::PoseStamped;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
@@ -123,8 +124,8 @@ pub struct BagInputs {
     routes: BTreeMap<String, Route>,
     /// Newest log time seen: the stamp of damage reports.
     last_log_time: Stamp,
-    /// The previous `PoseStamped` ground truth: its stamp and pose (for the speed).
-    last_pose: Option<(Stamp, Iso3)>,
+    /// The speed of `PoseStamped` ground truth.
+    pose_speed: PoseSpeed,
     /// The radars' stamps from their triggers.
     triggers: TriggerStamps,
     total: u64,
@@ -248,7 +249,7 @@ impl BagInputs {
             messages,
             routes,
             last_log_time: Stamp(0),
-            last_pose: None,
+            pose_speed: PoseSpeed::default(),
             triggers: TriggerStamps::new(cfg.trigger_delays()),
             total,
         })
@@ -341,21 +342,11 @@ impl Iterator for BagInputs {
                         Err(reason) => Err(issue(msg.log_time, reason)),
                         Ok(stamp) => match p.pose.to_iso3() {
                             None => Err(issue(stamp, IssueReason::NonFinitePose)),
-                            Some(pose) => {
-                                let speed = match self.last_pose {
-                                    Some((t, last)) if stamp > t => {
-                                        (pose.translation.vector - last.translation.vector).norm()
-                                            / stamp.secs_since(t)
-                                    }
-                                    _ => 0.0,
-                                };
-                                self.last_pose = Some((stamp, pose));
-                                Ok(Input::GroundTruth {
-                                    stamp,
-                                    t_map_body: pose,
-                                    speed,
-                                })
-                            }
+                            Some(pose) => Ok(Input::GroundTruth {
+                                stamp,
+                                t_map_body: pose,
+                                speed: self.pose_speed.next(stamp, &pose),
+                            }),
                         },
                     },
                 },

@@ -5,17 +5,27 @@
 use dc_loc_core::input::Input;
 use dc_loc_core::math::{Iso3, Stamp};
 
-/// The speed of ground truth that has poses and no twist (a `geometry_msgs/PoseStamped` topic, a TUM
-/// file): the distance from the previous pose over the time between them, m/s; 0 for the first pose
-/// and for one whose stamp is not after the previous one.
+/// Ground-truth inputs from poses without a twist (a `geometry_msgs/PoseStamped` topic, a TUM file),
+/// with their speed: the distance from the previous pose over the time between them, m/s. The first
+/// pose waits for the second and takes its speed (a recording may start on the move; 0 would put the
+/// first keyframes' speed far off); a pose whose stamp is not after the previous one's takes 0, and so
+/// does a single pose.
 #[derive(Debug, Clone, Default)]
 pub struct PoseSpeed {
     last: Option<(Stamp, Iso3)>,
+    /// The first pose, until the second arrives.
+    first: Option<(Stamp, Iso3)>,
 }
 
 impl PoseSpeed {
-    /// The speed at `stamp`, arriving at `pose`; remembers both for the next call.
-    pub fn next(&mut self, stamp: Stamp, pose: &Iso3) -> f64 {
+    /// Takes the next pose; returns the ground-truth inputs now complete (none for the first pose,
+    /// both the first and the second at the second).
+    pub fn push(&mut self, stamp: Stamp, pose: &Iso3) -> Vec<Input> {
+        if self.last.is_none() {
+            self.first = Some((stamp, *pose));
+            self.last = Some((stamp, *pose));
+            return Vec::new();
+        }
         let speed = match self.last {
             Some((t, last)) if stamp > t => {
                 (pose.translation.vector - last.translation.vector).norm() / stamp.secs_since(t)
@@ -23,7 +33,27 @@ impl PoseSpeed {
             _ => 0.0,
         };
         self.last = Some((stamp, *pose));
-        speed
+        let mut ready: Vec<Input> = self
+            .first
+            .take()
+            .map(|(t, p)| sample(t, p, speed))
+            .into_iter()
+            .collect();
+        ready.push(sample(stamp, *pose, speed));
+        ready
+    }
+
+    /// The end of the poses: the first pose if it is still waiting (a single pose, speed 0).
+    pub fn finish(&mut self) -> Option<Input> {
+        self.first.take().map(|(t, p)| sample(t, p, 0.0))
+    }
+}
+
+fn sample(stamp: Stamp, t_map_body: Iso3, speed: f64) -> Input {
+    Input::GroundTruth {
+        stamp,
+        t_map_body,
+        speed,
     }
 }
 
@@ -50,13 +80,31 @@ mod tests {
     use super::*;
     use dc_loc_core::math::iso3_from_xyz_rpy;
 
+    fn speeds(inputs: &[Input]) -> Vec<(i64, f64)> {
+        inputs
+            .iter()
+            .map(|i| match i {
+                Input::GroundTruth { stamp, speed, .. } => (stamp.0, *speed),
+                other => panic!("not ground truth: {other:?}"),
+            })
+            .collect()
+    }
+
     #[test]
-    fn pose_speed_is_distance_over_time_and_zero_without_a_step_forward() {
+    fn pose_speed_is_distance_over_time_and_the_first_pose_takes_the_seconds() {
         let mut s = PoseSpeed::default();
         let at = |x: f64| iso3_from_xyz_rpy(x, 0.0, 0.0, 0.0, 0.0, 0.0);
-        assert_eq!(s.next(Stamp(0), &at(0.0)), 0.0);
-        assert!((s.next(Stamp(500_000_000), &at(5.0)) - 10.0).abs() < 1e-12);
-        assert_eq!(s.next(Stamp(500_000_000), &at(6.0)), 0.0);
+        assert!(s.push(Stamp(0), &at(0.0)).is_empty());
+        let both = speeds(&s.push(Stamp(500_000_000), &at(5.0)));
+        assert_eq!(both, vec![(0, 10.0), (500_000_000, 10.0)]);
+        let same_stamp = speeds(&s.push(Stamp(500_000_000), &at(6.0)));
+        assert_eq!(same_stamp, vec![(500_000_000, 0.0)]);
+        assert!(s.finish().is_none());
+
+        let mut single = PoseSpeed::default();
+        assert!(single.push(Stamp(7), &at(1.0)).is_empty());
+        assert_eq!(speeds(&[single.finish().unwrap()]), vec![(7, 0.0)]);
+        assert!(single.finish().is_none());
     }
 
     #[test]

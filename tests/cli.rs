@@ -22,8 +22,10 @@ use dc_loc::bag::{BagReader, BagWriter, schema};
 use dc_loc::cloud::{CloudLayout, encode_detections};
 use dc_loc::input::{Input, IssueReason};
 use dc_loc::io::rosbag::BagInputs;
+use dc_loc::io::tum::{read_tum, tum_line};
 use dc_loc::math::{
-    Iso2, Stamp, Vec3, interpolate_iso3, iso2_from_iso3, iso3_from_iso2, wrap_angle,
+    Iso2, Stamp, Vec3, interpolate_iso3, iso2_from_iso3, iso3_from_iso2, iso3_from_xyz_rpy,
+    wrap_angle,
 };
 use dc_loc::msgs::builtin_interfaces::Time;
 use dc_loc::msgs::nav_msgs::Odometry;
@@ -848,6 +850,126 @@ fn exported_pairs_align_under_their_truth(dir: &std::path::Path, pairs: usize) {
     assert!(
         n >= 5 && closer * 10 >= n * 9,
         "{closer} of {n} pairs align under their truth"
+    );
+}
+
+/// `dc_loc eval --dcloc-only` on the bag `bag` with `extra` arguments: its stdout, with the output
+/// directory's path cut out.
+fn eval_dcloc(bag: &Path, name: &str, extra: &[&str]) -> String {
+    let out_dir = scratch(name);
+    let params = bag.join("dc_loc.yaml");
+    let mut args = vec![
+        "eval",
+        "--bag",
+        bag.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--dcloc-only",
+        "--out-dir",
+        out_dir.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let out = dc_loc(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    text(&out.stdout).replace(out_dir.to_str().unwrap(), "<out>")
+}
+
+/// Ground truth from the TUM file `dc_loc sim --ground-truth-tum` wrote gives `dc_loc eval` the tables
+/// the bag's topic gives; so does a TUM file of another frame on the vehicle (the body's poses moved
+/// by the inverse of a known `t_gt_body`) with that `--ground-truth-to-body`. Both laps are driven at
+/// one speed that no corner lowers: the twist's speed and the one from consecutive poses (which lags
+/// half a sample, and for the other frame is that frame's) then put every pair in the same velocity
+/// bin, where a speed change could move a pair on a bin edge to the next bin.
+#[test]
+fn eval_with_ground_truth_from_a_tum_file_prints_the_topics_tables() {
+    let root = scratch("eval_gt");
+    let config = root.join("one_speed.yaml");
+    let one_speed = SHORT_DRIVE.replace("speed: 15.0", "speed: 10.0")
+        + "drive:\n  max_lateral_acceleration: 8.0\n";
+    std::fs::write(&config, one_speed).unwrap();
+    let (bag, tum) = (root.join("bag"), root.join("ground_truth.txt"));
+    let sim = dc_loc(&[
+        "sim",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        bag.to_str().unwrap(),
+        "--ground-truth-tum",
+        tum.to_str().unwrap(),
+    ]);
+    assert!(sim.status.success(), "{}", text(&sim.stderr));
+
+    let from_topic = eval_dcloc(&bag, "eval_gt_topic", &[]);
+    assert!(from_topic.contains("Table 1 layout"), "{from_topic}");
+    let from_file = eval_dcloc(
+        &bag,
+        "eval_gt_file",
+        &["--ground-truth", tum.to_str().unwrap()],
+    );
+    assert_eq!(from_file, from_topic);
+
+    // A unit 1.2 m behind, 0.4 m right of and 0.3 m above the body, turned by 30 deg.
+    let t_gt_body = iso3_from_xyz_rpy(1.2, 0.4, -0.3, 0.0, 0.0, (-30f64).to_radians());
+    let unit = root.join("unit.txt");
+    let moved: String = read_tum(&tum)
+        .unwrap()
+        .iter()
+        .map(|p| tum_line(p.stamp, &(p.pose * t_gt_body.inverse())) + "\n")
+        .collect();
+    std::fs::write(&unit, moved).unwrap();
+    let from_unit = eval_dcloc(
+        &bag,
+        "eval_gt_unit",
+        &[
+            "--ground-truth",
+            unit.to_str().unwrap(),
+            "--ground-truth-to-body",
+            "1.2,0.4,-0.3,-30",
+        ],
+    );
+    assert_eq!(from_unit, from_topic);
+}
+
+/// A malformed TUM file is refused naming its line; a file and a topic together are refused.
+#[test]
+fn eval_refuses_a_bad_tum_file_and_a_file_with_a_topic() {
+    let bag = sim_bag();
+    let dir = scratch("eval_gt_bad");
+    let bad = dir.join("bad.txt");
+    std::fs::write(
+        &bad,
+        "# t x y z qx qy qz qw\n1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let params = bag.dir.join("dc_loc.yaml");
+    let eval = |extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--bag",
+            bag.dir.to_str().unwrap(),
+            "--params",
+            params.to_str().unwrap(),
+            "--out-dir",
+            dir.to_str().unwrap(),
+            "--ground-truth",
+            bad.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        dc_loc(&args)
+    };
+    let out = eval(&[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let stderr = text(&out.stderr);
+    assert!(
+        stderr.contains(&format!("{}:3: 7 values, expected 8", bad.display())),
+        "{stderr}"
+    );
+    let both = eval(&["--ground-truth-topic", "/ground_truth/odom"]);
+    assert_eq!(both.status.code(), Some(2));
+    assert!(
+        text(&both.stderr).contains("--ground-truth-topic"),
+        "{}",
+        text(&both.stderr)
     );
 }
 

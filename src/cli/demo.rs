@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::CliError;
-use super::eval::{collect, evaluate_and_report};
+use super::eval::{GroundTruth, collect, evaluate_and_report};
 use super::params::load_params;
 use crate::eval::{EvalConfig, Method};
 use crate::sim::export::export_drive;
@@ -66,7 +66,7 @@ pub fn main(args: &DemoArgs) -> Result<(), CliError> {
     let kfs = collect(
         &summary.bag_dir,
         &cfg,
-        crate::sim::export::GROUND_TRUTH_TOPIC,
+        &GroundTruth::topic(crate::sim::export::GROUND_TRUTH_TOPIC),
         &eval,
     )?;
     println!("3/3 registering keyframe pairs of the two laps with every method...\n");

@@ -14,6 +14,7 @@ use super::params::node_settings;
 use super::source::{Dataset, Segment, SourceArgs};
 use super::{CliError, progress};
 use crate::input::IssueReason;
+use crate::io::tum::tum_line;
 use crate::output::ClosureRecord;
 use crate::params::node::{NodeSettings, describe};
 use crate::pipeline::{Event, Pipeline};
@@ -201,26 +202,6 @@ fn run_segment(
             RunItem::Event(_) => {}
         },
     ))
-}
-
-/// A pose as a TUM trajectory line: `stamp x y z qx qy qz qw`, the stamp to the nanosecond (written
-/// from its integer nanoseconds: a float of seconds keeps only about 0.2 us at today's epoch).
-fn tum_line(stamp: crate::math::Stamp, t: &crate::math::Iso3) -> String {
-    let (p, q) = (t.translation.vector, t.rotation.coords);
-    let ns = stamp.0.unsigned_abs();
-    let sign = if stamp.0 < 0 { "-" } else { "" };
-    format!(
-        "{sign}{}.{:09} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
-        ns / 1_000_000_000,
-        ns % 1_000_000_000,
-        p.x,
-        p.y,
-        p.z,
-        q.x,
-        q.y,
-        q.z,
-        q.w
-    )
 }
 
 fn counts<K: std::fmt::Display>(m: &BTreeMap<K, u64>) -> String {

@@ -4,12 +4,14 @@
 //! The drive is `SimConfig::default()` (the paper's CARLA experiment), then the `--config` YAML (any
 //! [`SimConfig`] fields; unknown keys are refused), then the flags.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::ValueEnum;
 
 use super::CliError;
 use crate::bag::BagError;
+use crate::io::tum::tum_line;
+use crate::math::iso3_from_iso2;
 use crate::sim::export::{ExportError, drive_description, export_drive};
 use crate::sim::{NoiseConfig, NoiseModel, RadarPreset, SimConfig, WorldFamily, simulate};
 
@@ -101,6 +103,11 @@ pub struct SimArgs {
     /// odometry frame of its own.
     #[arg(long, value_name = "N")]
     pub fleet: Option<u32>,
+    /// Also write the drive's ground truth (the body's pose in the map frame, as on
+    /// `/ground_truth/odom`) as a TUM trajectory file, `t x y z qx qy qz qw` a line, t to the
+    /// nanosecond; for `dc_loc eval --ground-truth FILE`.
+    #[arg(long, value_name = "FILE", conflicts_with = "fleet")]
+    pub ground_truth_tum: Option<PathBuf>,
 }
 
 /// The simulator configuration the arguments describe (file, then flags), validated.
@@ -214,6 +221,9 @@ pub fn main(args: &SimArgs) -> Result<(), CliError> {
         return Ok(());
     }
     let drive = write_drive(&cfg, &args.out)?;
+    if let Some(path) = &args.ground_truth_tum {
+        write_ground_truth_tum(&drive, path)?;
+    }
     if let Some(dir) = &args.nuscenes_out {
         let ex = crate::sim::nuscenes::export_nuscenes(&drive, dir, "v1.0-mini", "sim-city")
             .map_err(|e| CliError::Runtime(e.to_string()))?;
@@ -271,6 +281,23 @@ fn write_drive(cfg: &SimConfig, out: &std::path::Path) -> Result<crate::sim::Sim
     Ok(drive)
 }
 
+/// Writes the drive's ground truth to `path` as a TUM trajectory file and says so.
+fn write_ground_truth_tum(drive: &crate::sim::SimDrive, path: &Path) -> Result<(), CliError> {
+    let mut text = String::from("# t x y z qx qy qz qw: the body in the map frame (s, m)\n");
+    for p in &drive.ground_truth {
+        text.push_str(&tum_line(p.stamp, &iso3_from_iso2(&p.t_map_body)));
+        text.push('\n');
+    }
+    std::fs::write(path, text)
+        .map_err(|e| CliError::Runtime(format!("--ground-truth-tum {}: {e}", path.display())))?;
+    println!(
+        "ground truth: {} ({} poses)",
+        path.display(),
+        drive.ground_truth.len()
+    );
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -289,6 +316,7 @@ mod tests {
             odom_yaw_rate_bias_deg: None,
             nuscenes_out: None,
             fleet: None,
+            ground_truth_tum: None,
         }
     }
 

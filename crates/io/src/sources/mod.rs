@@ -9,11 +9,15 @@
 //! ray, the PointCloud2 that nuscenes2bag/nuscenes2mcap published), [`nuscenes`] (the nuScenes tables,
 //! a scene as an input stream, [`nuscenes::SceneInputs`]), [`vod`] (View-of-Delft 4D-radar frames,
 //! camera poses and KITTI calibration) and [`vod_sequence`] (a VoD directory as sequences of
-//! consecutive frames, each an input stream, [`vod_sequence::VodInputs`]).
+//! consecutive frames, each an input stream, [`vod_sequence::VodInputs`]). Ground truth may also come
+//! from a file of its own: [`tum`] (TUM trajectory files), with [`ground_truth`] (the speed of poses
+//! without a twist, a tracked frame's pose moved to the body frame) shared by every source.
 
 pub mod foxglove;
+pub mod ground_truth;
 pub mod nuscenes;
 pub mod nuscenes_pcd;
 pub mod rosbag;
+pub mod tum;
 pub mod vod;
 pub mod vod_sequence;

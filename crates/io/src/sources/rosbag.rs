@@ -14,16 +14,18 @@
 //! [`BagInputs::new`], naming the parameter. A cloud's zero `header.stamp` is replaced by the bag's log
 //! time; a radar with a `trigger_topic` takes its scans' stamps from the `std_msgs/Header` triggers
 //! on that topic instead, the newest one before each scan in file order
-//! ([`dc_loc_core::radar::trigger`]). A `PoseStamped` ground truth has no twist: its speed is the distance from the previous pose
-//! over the time between them (0 for the first).
+//! ([`dc_loc_core::radar::trigger`]). A `PoseStamped` ground truth has no twist: its speed is the
+//! distance from the previous pose over the time between them ([`PoseSpeed`]: the first pose comes
+//! with the second and takes its speed).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
+use super::ground_truth::PoseSpeed;
 use crate::bag::{BagError, BagReader, Messages, ros1, schema};
 use dc_loc_core::input::{
     Input, InputIssue, IssueReason, ground_truth_sample, header_stamp, imu_input, radar_scan_input,
 };
-use dc_loc_core::math::{Iso3, Stamp};
+use dc_loc_core::math::Stamp;
 use dc_loc_core::msgs::geometry_msgs::PoseStamped;
 use dc_loc_core::msgs::nav_msgs::Odometry;
 use dc_loc_core::msgs::radar_msgs::RadarScan as RadarScanMsg;
@@ -123,10 +125,13 @@ pub struct BagInputs {
     routes: BTreeMap<String, Route>,
     /// Newest log time seen: the stamp of damage reports.
     last_log_time: Stamp,
-    /// The previous `PoseStamped` ground truth: its stamp and pose (for the speed).
-    last_pose: Option<(Stamp, Iso3)>,
+    /// The speed of `PoseStamped` ground truth.
+    pose_speed: PoseSpeed,
     /// The radars' stamps from their triggers.
     triggers: TriggerStamps,
+    /// Items ready and not yet returned: the second of the first two ground-truth poses, or the
+    /// damage that ends the file after a ground-truth pose still waiting.
+    pending: VecDeque<Result<Input, InputIssue>>,
     total: u64,
 }
 
@@ -248,8 +253,9 @@ impl BagInputs {
             messages,
             routes,
             last_log_time: Stamp(0),
-            last_pose: None,
+            pose_speed: PoseSpeed::default(),
             triggers: TriggerStamps::new(cfg.trigger_delays()),
+            pending: VecDeque::new(),
             total,
         })
     }
@@ -264,15 +270,23 @@ impl Iterator for BagInputs {
     type Item = Result<Input, InputIssue>;
 
     fn next(&mut self) -> Option<Self::Item> {
+        if let Some(item) = self.pending.pop_front() {
+            return Some(item);
+        }
         loop {
-            let msg = match self.messages.next()? {
-                Ok(m) => m,
-                Err(e) => {
-                    return Some(Err(InputIssue {
+            let msg = match self.messages.next() {
+                // A single ground-truth pose still waits for a second one.
+                None => return self.pose_speed.finish().map(Ok),
+                Some(Ok(m)) => m,
+                Some(Err(e)) => {
+                    // The damage ends the file: a waiting pose comes out before it.
+                    self.pending.extend(self.pose_speed.finish().map(Ok));
+                    self.pending.push_back(Err(InputIssue {
                         topic: String::new(),
                         stamp: self.last_log_time,
                         reason: IssueReason::Damaged(Box::new(e)),
                     }));
+                    return self.pending.pop_front();
                 }
             };
             self.last_log_time = msg.log_time;
@@ -342,19 +356,12 @@ impl Iterator for BagInputs {
                         Ok(stamp) => match p.pose.to_iso3() {
                             None => Err(issue(stamp, IssueReason::NonFinitePose)),
                             Some(pose) => {
-                                let speed = match self.last_pose {
-                                    Some((t, last)) if stamp > t => {
-                                        (pose.translation.vector - last.translation.vector).norm()
-                                            / stamp.secs_since(t)
-                                    }
-                                    _ => 0.0,
-                                };
-                                self.last_pose = Some((stamp, pose));
-                                Ok(Input::GroundTruth {
-                                    stamp,
-                                    t_map_body: pose,
-                                    speed,
-                                })
+                                let ready = self.pose_speed.push(stamp, &pose);
+                                self.pending.extend(ready.into_iter().map(Ok));
+                                match self.pending.pop_front() {
+                                    Some(item) => item,
+                                    None => continue,
+                                }
                             }
                         },
                     },

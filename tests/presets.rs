@@ -23,8 +23,9 @@ use dc_loc::io::rosbag::BagInputs;
 use dc_loc::math::{Mat3, Stamp, Vec3};
 use dc_loc::msgs::nav_msgs::Odometry;
 use dc_loc::msgs::radar_msgs::{RadarReturn, RadarScan};
-use dc_loc::msgs::sensor_msgs::{PointCloud2, PointField};
+use dc_loc::msgs::sensor_msgs::{Imu, PointCloud2, PointField};
 use dc_loc::msgs::std_msgs::Header;
+use dc_loc::odometry::OdometrySource;
 use dc_loc::pipeline::Config;
 use dc_loc::radar::{Detection, RadarConfig, RadarMessage};
 use nalgebra::{Matrix4, Quaternion, UnitQuaternion};
@@ -729,8 +730,9 @@ fn cloud(
     }
 }
 
-/// The clouds, each on its radar's topic, and one odometry sample, through a rosbag2 and `BagInputs`:
-/// what reaches the pipeline, by radar index.
+/// The clouds, each on its radar's topic (after a trigger, for a radar with a trigger topic), and one
+/// sample of the preset's pose input (odometry, or a gyro sample), through a rosbag2 and
+/// `BagInputs`: what reaches the pipeline, by radar index.
 fn through_bag(
     name: &str,
     cfg: &Config,
@@ -738,16 +740,46 @@ fn through_bag(
 ) -> Vec<(usize, PointCloud2)> {
     let dir = common::scratch("presets_tests", name).join("bag");
     let mut w = BagWriter::create(&dir).unwrap();
-    let odom_topic = w.add_topic(&cfg.odometry.topic, schema::ODOMETRY).unwrap();
-    let mut odom = Odometry::default();
-    odom.header.stamp = t0().into();
-    odom.header.frame_id = "odom".into();
-    odom.child_frame_id = cfg.body_frame.clone();
-    w.write(odom_topic, t0(), &odom).unwrap();
+    match cfg.odometry.source {
+        OdometrySource::Topic => {
+            let odom_topic = w.add_topic(&cfg.odometry.topic, schema::ODOMETRY).unwrap();
+            let mut odom = Odometry::default();
+            odom.header.stamp = t0().into();
+            odom.header.frame_id = "odom".into();
+            odom.child_frame_id = cfg.body_frame.clone();
+            w.write(odom_topic, t0(), &odom).unwrap();
+        }
+        OdometrySource::Radar => {}
+        OdometrySource::RadarImu => {
+            let imu_topic = w.add_topic(&cfg.imu.topic, schema::IMU).unwrap();
+            let mut imu = Imu::default();
+            imu.header.stamp = t0().into();
+            w.write(imu_topic, t0(), &imu).unwrap();
+        }
+    }
+    let mut topics = std::collections::BTreeMap::new();
+    let mut id_of = |w: &mut BagWriter, topic: &str, type_name: &'static str| {
+        *topics
+            .entry(topic.to_string())
+            .or_insert_with(|| w.add_topic(topic, type_name).unwrap())
+    };
     for (k, (topic, c)) in clouds.iter().enumerate() {
-        let id = w.add_topic(topic, schema::POINT_CLOUD2).unwrap();
-        w.write(id, Stamp(t0().0 + 1_000_000 * (k as i64 + 1)), c)
-            .unwrap();
+        let at = Stamp(t0().0 + 1_000_000 * (k as i64 + 1));
+        let trigger = cfg
+            .radar_list()
+            .into_iter()
+            .find(|(_, r)| r.topic == *topic && !r.trigger_topic.is_empty())
+            .map(|(_, r)| r.trigger_topic.clone());
+        if let Some(trigger) = trigger {
+            let id = id_of(&mut w, &trigger, schema::HEADER);
+            let header = Header {
+                stamp: at.into(),
+                frame_id: String::new(),
+            };
+            w.write(id, at, &header).unwrap();
+        }
+        let id = id_of(&mut w, topic, schema::POINT_CLOUD2);
+        w.write(id, at, c).unwrap();
     }
     w.finish().unwrap();
     let reader = BagReader::open(&dir).unwrap();

@@ -105,6 +105,7 @@ macro_rules! with_type {
             schema::IMU => $check::<Imu>($arg),
             schema::TF_MESSAGE => $check::<TFMessage>($arg),
             schema::CLOCK => $check::<Clock>($arg),
+            schema::HEADER => $check::<Header>($arg),
             schema::LOOP_CLOSURE => $check::<LoopClosure>($arg),
             other => panic!("no Rust type for {other}"),
         }

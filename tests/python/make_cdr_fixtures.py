@@ -159,6 +159,7 @@ CASES = [
          'transform': transform(-0.5625, 0.625, 0.53125, 0.0, 0.0, 1.0, 0.0)},
     ]}),
     ('clock', 'rosgraph_msgs/msg/Clock', {'clock': time(1700000000, 123456789)}),
+    ('header_trigger', 'std_msgs/msg/Header', header(1631895354, 18503000, 'PB4')),
     ('loop_closure', LOOP_CLOSURE_TYPE, {
         'header': header(1700000100, 250000000, 'base_link'),
         'query_id': 1234,

@@ -22,8 +22,6 @@ pub const SETUP: &[&str] = &[
     "radars.<name>.topic",
     "radars.<name>.message",
     "radars.<name>.frame_id",
-    "radars.<name>.trigger_topic",
-    "radars.<name>.trigger_delay",
     "radars.<name>.extrinsic",
     "radars.<name>.beta",
     "radars.<name>.sigma_range",

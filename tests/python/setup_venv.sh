@@ -53,6 +53,10 @@ system_deps() {
     command -v cc >/dev/null 2>&1 || missing+=(gcc)
     command -v c++ >/dev/null 2>&1 || missing+=(g++)
     command -v make >/dev/null 2>&1 || missing+=(make)
+    # perl builds the OpenSSL of DDS Security (openssl-src); the openssl CLI makes the security tests'
+    # keystore (launch_scripts/make_keystore.sh).
+    command -v perl >/dev/null 2>&1 || missing+=(perl)
+    command -v openssl >/dev/null 2>&1 || missing+=(openssl)
     # open3d-cpu (examples/peers.py) links the system's libusb-1.0 when it imports.
     PATH=$PATH:/sbin:/usr/sbin ldconfig -p 2>/dev/null | grep -q 'libusb-1\.0\.so\.0' || missing+=(libusb-1.0-0)
     command -v "$python" >/dev/null 2>&1 || die "no '$python' on PATH (set DCLOC_PYTHON to a CPython 3.11)"

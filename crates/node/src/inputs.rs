@@ -50,6 +50,12 @@ impl Stamped for Odometry {
     }
 }
 
+impl Stamped for Header {
+    fn header_mut(&mut self) -> &mut Header {
+        self
+    }
+}
+
 impl Stamped for Imu {
     fn header_mut(&mut self) -> &mut Header {
         &mut self.header
@@ -70,9 +76,9 @@ pub struct Reception {
     pub use_sim_time: bool,
 }
 
-/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: a stamp whose `nanosec`
-/// is 1e9 or more is refused (`bad_stamp`), a zero stamp becomes the receive time, `convert` turns the message into an input or a refusal (counted), and the input goes
-/// to the worker.
+/// Takes every message of `sub` (on `topic`) off DDS until the stream ends: each with a usable stamp
+/// ([`received`]) is turned by `convert` into an input or a refusal (counted), and the input goes to
+/// the worker.
 pub async fn take<M, F>(topic: &str, sub: &Subscription<M>, r: Reception, mut convert: F)
 where
     M: Stamped + DeserializeOwned + 'static,
@@ -81,21 +87,9 @@ where
     let mut stream = std::pin::pin!(sub.async_stream());
     while let Some(item) = stream.next().await {
         let arrived = Instant::now();
-        let mut msg = match item {
-            Ok((m, _)) => m,
-            Err(e) => {
-                r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
-                continue;
-            }
-        };
-        let header = msg.header_mut();
-        if let Err(e) = header_stamp(header, Stamp(0)) {
-            r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
+        let Some(msg) = received(topic, item, &r) else {
             continue;
-        }
-        if Stamp::from(header.stamp) == Stamp(0) {
-            header.stamp = receive_time(&r.shared, r.use_sim_time).into();
-        }
+        };
         match convert(msg) {
             Ok((input, odom_frame)) => r.inbox.send(Work::Input {
                 input: Box::new(input),
@@ -105,6 +99,32 @@ where
             Err((reason, detail)) => r.shared.drop_msg(reason, &detail),
         }
     }
+}
+
+/// A message off DDS with a usable stamp: undecodable ones (`undecodable`) and stamps whose
+/// `nanosec` is 1e9 or more (`bad_stamp`) are counted and give `None`; a zero stamp becomes the
+/// receive time.
+fn received<M: Stamped, I, E: std::fmt::Debug>(
+    topic: &str,
+    item: Result<(M, I), E>,
+    r: &Reception,
+) -> Option<M> {
+    let mut msg = match item {
+        Ok((m, _)) => m,
+        Err(e) => {
+            r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
+            return None;
+        }
+    };
+    let header = msg.header_mut();
+    if let Err(e) = header_stamp(header, Stamp(0)) {
+        r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
+        return None;
+    }
+    if Stamp::from(header.stamp) == Stamp(0) {
+        header.stamp = receive_time(&r.shared, r.use_sim_time).into();
+    }
+    Some(msg)
 }
 
 /// The radars on one topic: (index in `radar_names`, name, expected `frame_id`; empty accepts any).
@@ -178,8 +198,7 @@ pub fn trigger_stamped(
 }
 
 /// Takes every trigger on `topic` (a `std_msgs/Header` at the start of each frame of `radars`) off
-/// DDS until the stream ends: its stamp (a zero one: the receive time) becomes those radars' newest
-/// trigger; a stamp that is not a time is refused (`bad_stamp`).
+/// DDS until the stream ends: its stamp ([`received`]) becomes those radars' newest trigger.
 pub async fn triggers(
     topic: &str,
     sub: &Subscription<Header>,
@@ -189,25 +208,13 @@ pub async fn triggers(
 ) {
     let mut stream = std::pin::pin!(sub.async_stream());
     while let Some(item) = stream.next().await {
-        let header = match item {
-            Ok((m, _)) => m,
-            Err(e) => {
-                r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
-                continue;
-            }
-        };
-        let stamp = match header_stamp(&header, Stamp(0)) {
-            Ok(Stamp(0)) => receive_time(&r.shared, r.use_sim_time),
-            Ok(stamp) => stamp,
-            Err(e) => {
-                r.shared.drop_msg(e.name(), &format!("{topic}: {e}"));
-                continue;
-            }
+        let Some(header) = received(topic, item, &r) else {
+            continue;
         };
         r.shared.count_received("trigger");
         let mut stamps = lock(stamps);
         for &radar in radars {
-            stamps.trigger(radar, stamp);
+            stamps.trigger(radar, header.stamp.into());
         }
     }
 }

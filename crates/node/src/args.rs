@@ -41,9 +41,9 @@ pub enum ArgsError {
     /// A `-p` argument that is not `name:=value`.
     #[error(transparent)]
     Param(#[from] ParamError),
-    /// DDS security is enforced (`ROS_SECURITY_STRATEGY=Enforce`) and cannot be set up: the cause,
-    /// naming the variable, the enclave or the file.
-    #[error("DDS security (ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce): {0}")]
+    /// DDS security is asked for and cannot be set up: the cause, naming the variable, the enclave
+    /// or the file.
+    #[error("DDS security (ROS_SECURITY_ENABLE=true): {0}")]
     Security(String),
     /// An environment variable with an unusable value.
     #[error("environment variable {name}={value:?}: {reason}")]

@@ -62,7 +62,9 @@ impl SecurityEnv {
             .unwrap_or("/");
         match self.find(enclave) {
             Ok(dir) => Ok(Some(dir)),
-            Err(why) if self.enforce => Err(ArgsError::Security(why)),
+            Err(why) if self.enforce => Err(ArgsError::Security(format!(
+                "ROS_SECURITY_STRATEGY=Enforce: {why}"
+            ))),
             Err(why) => {
                 log::warn!(
                     "ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY not Enforce: {why}; running \

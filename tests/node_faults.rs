@@ -6,7 +6,7 @@
 //! its own, on loopback.
 
 mod common;
-use common::text;
+use common::{interrupt, text};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -36,50 +36,16 @@ fn scratch(name: &str) -> PathBuf {
     common::scratch("node_faults", name)
 }
 
-/// A node on `map`, started and running (it printed that it runs, after its signal handler is in
-/// place); stderr is kept for the end.
+/// A node on `map`, started and running (see [`common::start_node`]).
 fn start(map: &Path, extra: &[&str]) -> Child {
     let mut args = vec!["--ros-args".to_string(), "-p".into()];
     args.push(format!("map.file:={}", map.display()));
     for e in extra {
         args.push((*e).into());
     }
-    let mut child = node()
-        .args(&args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("cannot start dc_loc");
-    let stdout = child.stdout.take().unwrap();
-    let mut lines = BufReader::new(stdout).lines();
-    let running = lines.any(|l| l.is_ok_and(|l| l.contains("running")));
-    if !running {
-        let out = child.wait_with_output().unwrap();
-        panic!("the node ended ({}): {}", out.status, text(&out.stderr));
-    }
-    // Whatever else it prints is read, so that it never writes to a closed pipe.
-    std::thread::spawn(move || lines.for_each(drop));
-    child
-}
-
-/// SIGINT, then the node's exit code and stderr (killed after 30 s).
-fn interrupt(mut child: Child) -> (Option<i32>, String) {
-    let pid = child.id().to_string();
-    let sent = Command::new("kill").args(["-INT", &pid]).status().unwrap();
-    assert!(sent.success());
-    let t0 = Instant::now();
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            break;
-        }
-        if t0.elapsed() > Duration::from_secs(30) {
-            let _ = child.kill();
-            panic!("the node did not end within 30 s of SIGINT");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let out = child.wait_with_output().unwrap();
-    (out.status.code(), text(&out.stderr))
+    let mut command = node();
+    command.args(&args);
+    common::start_node(command)
 }
 
 #[test]

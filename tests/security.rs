@@ -10,11 +10,10 @@
 //! runs alone on a domain of its own, on loopback.
 
 mod common;
-use common::text;
-use std::io::{BufRead, BufReader};
+use common::{interrupt, text};
 use std::net::Ipv4Addr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
 use dc_loc::msgs::sensor_msgs::PointCloud2;
@@ -88,39 +87,14 @@ fn run(args: &[&str], security: &[(&str, &str)]) -> Output {
         .expect("cannot start dc_loc")
 }
 
-/// The node, started and running; stderr is kept for the end.
+/// The node, started and running (see [`common::start_node`]).
 fn start(domain: u16, map: &Path, extra: &[&str], security: &[(&str, &str)]) -> Child {
     let mut args = vec!["--ros-args".to_string(), "-p".into()];
     args.push(format!("map.file:={}", map.display()));
     args.extend(extra.iter().map(|e| e.to_string()));
-    let mut child = node(domain, security)
-        .args(&args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("cannot start dc_loc");
-    let stdout = child.stdout.take().unwrap();
-    let mut lines = BufReader::new(stdout).lines();
-    if !lines.any(|l| l.is_ok_and(|l| l.contains("running"))) {
-        let out = child.wait_with_output().unwrap();
-        panic!("the node ended ({}): {}", out.status, text(&out.stderr));
-    }
-    std::thread::spawn(move || lines.for_each(drop));
-    child
-}
-
-/// SIGINT, then the exit code and stderr.
-fn interrupt(child: Child) -> (Option<i32>, String) {
-    let pid = child.id().to_string();
-    assert!(
-        Command::new("kill")
-            .args(["-INT", &pid])
-            .status()
-            .unwrap()
-            .success()
-    );
-    let out = child.wait_with_output().unwrap();
-    (out.status.code(), text(&out.stderr))
+    let mut command = node(domain, security);
+    command.args(&args);
+    common::start_node(command)
 }
 
 fn enforce(ks: &Path) -> Vec<(&'static str, String)> {

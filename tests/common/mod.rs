@@ -83,3 +83,55 @@ route:
     - {x: 170.0, y: 110.0, radius: 15.0, junction: true}
     - {x: 0.0, y: 110.0, radius: 20.0, junction: false}
 ";
+
+/// The node of `command` (its arguments and environment set), started and running: it printed that
+/// it runs, after its signal handler is in place. Its stderr is kept for the end; what else it
+/// prints is read, so that it never writes to a closed pipe.
+pub fn start_node(mut command: std::process::Command) -> std::process::Child {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut child = command
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("cannot start dc_loc");
+    let stdout = child.stdout.take().unwrap();
+    let mut lines = BufReader::new(stdout).lines();
+    if !lines.any(|l| l.is_ok_and(|l| l.contains("running"))) {
+        let out = child.wait_with_output().unwrap();
+        panic!("the node ended ({}): {}", out.status, text(&out.stderr));
+    }
+    std::thread::spawn(move || lines.for_each(drop));
+    child
+}
+
+/// SIGINT to a node of [`start_node`], then its exit code and stderr (killed after 30 s). Its stderr is
+/// read while it shuts down, so that a node logging much never blocks on a full pipe.
+pub fn interrupt(mut child: std::process::Child) -> (Option<i32>, String) {
+    use std::io::Read;
+    use std::time::{Duration, Instant};
+    let mut stderr = child.stderr.take().expect("stderr piped");
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stderr.read_to_end(&mut buf);
+        buf
+    });
+    let pid = child.id().to_string();
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if t0.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            panic!("the node did not end within 30 s of SIGINT");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    (status.code(), text(&reader.join().unwrap()))
+}

@@ -817,12 +817,34 @@ fn the_ti_bag_gives_radar_inertial_odometry_through_every_scan() {
         .expect("a bias line");
     assert!(bias.1 < 0.002, "bias {bias:?}");
     // The samples are on the IMU's clock (the log times run 3.9 days later) and cover the 40 s.
-    let stamps: Vec<f64> = std::fs::read_to_string(&tum)
+    // Each line: stamp, x, y, z, qx, qy, qz, qw.
+    let samples: Vec<Vec<f64>> = std::fs::read_to_string(&tum)
         .unwrap()
         .lines()
-        .map(|l| l.split(' ').next().unwrap().parse().unwrap())
+        .map(|l| l.split(' ').map(|v| v.parse().unwrap()).collect())
         .collect();
+    let stamps: Vec<f64> = samples.iter().map(|s| s[0]).collect();
     assert_eq!(stamps.len(), 413);
+    // What the track looks like (the bag has no ground truth): its length, where it ends, and how far
+    // the heading turns while the rig stands at the start.
+    let path: f64 = samples
+        .windows(2)
+        .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
+        .sum();
+    let end = samples[412][1].hypot(samples[412][2]);
+    let standing = samples
+        .iter()
+        .take_while(|s| s[0] - stamps[0] <= 11.6)
+        .last()
+        .unwrap();
+    let heading = 2.0 * standing[6].atan2(standing[7]);
+    println!(
+        "odometry: {path:.2} m of path, ends {end:.2} m from its start; heading {:.2} deg after \
+         {:.1} s standing",
+        heading.to_degrees(),
+        standing[0] - stamps[0]
+    );
+    assert!(heading.to_degrees().abs() < 1.5, "heading {heading}");
     assert!(
         (stamps[0] - 1_631_895_354.028).abs() < 0.001,
         "{}",

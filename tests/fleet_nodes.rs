@@ -17,7 +17,7 @@
 //! keyframe with an older keyframe of another robot within 5 m, headings within 90 degrees; closed when it
 //! is the newer keyframe of a correct closure between robots), the late joiner closes onto the earlier
 //! robots, every closure names keyframes the fleet topic carried, each node publishes each of its
-//! keyframes, the alignments the nodes send with their keyframes (at least one) lie within 2 m at the
+//! keyframes and numbers them 0, 1, 2, ... (the late joiner too, after the others' keyframes came), the alignments the nodes send with their keyframes (at least one) lie within 2 m at the
 //! keyframes of the closures that gave them, and every node exits 0 on SIGINT or SIGTERM. The offline evaluation of the same fleet
 //! (`eval::fleet::evaluate_fleet`: a pipeline per robot, keyframes through the wire format) is printed
 //! beside it.
@@ -315,6 +315,14 @@ fn check_fleet_run(name: &str, concurrent: &str, late: &str, flood: bool) {
             )
         })
         .collect();
+    // Each robot numbers its own keyframes 0, 1, 2, ... whatever it received from the others first
+    // (the late joiner held the other robots' keyframes before it made its first).
+    for r in 0..i64::from(ROBOTS) {
+        let ids: Vec<u64> = keyframes.keys().filter(|k| k.0 == r).map(|k| k.1).collect();
+        let expected: Vec<u64> = (0..ids.len() as u64).collect();
+        assert!(!ids.is_empty(), "robot {r} published no keyframe");
+        assert_eq!(ids, expected, "robot {r}'s keyframe ids");
+    }
     let poses: Vec<(i64, u64, f64, dc_loc::sim::EgoState)> = keyframes
         .iter()
         .map(|(&(r, id), &t)| {

@@ -50,8 +50,11 @@ impl Markers {
     }
 
     /// An edge between two keyframes of this session's odometry frame (a loaded map's keyframes are
-    /// in another frame).
+    /// in another frame, another robot's in that robot's, and its ids are of its own sequence).
     fn closure(&mut self, c: &LoopClosure) {
+        if c.match_origin.is_some() {
+            return;
+        }
         if let (Some(a), Some(b)) = (self.points.get(&c.query_id), self.points.get(&c.match_id)) {
             self.edges.push_back((*a, *b));
             while self.edges.len() > self.cap {

@@ -66,6 +66,11 @@ impl Foreigners {
         self.origins.get(&id)
     }
 
+    /// How many of the keyframes with a local id below `id` are other robots'.
+    pub fn before(&self, id: u64) -> u64 {
+        self.origins.range(..id).count() as u64
+    }
+
     /// Every origin, by local id.
     pub fn origins(&self) -> impl Iterator<Item = (u64, &Origin)> {
         self.origins.iter().map(|(k, o)| (*k, o))

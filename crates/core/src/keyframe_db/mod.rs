@@ -4,7 +4,9 @@
 //! [`KeyframeDb::candidates`], [`KeyframeDb::prepared`] with a bounded cache of registration-ready
 //! submaps), [`KeyframeDb::save`] / [`KeyframeDb::load`] (the map file, [`file`], written crash-safely
 //! by [`storage`], one writer at a time by [`lock`]), [`MapConfig`]. Ids are positions in the
-//! database, so a loaded map keeps its ids and new keyframes continue after them.
+//! database (local ids), so a loaded map keeps its ids and new keyframes continue after them; outside
+//! the pipeline a keyframe is named by its robot and its id in that robot's own sequence
+//! ([`KeyframeDb::public_id`]).
 
 mod candidates;
 pub mod file;
@@ -151,6 +153,18 @@ impl KeyframeDb {
         &self.foreign
     }
 
+    /// Keyframe `id` as the fleet and the outputs name it: its robot and its id in that robot's own
+    /// sequence. Another robot's keyframe keeps the id its robot gave it; this robot's keyframes
+    /// (and those of its loaded map) are numbered in the order they were made, so the keyframes that
+    /// arrived from other robots between them leave no gaps. A keyframe not in the map (the map was
+    /// full) takes the id it would have had.
+    pub fn public_id(&self, id: u64) -> (i32, u64) {
+        match self.foreign.origin(id) {
+            Some(o) => (o.robot, o.id),
+            None => (self.owner.0, id - self.foreign.before(id)),
+        }
+    }
+
     /// Whether this node registers its keyframe `own` against another robot's keyframe `index`, which
     /// arrived after `own` was made: not when the other node held `own` when it made `index` (it
     /// registered the pair then); else, neither node having had the other's keyframe, when `own` is
@@ -163,7 +177,7 @@ impl KeyframeDb {
         if self
             .foreign
             .heard(index as u64, self.owner.0)
-            .is_some_and(|h| h >= own.id)
+            .is_some_and(|h| h >= self.public_id(own.id).1)
         {
             return false;
         }
@@ -563,13 +577,28 @@ mod tests {
         newer.stamp = Stamp::from_secs_f64(80.0);
         assert!((1..4).all(|i| db.registers_pair(&newer, i)));
         assert_eq!(db.foreign().newest(), vec![(7, 32)]);
+        // Outside, each keyframe is named in its robot's own sequence: this robot's second keyframe
+        // is its 1 though three of robot 7's came between; what robot 7's node heard of this robot
+        // is in those names too.
+        let mut second = record(4, 0, 0.0, &mut rng);
+        second.stamp = Stamp::from_secs_f64(120.0);
+        assert!(db.insert(second.clone()));
+        let names: Vec<(i32, u64)> = (0..6).map(|i| db.public_id(i)).collect();
+        assert_eq!(names, [(1, 0), (7, 30), (7, 31), (7, 32), (1, 1), (1, 2)]);
+        let (r, o) = theirs(33, 115.0, &mut rng);
+        assert_eq!(db.insert_foreign(r, o, vec![(1, 1)], 10, 100), Ok(5));
+        assert!(
+            !db.registers_on_arrival(&second, 5),
+            "their node held our keyframe 1"
+        );
         let path = scratch("foreign");
         db.save(&path).unwrap();
         let back = KeyframeDb::load(&path, PlaceConfig::default(), 4).unwrap();
-        assert_eq!(back.len(), 4);
+        assert_eq!(back.len(), 6);
         assert_eq!(back.foreign().origin(2), Some(&origin(31)));
         assert_eq!(back.foreign().origin(0), None);
-        assert_eq!(back.foreign().count(7), 3);
+        assert_eq!(back.foreign().count(7), 4);
+        assert_eq!(back.public_id(4).1, 1, "a loaded map keeps the names");
         let _ = std::fs::remove_file(&path);
     }
 

@@ -38,11 +38,13 @@ use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared}
 use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
 
 /// A verified loop closure: the query keyframe's body frame in the match keyframe's body frame.
+/// Inside the loop closer the ids are local (positions in the keyframe map); the pipeline's events name
+/// each keyframe by its id in its robot's own sequence ([`KeyframeDb::public_id`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LoopClosure {
     /// Newer keyframe.
     pub query_id: u64,
-    /// Older, revisited keyframe.
+    /// Older, revisited keyframe (of `match_origin`'s robot when set).
     pub match_id: u64,
     /// Query keyframe stamp.
     pub query_stamp: Stamp,

@@ -74,7 +74,7 @@ impl DropReason {
 pub enum Event {
     /// A keyframe was added.
     Keyframe {
-        /// Its id.
+        /// Its id in this robot's own sequence (other robots' keyframes do not count).
         id: u64,
         /// Its stamp.
         stamp: Stamp,
@@ -84,7 +84,7 @@ pub enum Event {
         points: usize,
         /// The submap itself (shared; the database keeps a compact copy).
         submap: Arc<Submap>,
-        /// The compact copy, as the map keeps it and the fleet receives it.
+        /// The compact copy, as the map keeps it and the fleet receives it (with `id` above).
         record: Arc<KeyframeRecord>,
         /// What was known of the fleet when it was made, sent with it.
         fleet: FleetState,
@@ -96,9 +96,9 @@ pub enum Event {
     Odometry(Box<OdometryEstimate>),
     /// A candidate revisit was rejected.
     Rejected {
-        /// Query keyframe.
+        /// Query keyframe, in this robot's sequence.
         query_id: u64,
-        /// Candidate keyframe.
+        /// Candidate keyframe, in its robot's sequence.
         match_id: u64,
         /// Why.
         reason: RejectReason,

@@ -325,18 +325,23 @@ impl Pipeline {
         self.last_keyframe = Some(pose);
         self.next_id += 1;
         self.stats.keyframes += 1;
+        let public = KeyframeRecord {
+            id: self.db.public_id(id).1,
+            ..rec.clone()
+        };
         log::debug!(
-            "keyframe {id} at {:.3} s: {} points",
+            "keyframe {} at {:.3} s: {} points",
+            public.id,
             rec.stamp.as_secs_f64(),
             submap.len()
         );
         out.push(Event::Keyframe {
-            id,
+            id: public.id,
             stamp: submap.anchor_stamp,
             t_odom_body: submap.t_odom_anchor,
             points: submap.len(),
             submap: Arc::new(submap),
-            record: Arc::new(rec.clone()),
+            record: Arc::new(public),
             fleet: self.fleet_state(),
         });
         let mut decisions = Decisions::default();
@@ -506,6 +511,8 @@ impl Pipeline {
                     self.stats.closures += 1;
                     c.query_robot = self.robot;
                     c.match_origin = self.db.foreign().origin(c.match_id).copied();
+                    c.query_id = self.db.public_id(c.query_id).1;
+                    c.match_id = self.db.public_id(c.match_id).1;
                     out.push(Event::Closure(c));
                 }
                 Decision::Rejected {
@@ -516,8 +523,8 @@ impl Pipeline {
                 } => {
                     *self.stats.rejected.entry(reason).or_default() += 1;
                     out.push(Event::Rejected {
-                        query_id,
-                        match_id,
+                        query_id: self.db.public_id(query_id).1,
+                        match_id: self.db.public_id(match_id).1,
                         reason,
                         detail,
                     });

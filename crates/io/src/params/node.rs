@@ -289,9 +289,11 @@ pub const NODE_PARAMS: &[NodeParam] = &[
     },
     NodeParam {
         name: "node.robot_id",
-        doc: "Robot id written into the `pose_graph_tools_msgs` nodes and edges (`robot_id`, \
-              `robot_from`, `robot_to`): the robot's index in a multi-robot back end such as \
-              Kimera-Multi, which maps it to its key prefix.",
+        doc: "The robot's identity in a fleet and in multi-robot back ends: its keyframes on the fleet \
+              topic and its closures carry it (`robot_id`, `query_robot`, `match_robot`), each robot \
+              numbers its own keyframes 0, 1, 2, ..., and the `pose_graph_tools_msgs` nodes and edges \
+              carry it (`robot_id`, `robot_from`, `robot_to`: Kimera-Multi maps it to its key prefix). \
+              Give every robot of a fleet its own.",
     },
     NodeParam {
         name: "node.fleet",

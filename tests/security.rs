@@ -4,7 +4,9 @@
 //! - Permissive without a keystore warns and runs unsecured, as ROS 2 does;
 //! - a secured node talks to participants of its keystore and to no one else: a secured observer
 //!   reads its `/diagnostics` and gets its clouds to it, while an unsecured participant on the same
-//!   domain reads nothing and none of its clouds is received.
+//!   domain reads nothing and none of its clouds is received;
+//! - only enclaves whose permissions allow publishing on the fleet topic add keyframes to a secured
+//!   fleet node's map.
 //!
 //! The participants here are rustdds's, secured with the keystore's enclaves as the node is; the node
 //! runs alone on a domain of its own, on loopback.
@@ -16,6 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
+use dc_loc::msgs::dc_loc::Keyframe;
 use dc_loc::msgs::sensor_msgs::PointCloud2;
 use dc_loc::ros::convert::DiagnosticArray;
 use rustdds::policy::Reliability;
@@ -28,6 +31,13 @@ use rustdds::{
 /// unsecured node runs on the next one, so that it is never the outsider the secured test watches
 /// for.
 const DOMAIN: u16 = 88;
+
+/// Held by each test whose node runs on [`DOMAIN`]: one at a time, so that no test reads another's node.
+static ON_DOMAIN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn on_domain() -> std::sync::MutexGuard<'static, ()> {
+    ON_DOMAIN.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("security", name)
@@ -262,6 +272,7 @@ fn value(d: &DiagnosticArray, key: &str) -> Option<String> {
 
 #[test]
 fn a_secured_node_talks_only_to_its_keystore() {
+    let _domain = on_domain();
     let dir = scratch("secured");
     let ks = keystore(&dir);
     let child = start(
@@ -305,6 +316,146 @@ fn a_secured_node_talks_only_to_its_keystore() {
     // outsider's does.
     assert!(received > 0 && received <= sent, "{received} of {sent}");
     assert_eq!(refused, 0, "the outsider's clouds reached the node");
+}
+
+/// An enclave `/listener` in the keystore `ks` whose permissions let it read the fleet's keyframes and
+/// `/diagnostics` but publish on neither (the script's `--topics`).
+fn listener_enclave(dir: &Path, ks: &Path) {
+    let topics = dir.join("listener_topics.txt");
+    std::fs::write(
+        &topics,
+        "subscribe /dc_loc/keyframes\nsubscribe /diagnostics\n",
+    )
+    .unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
+    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("NONE".into());
+    let out = Command::new("bash")
+        .env("ROS_DOMAIN_ID", DOMAIN.to_string())
+        .arg(&script)
+        .args(["--payload-protection", &protection, "--topics"])
+        .arg(&topics)
+        .arg(ks)
+        .arg("/listener")
+        .output()
+        .expect("cannot run make_keystore.sh");
+    assert!(
+        out.status.success(),
+        "make_keystore.sh: {}",
+        text(&out.stderr)
+    );
+}
+
+/// A writer of fleet keyframes on `participant`, with the QoS the nodes' fleet readers ask for
+/// (reliable, transient local); the access control's refusal when its permissions do not allow it.
+fn keyframe_writer(
+    participant: &DomainParticipant,
+) -> Result<rustdds::no_key::DataWriter<Keyframe>, String> {
+    let qos = QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(100),
+        })
+        .durability(rustdds::policy::Durability::TransientLocal)
+        .history(rustdds::policy::History::KeepLast { depth: 100 })
+        .build();
+    let topic = participant
+        .create_topic(
+            "rt/dc_loc/keyframes".into(),
+            "dc_loc::msg::dds_::Keyframe_".into(),
+            &qos,
+            TopicKind::NoKey,
+        )
+        .map_err(|e| format!("{e:?}"))?;
+    participant
+        .create_publisher(&qos)
+        .map_err(|e| format!("{e:?}"))?
+        .create_datawriter_no_key_cdr(&topic, None)
+        .map_err(|e| format!("{e:?}"))
+}
+
+/// Robot `robot`'s keyframe `id` as the fleet topic carries it: forty points around the origin.
+fn fleet_keyframe(robot: i32, id: u64) -> Keyframe {
+    use dc_loc::keyframe_db::{KeyframeRecord, quantise_cov, quantise_point};
+    use dc_loc::math::{Iso2, Mat2, Stamp, Vec2};
+    let pts: Vec<Vec2> = (0..40)
+        .map(|i| Vec2::new(5.0 + i as f64, (i % 7) as f64))
+        .collect();
+    let place = dc_loc::place::PlaceConfig::default();
+    let record = KeyframeRecord {
+        id,
+        session: 0,
+        stamp: Stamp::from_secs_f64(100.0 + id as f64),
+        t_odom_body: Iso2::identity(),
+        odom_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        path_distance: 5.0 * id as f64,
+        points: pts.iter().filter_map(|&p| quantise_point(p)).collect(),
+        covs: pts
+            .iter()
+            .map(|_| quantise_cov(&Mat2::new(0.04, 0.0, 0.0, 0.04)))
+            .collect(),
+        rays: Vec::new(),
+        place: dc_loc::place::PlaceDescriptor::from_points(&pts, &place),
+    };
+    let fleet = dc_loc::fleet::FleetState::default();
+    dc_loc::fleet::wire::encode(robot, &record, &fleet, 0, "base_link")
+}
+
+/// Who may add keyframes to a secured fleet's maps is what the keystore's permissions say: a member
+/// allowed to publish on the fleet topic gets its keyframes into the node's map; an enclave of the
+/// same keystore allowed only to read it cannot even make a writer there (the access control
+/// refuses it), and the node counts no keyframe of its robot.
+#[test]
+fn only_enclaves_allowed_to_publish_on_the_fleet_topic_add_keyframes() {
+    let _domain = on_domain();
+    let dir = scratch("fleet_permissions");
+    let ks = keystore(&dir);
+    listener_enclave(&dir, &ks);
+    let child = start(
+        DOMAIN,
+        &dir.join("map.dcmap"),
+        &[
+            "--enclave",
+            "/dc_loc",
+            "-p",
+            "node.fleet:=true",
+            "-p",
+            "node.diagnostics_period:=0.5",
+        ],
+        &pairs(&enforce(&ks)),
+    );
+    let member = participant(Some((&ks, "observer")));
+    let writer = keyframe_writer(&member).expect("the member may publish keyframes");
+    let listener = participant(Some((&ks, "listener")));
+    let refused = keyframe_writer(&listener);
+    let mut diagnostics = Peer::new(participant(Some((&ks, "observer"))));
+    let mut seen = None;
+    let t0 = Instant::now();
+    let mut id = 0;
+    while t0.elapsed() < Duration::from_secs(8) {
+        writer.write(fleet_keyframe(5, id), None).unwrap();
+        if let Ok(w) = &refused {
+            let _ = w.write(fleet_keyframe(6, id), None);
+        }
+        id += 1;
+        diagnostics.take(&mut seen);
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let (code, err) = interrupt(child);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        refused.is_err(),
+        "the listener's permissions allow no keyframe writer, yet one was made"
+    );
+    let d = seen.expect("no diagnostics read");
+    let member_counts = value(&d, "fleet.robot_5").expect("no keyframe of the member's robot");
+    println!(
+        "sent {id} keyframes as robot 5: {member_counts}; the listener's writer: {}",
+        refused.err().unwrap_or_default()
+    );
+    assert!(
+        member_counts.starts_with("received ") && !member_counts.starts_with("received 0,"),
+        "{member_counts}"
+    );
+    assert_eq!(value(&d, "fleet.robot_6"), None, "robot 6 reached the node");
 }
 
 /// Copies a keystore (its files and symlinks' targets) from `from` to `to`.

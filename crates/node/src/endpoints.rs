@@ -242,8 +242,8 @@ impl Subscriptions {
             node,
             &self.radars,
             inputs::PoseSubscriptions {
-                odometry: self.odometry.as_ref().map(|(_, s)| s),
-                imu: self.imu.as_ref().map(|(_, s)| s),
+                odometry: self.odometry.as_ref().map(|(t, s)| (t.as_str(), s)),
+                imu: self.imu.as_ref().map(|(t, s)| (t.as_str(), s)),
             },
             &self.map_views,
             r.shared,

@@ -341,10 +341,20 @@ pub async fn clock(sub: &Subscription<Clock>, shared: Arc<Shared>) {
 
 /// The pose input's subscription, as `odometry.source` asks for it (at most one is set).
 pub struct PoseSubscriptions<'a> {
-    /// `odometry.topic` (`topic`).
-    pub odometry: Option<&'a Subscription<Odometry>>,
-    /// `imu.topic` (`radar_imu`).
-    pub imu: Option<&'a Subscription<Imu>>,
+    /// `odometry.topic` (`topic`), resolved, and its subscription.
+    pub odometry: Option<(&'a str, &'a Subscription<Odometry>)>,
+    /// `imu.topic` (`radar_imu`), resolved, and its subscription.
+    pub imu: Option<(&'a str, &'a Subscription<Imu>)>,
+}
+
+/// Publishers matched to `sub` on `topic`, asked of ros2-client only once a publisher on the topic is
+/// discovered: ros2-client logs an error for a subscription that no publisher has matched yet.
+fn matched<M: 'static>(node: &Node, topic: &str, sub: &Subscription<M>) -> usize {
+    if node.publisher_count(topic) == 0 {
+        0
+    } else {
+        sub.get_publisher_count(node)
+    }
 }
 
 /// Matched publishers per input, every 250 ms, for `/diagnostics` (a user or test waits for them
@@ -361,18 +371,18 @@ pub async fn publisher_counts(
             readers.store(node.subscription_count(topic), Ordering::SeqCst);
         }
         let mut counts = Vec::new();
-        for (_, topic_radars, sub) in radars {
+        for (topic, topic_radars, sub) in radars {
             let n = match sub {
-                RadarSubscription::Cloud(s) => s.get_publisher_count(node),
-                RadarSubscription::Scan(s) => s.get_publisher_count(node),
+                RadarSubscription::Cloud(s) => matched(node, topic, s),
+                RadarSubscription::Scan(s) => matched(node, topic, s),
             };
             counts.extend(topic_radars.iter().map(|(_, name, _)| (name.clone(), n)));
         }
-        if let Some(s) = pose.odometry {
-            counts.push(("odometry".to_string(), s.get_publisher_count(node)));
+        if let Some((topic, s)) = pose.odometry {
+            counts.push(("odometry".to_string(), matched(node, topic, s)));
         }
-        if let Some(s) = pose.imu {
-            counts.push(("imu".to_string(), s.get_publisher_count(node)));
+        if let Some((topic, s)) = pose.imu {
+            counts.push(("imu".to_string(), matched(node, topic, s)));
         }
         lock(&shared.publishers).extend(counts);
         tokio::time::sleep(Duration::from_millis(250)).await;

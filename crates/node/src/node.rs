@@ -206,10 +206,19 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
     inbox.stop();
     drop(inbox);
     let result = worker.join();
-    // Drop order: streams and entities before the context.
+    // Drop order: streams and entities, then the node (which tells its spinner to stop), the
+    // spinner's own readers as it ends, and the context last: an entity dropped after the context
+    // finds DDS gone and logs an error.
     drop(subs);
-    spin_task.abort();
     drop(node);
+    let spinner_ended = runtime.block_on(async {
+        tokio::time::timeout(Duration::from_secs(2), spin_task)
+            .await
+            .is_ok()
+    });
+    if !spinner_ended {
+        log::warn!("the ROS 2 spinner did not stop within 2 s");
+    }
     drop(context);
     let saved = result.map_err(|_| NodeError::Runtime("the worker thread panicked".into()))?;
     if let Some(why) = ended {

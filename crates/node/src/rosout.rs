@@ -54,6 +54,19 @@ impl Tee {
             self.stderr.enabled(metadata)
         }
     }
+
+    /// Whether `record` is rustdds' report that leaving the discovery multicast group failed as a
+    /// socket closes. rustdds joins the group on each interface it uses but leaves it on the
+    /// unspecified one, which the kernel refuses when the participant uses loopback only; the closing
+    /// socket drops the membership anyway, so the report is harmless and goes out at debug level.
+    fn harmless(record: &log::Record<'_>) -> bool {
+        record.target() == "rustdds::network::udp_listener"
+            && record.level() == log::Level::Error
+            && record
+                .args()
+                .to_string()
+                .starts_with("leave_multicast_group")
+    }
 }
 
 impl log::Log for Tee {
@@ -63,6 +76,24 @@ impl log::Log for Tee {
 
     fn log(&self, record: &log::Record<'_>) {
         if !self.passes(record.metadata()) {
+            return;
+        }
+        if Self::harmless(record) {
+            let metadata = log::Metadata::builder()
+                .target(record.target())
+                .level(log::Level::Debug)
+                .build();
+            if self.stderr.enabled(&metadata) {
+                self.stderr.log(
+                    &log::Record::builder()
+                        .metadata(metadata)
+                        .args(*record.args())
+                        .module_path(record.module_path())
+                        .file(record.file())
+                        .line(record.line())
+                        .build(),
+                );
+            }
             return;
         }
         self.stderr.log(record);

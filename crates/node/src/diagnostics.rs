@@ -52,6 +52,8 @@ pub struct Measures {
     pub closure_latency: Latencies,
     /// Processing of an input that made a keyframe.
     pub keyframe_time: Latencies,
+    /// Keyframes whose processing ended after `node.keyframe_budget` all the same.
+    pub late_keyframes: u64,
     /// Closures published.
     pub closures_published: u64,
     /// Radar odometry samples published on `~/odometry` (`odometry.source: radar | radar_imu`).
@@ -324,6 +326,14 @@ fn processing(shared: &Shared, r: &Report<'_>) -> Vec<KeyValue> {
         proc.extend(radar_odometry(o));
     }
     let m = r.measures;
+    // The search left out to keep `node.keyframe_budget`, and keyframes late all the same.
+    let t = &stats.trimmed;
+    if t.any() || m.late_keyframes > 0 {
+        proc.push(kv("budget.backfill_put_off", t.backfill.to_string()));
+        proc.push(kv("budget.rounds_skipped", t.rounds.to_string()));
+        proc.push(kv("budget.candidates_skipped", t.candidates.to_string()));
+        proc.push(kv("budget.late_keyframes", m.late_keyframes.to_string()));
+    }
     for (name, l) in [
         ("latency_ms", &m.input_latency),
         ("closure_latency_ms", &m.closure_latency),

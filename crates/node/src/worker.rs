@@ -239,6 +239,7 @@ impl Worker {
         self.settings.diagnostics_period = settings.diagnostics_period;
         self.settings.warn_interval = settings.warn_interval;
         self.settings.markers_period = settings.markers_period;
+        self.settings.keyframe_budget = settings.keyframe_budget;
         self.settings.log_level = settings.log_level;
     }
 
@@ -336,6 +337,9 @@ impl Worker {
             return;
         };
         let t0 = Instant::now();
+        let deadline = (self.settings.keyframe_budget > 0.0)
+            .then(|| arrived + Duration::from_secs_f64(self.settings.keyframe_budget));
+        self.pipeline.set_deadline(deadline);
         let events = self.pipeline.push(&input);
         let accepted = !events.iter().any(|e| matches!(e, Event::Dropped { .. }));
         if let Some(frame) = odom_frame.filter(|f| accepted && !f.is_empty()) {
@@ -345,6 +349,9 @@ impl Worker {
         self.handle_events(events, Some(arrived));
         if keyframe {
             self.measures.keyframe_time.push(t0.elapsed().as_secs_f64());
+            if deadline.is_some_and(|d| Instant::now() > d) {
+                self.measures.late_keyframes += 1;
+            }
         }
         self.measures
             .input_latency

@@ -17,6 +17,7 @@
 
 pub mod calibration;
 mod config;
+pub mod deadline;
 pub mod decision;
 pub mod drift;
 pub mod gates;
@@ -35,6 +36,7 @@ use crate::keyframe_db::{
 };
 use crate::math::{Iso3, Mat3, Mat6, Stamp, iso2_from_iso3};
 use crate::registration::{PreparedSubmap, RegistrationConfig, register_prepared};
+use deadline::{Deadline, Trimmed};
 use gates::{Gated, Gates, Pair, gate, later_round, prediction_test, slide_test};
 
 /// A verified loop closure: the query keyframe's body frame in the match keyframe's body frame.
@@ -134,13 +136,15 @@ pub enum Decision {
     },
 }
 
-/// The decisions of one step, and the registrations it ran.
+/// The decisions of one step, the registrations it ran and what its deadline left out.
 #[derive(Debug, Default)]
 pub struct Decisions {
     /// In the order they were taken.
     pub decisions: Vec<Decision>,
     /// Registrations run.
     pub registrations: u64,
+    /// Work left out because the deadline had passed ([`LoopCloser::set_deadline`]).
+    pub trimmed: Trimmed,
 }
 
 impl Decisions {
@@ -168,6 +172,8 @@ pub struct LoopCloser {
     submap_span: f64,
     /// The last submap's [`crate::submap::Submap::motion`].
     submap_motion: Mat3,
+    /// When the current input's search should have ended.
+    deadline: Deadline,
 }
 
 impl LoopCloser {
@@ -185,7 +191,14 @@ impl LoopCloser {
             state: Session::new(session),
             submap_span: 0.0,
             submap_motion: Mat3::zeros(),
+            deadline: Deadline::default(),
         }
+    }
+
+    /// The time by which the searches of the next input should end (`None`: no limit); past it,
+    /// work is left out in the order [`deadline`] gives.
+    pub fn set_deadline(&mut self, at: Option<std::time::Instant>) {
+        self.deadline = Deadline::new(at);
     }
 
     /// The time the newest keyframe's submap spans, from its oldest to its newest scan, s: every
@@ -357,6 +370,10 @@ impl LoopCloser {
     /// walks over keyframes without a closure to another robot's session ([`LoopCloser::walk`]).
     pub fn backfill(&mut self, db: &mut KeyframeDb, n: usize, out: &mut Decisions) {
         for _ in 0..n {
+            if self.deadline.passed() {
+                out.trimmed.backfill += 1;
+                return;
+            }
             if let Some(id) = self.state.next_backfill() {
                 self.search_again(db, id, out);
             } else if let Some((session, id)) = self.state.next_walk() {
@@ -470,10 +487,22 @@ impl LoopCloser {
             self.session,
             &self.lc.search(),
         );
-        rounds
-            .into_iter()
-            .enumerate()
-            .find_map(|(i, round)| self.register_round(db, query, prepared, round, i > 0, out))
+        let late_from_start = self.deadline.passed();
+        let total = rounds.len();
+        for (i, mut round) in rounds.into_iter().enumerate() {
+            if i > 0 && self.deadline.passed() {
+                out.trimmed.rounds += (total - i) as u64;
+                return None;
+            }
+            if i == 0 && late_from_start && round.len() > 1 {
+                out.trimmed.candidates += (round.len() - 1) as u64;
+                round.truncate(1);
+            }
+            if let Some(found) = self.register_round(db, query, prepared, round, i > 0, out) {
+                return Some(found);
+            }
+        }
+        None
     }
 
     /// One round of candidates registered, gated and tested: the best closure that passes. A later

@@ -185,6 +185,8 @@ pub struct PipelineStats {
     pub robots: BTreeMap<i32, RobotCounts>,
     /// The radar odometry's counters (`odometry.source: radar | radar_imu`).
     pub radar_odometry: Option<RadarOdometryStats>,
+    /// Revisit search left out because its deadline had passed ([`super::Pipeline::set_deadline`]).
+    pub trimmed: crate::loop_closure::deadline::Trimmed,
 }
 
 /// Another robot's keyframes received, and what became of them.

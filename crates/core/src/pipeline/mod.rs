@@ -151,6 +151,14 @@ impl Pipeline {
         self.ingest.set_input_limits(limits);
     }
 
+    /// The time by which the revisit searches the next inputs set off should end (`None`, the default:
+    /// no limit); past it the loop closer leaves work out in a fixed order and counts it
+    /// ([`crate::loop_closure::deadline`], [`PipelineStats::trimmed`]). The node sets one per input
+    /// (`node.keyframe_budget`); the offline runs set none.
+    pub fn set_deadline(&mut self, at: Option<std::time::Instant>) {
+        self.loops.set_deadline(at);
+    }
+
     /// Feeds one input: the one door through which every source's data enters the pipeline. Ground
     /// truth is not an input of the pipeline (it produces nothing).
     pub fn push(&mut self, input: &Input) -> Vec<Event> {
@@ -199,6 +207,7 @@ impl Pipeline {
             self.radar_odometry(estimates, &mut out);
         }
         let mut decisions = Decisions::default();
+        self.loops.set_deadline(None);
         self.loops
             .backfill(&mut self.db, usize::MAX, &mut decisions);
         self.report(decisions, &mut out);
@@ -505,6 +514,7 @@ impl Pipeline {
     /// The loop closer's decisions as events, counted.
     fn report(&mut self, decisions: Decisions, out: &mut Vec<Event>) {
         self.stats.registrations += decisions.registrations;
+        self.stats.trimmed.add(decisions.trimmed);
         for d in decisions.decisions {
             match d {
                 Decision::Published(mut c) => {

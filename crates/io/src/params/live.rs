@@ -21,6 +21,7 @@ pub fn is_live(name: &str) -> bool {
             "node.diagnostics_period"
                 | "node.warn_interval"
                 | "node.markers_period"
+                | "node.keyframe_budget"
                 | "node.log_level"
         )
 }

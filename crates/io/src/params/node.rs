@@ -31,6 +31,9 @@ pub struct NodeSettings {
     pub shutdown_timeout: f64,
     /// `node.markers_period`: shortest time, s, between two `~/markers` messages.
     pub markers_period: f64,
+    /// `node.keyframe_budget`: longest time, s, from an input's arrival to the end of the revisit
+    /// search it sets off (0: no limit).
+    pub keyframe_budget: f64,
     /// `node.log_level`: dc_loc's log level (`debug`, `info`, `warn`, `error`; empty: as started).
     pub log_level: String,
     /// `node.map_frame`: frame id of the `~/relocalized` poses.
@@ -176,6 +179,7 @@ impl Default for NodeSettings {
             restart_after: 20,
             shutdown_timeout: 5.0,
             markers_period: 1.0,
+            keyframe_budget: 0.0,
             log_level: String::new(),
             map_frame: "map".into(),
             odom_frame: "odom".into(),
@@ -244,6 +248,16 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         doc: "Seconds the worker may take at SIGINT/SIGTERM to process what is queued, after saving \
               the map first; what is left then is dropped, so that a supervisor's kill timeout never \
               ends the process before the map is saved.",
+    },
+    NodeParam {
+        name: "node.keyframe_budget",
+        doc: "Longest time, s, from an input's arrival to the end of the revisit search it sets off \
+              (0, the default: no limit, as `dc_loc run`). Past it the search leaves work out, in this \
+              order: the searches again of older keyframes (they stay queued), the rounds of candidates \
+              after the first, and, when the time had passed before the search began, every candidate \
+              but the best-ranked one. What was left out is counted in `/diagnostics` (`budget.*`), as \
+              are keyframes finished late all the same. A budget makes the closures depend on the \
+              machine's speed.",
     },
     NodeParam {
         name: "node.markers_period",
@@ -392,6 +406,10 @@ impl NodeSettings {
                 "node.markers_period".into(),
                 Value::from(self.markers_period),
             ),
+            (
+                "node.keyframe_budget".into(),
+                Value::from(self.keyframe_budget),
+            ),
             ("node.log_level".into(), Value::from(self.log_level.clone())),
             ("node.map_frame".into(), Value::from(self.map_frame.clone())),
             (
@@ -469,6 +487,11 @@ impl NodeSettings {
             Range::POSITIVE.up_to(3600.0),
         );
         v.range(
+            "node.keyframe_budget",
+            self.keyframe_budget,
+            Range::NON_NEGATIVE.up_to(3600.0),
+        );
+        v.range(
             "node.tf_timeout",
             self.tf_timeout,
             Range::POSITIVE.up_to(3600.0),
@@ -514,6 +537,7 @@ impl NodeSettings {
                 "node.sync_timeout" => s.sync_timeout = number(name, v)?,
                 "node.shutdown_timeout" => s.shutdown_timeout = number(name, v)?,
                 "node.markers_period" => s.markers_period = number(name, v)?,
+                "node.keyframe_budget" => s.keyframe_budget = number(name, v)?,
                 "node.tf_timeout" => s.tf_timeout = number(name, v)?,
                 "node.extrinsics_from_tf" => {
                     s.extrinsics_from_tf = v

@@ -181,12 +181,13 @@ fn main() {
         &drive.summary.params_file,
         &extra,
         domain,
+        None,
         log.into(),
     );
     let pid = node.id();
     let rt = replay::runtime();
     let _entered = rt.enter();
-    let replayer = Replayer::new(domain, &drive.radar_topics);
+    let replayer = Replayer::new(domain, &drive.radar_topics, None);
     let (start_pose, end_pose) = end_poses(&drive);
     // One pass: the drive's duration plus one odometry period, so stamps never repeat.
     let pass_ns = ((drive.duration() + 0.04) * 1e9) as i64;

@@ -1,6 +1,7 @@
 //! Replaying a simulated drive into a running `dc_loc` node over DDS (ros2-client publishers on
-//! loopback), with the node's `/diagnostics` collected and its process read from /proc. Shared by the
-//! node benchmarks (`node_latency`, `soak`).
+//! loopback), with the node's `/diagnostics` collected and its process read from /proc; optionally on a
+//! secured domain (SROS2), the node and the replayer each with an enclave of one keystore. Shared by the
+//! node benchmarks (`node_latency`, `soak`) and the security interoperability test.
 
 #![allow(dead_code)]
 
@@ -23,6 +24,7 @@ use ros2_client::{
     Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
     qos::{Durability, History, Reliability, WhenFull},
 };
+use rustdds::{DomainParticipantBuilder, DomainParticipantSecurityConfigFiles};
 
 /// Two laps of a small block with the five radars of the nuScenes car (about 106 s).
 pub const DRIVE: &str = "\
@@ -115,16 +117,89 @@ impl Drive {
     }
 }
 
+/// An enclave of an SROS2 keystore, for the node or the replayer.
+#[derive(Clone, Debug)]
+pub struct Security {
+    /// The keystore (`ROS_SECURITY_KEYSTORE`).
+    pub keystore: PathBuf,
+    /// The enclave's path, e.g. `/dc_loc`.
+    pub enclave: String,
+}
+
+impl Security {
+    /// `enclave` of `keystore`.
+    pub fn new(keystore: &Path, enclave: &str) -> Security {
+        Security {
+            keystore: keystore.to_path_buf(),
+            enclave: enclave.to_string(),
+        }
+    }
+
+    /// The enclave's directory, which holds its six files.
+    pub fn enclave_dir(&self) -> PathBuf {
+        self.keystore
+            .join("enclaves")
+            .join(self.enclave.trim_start_matches('/'))
+    }
+
+    /// The same keystore's enclave `enclave`.
+    pub fn with_enclave(&self, enclave: &str) -> Security {
+        Security::new(&self.keystore, enclave)
+    }
+}
+
+/// Makes (or extends) the keystore `dir` with `launch_scripts/make_keystore.sh`: its governance and
+/// permissions for `domain`, payloads protected as `payload_protection` says (`NONE`, `SIGN`,
+/// `ENCRYPT`), one enclave per entry of `enclaves`, each allowed every topic.
+pub fn make_keystore(dir: &Path, domain: u16, payload_protection: &str, enclaves: &[&str]) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
+    let out = Command::new("bash")
+        .arg(&script)
+        .args(["--payload-protection", payload_protection])
+        .arg(dir)
+        .args(enclaves)
+        .env("ROS_DOMAIN_ID", domain.to_string())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", script.display()));
+    assert!(
+        out.status.success(),
+        "make_keystore.sh failed: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Starts the node on `params` with `extra` ROS arguments, on loopback in `domain`, its log to
-/// `stderr`.
-pub fn start_node(bin: &str, params: &Path, extra: &[String], domain: u16, stderr: Stdio) -> Child {
-    Command::new(bin)
+/// `stderr`; secured (Enforce) with `security`'s enclave when given, else unsecured whatever the
+/// caller's environment says.
+pub fn start_node(
+    bin: &str,
+    params: &Path,
+    extra: &[String],
+    domain: u16,
+    security: Option<&Security>,
+    stderr: Stdio,
+) -> Child {
+    let mut command = Command::new(bin);
+    command
         .args(["--ros-args", "--params-file"])
         .arg(params)
         .args(extra)
         .env("ROS_DOMAIN_ID", domain.to_string())
         .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         .env("RUST_LOG", "warn,rustdds=off,ros2_client=off")
+        .env_remove("ROS_SECURITY_ENABLE")
+        .env_remove("ROS_SECURITY_STRATEGY")
+        .env_remove("ROS_SECURITY_KEYSTORE")
+        .env_remove("ROS_SECURITY_ENCLAVE_OVERRIDE");
+    if let Some(s) = security {
+        command
+            .args(["--enclave", &s.enclave])
+            .env("ROS_SECURITY_ENABLE", "true")
+            .env("ROS_SECURITY_STRATEGY", "Enforce")
+            .env("ROS_SECURITY_KEYSTORE", &s.keystore);
+    }
+    command
         .stdout(Stdio::null())
         .stderr(stderr)
         .spawn()
@@ -156,13 +231,21 @@ pub struct Replayer {
 }
 
 impl Replayer {
-    /// Publishers for `radar_topics` and `/odom`, and a `/diagnostics` subscriber, in `domain` (call
-    /// inside a tokio runtime: [`runtime`]).
-    pub fn new(domain: u16, radar_topics: &[String]) -> Replayer {
-        let dp = ros2_client::dds::rustdds::DomainParticipantBuilder::new(domain)
-            .with_only_networks([Ipv4Addr::LOCALHOST])
-            .build()
-            .expect("participant");
+    /// Publishers for `radar_topics` and `/odom`, and a `/diagnostics` subscriber, in `domain`,
+    /// secured with `security`'s enclave when given (call inside a tokio runtime: [`runtime`]).
+    pub fn new(domain: u16, radar_topics: &[String], security: Option<&Security>) -> Replayer {
+        let mut builder =
+            DomainParticipantBuilder::new(domain).with_only_networks([Ipv4Addr::LOCALHOST]);
+        if let Some(s) = security {
+            // The enclave's files under sros2's names; no PKCS#11 key.
+            builder = builder.builtin_security(
+                DomainParticipantSecurityConfigFiles::with_ros_default_names(
+                    s.enclave_dir(),
+                    String::new(),
+                ),
+            );
+        }
+        let dp = builder.build().expect("participant");
         let context = Context::from_domain_participant(dp).expect("context");
         let mut node = context
             .new_node(

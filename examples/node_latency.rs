@@ -8,9 +8,8 @@
 //! domain (SROS2, Enforce) with a keystore made by `launch_scripts/make_keystore.sh` in a scratch
 //! directory, the node and the replaying participant each with an enclave of it; then it prints the
 //! ratios secured / unsecured of CPU share and latencies. The keystore protects every DATA submessage
-//! (`metadata_protection_kind: ENCRYPT`), not the payloads inside them (`--payload-protection NONE`:
-//! rustdds 0.15 reads no encrypted payload whose length is not a multiple of 4 bytes; README_NODE.md,
-//! Security).
+//! (`metadata_protection_kind: ENCRYPT`), not the payloads inside them once more
+//! (`--payload-protection NONE`).
 //!
 //! ```text
 //! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] [--secure] \

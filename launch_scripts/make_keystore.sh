@@ -17,10 +17,8 @@
 #                 (both). Without --topics an enclave may use every topic, service and action.
 #   --force       make a new key and certificate for each ENCLAVE even if it has them
 #   --payload-protection NONE|SIGN|ENCRYPT
-#                 governance.xml's data_protection_kind (sros2: ENCRYPT). With NONE every DATA
-#                 submessage is still encrypted whole (metadata_protection_kind ENCRYPT); rustdds
-#                 0.15 cannot read a signed or encrypted payload whose length is not a multiple of 4
-#                 bytes (README_NODE.md, Security)
+#                 governance.xml's data_protection_kind (default, as sros2: ENCRYPT). With NONE
+#                 every DATA submessage is still encrypted whole (metadata_protection_kind ENCRYPT)
 #
 # ROS_DOMAIN_ID (default 0) is the domain that governance and permissions name. Files that exist
 # are kept: the CA, governance.xml, an enclave's key.pem. governance.p7s is signed again when it is

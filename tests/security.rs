@@ -44,11 +44,10 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 /// A keystore at `dir` with the enclaves `/dc_loc` and `/observer`, made by the script with sros2's
-/// governance but for the payload protection: every DATA submessage is encrypted whole instead
-/// (rustdds 0.15 reads no signed or encrypted payload whose length is not a multiple of 4 bytes:
-/// README_NODE.md, Security). `DC_LOC_PAYLOAD_PROTECTION=ENCRYPT` (or `SIGN`) makes sros2's own.
+/// governance (payloads encrypted); `DC_LOC_PAYLOAD_PROTECTION=NONE` (or `SIGN`) makes it with that
+/// payload protection instead.
 fn keystore(dir: &Path) -> PathBuf {
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("NONE".into());
+    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
     let ks = dir.join(format!("keystore_{protection}"));
     if ks.join("enclaves/observer/permissions.p7s").is_file() {
         return ks;
@@ -328,7 +327,7 @@ fn listener_enclave(dir: &Path, ks: &Path) {
     )
     .unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("NONE".into());
+    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
     let out = Command::new("bash")
         .env("ROS_DOMAIN_ID", DOMAIN.to_string())
         .arg(&script)

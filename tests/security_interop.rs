@@ -19,8 +19,8 @@
 //!
 //! DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST for the node; rustdds on 127.0.0.1;
 //! Cyclone with `tests/python/cyclonedds_loopback.xml`), on a domain no other test uses.
-//! `DC_LOC_PAYLOAD_PROTECTION=ENCRYPT` (or `SIGN`) makes the keystore with sros2's own payload protection
-//! instead of `NONE` (docs/experiments.md, "DDS Security").
+//! The keystore has sros2's governance (payloads encrypted); `DC_LOC_PAYLOAD_PROTECTION=NONE` (or `SIGN`)
+//! makes it with that payload protection instead (docs/experiments.md, "DDS Security").
 
 mod common;
 #[path = "../examples/support/replay.rs"]
@@ -145,7 +145,7 @@ impl Peer {
 
 /// The keystore with the enclaves of the node, the replayer and the Cyclone member.
 fn keystore(dir: &Path) -> PathBuf {
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("NONE".into());
+    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
     let ks = dir.join(format!("keystore_{protection}"));
     make_keystore(
         &ks,

@@ -113,8 +113,9 @@ ln -s "$libdir"/libddsc.so* "$libdir"/libcycloneddsidl* "$home/lib/"
 # ---- 3. the binding, built from source ----------------------------------------------------------------------
 "$venv/bin/python" -m pip install --no-input --quiet --progress-bar off -U pip setuptools wheel ||
     die "pip install -U pip setuptools wheel failed"
+# Built here, never taken from pip's wheel cache: a wheel built for another venv links that venv's home.
 CYCLONEDDS_HOME=$home "$venv/bin/python" -m pip install --no-input --quiet --progress-bar off \
-    --no-binary cyclonedds "cyclonedds==$binding_version" ||
+    --no-cache-dir --no-binary cyclonedds "cyclonedds==$binding_version" ||
     die "building cyclonedds==$binding_version against $home failed"
 
 # ---- 4. check -----------------------------------------------------------------------------------------------

@@ -109,9 +109,18 @@ impl CryptographicBuiltin {
 impl CryptoTransform for CryptographicBuiltin {
   fn encode_serialized_payload(
     &self,
-    plain_buffer: Vec<u8>,
+    mut plain_buffer: Vec<u8>,
     sending_datawriter_crypto_handle: DatawriterCryptoHandle,
   ) -> SecurityResult<(Vec<u8>, ParameterList)> {
+    // The serialized payload is padded to a multiple of 4 bytes before it is protected, its
+    // encapsulation options naming the padding (RTPS 2.3, 10.2), as Cyclone DDS does: the DATA
+    // submessage pads what it carries to 4 bytes and does not say by how much, and the receiver
+    // takes the crypto footer from the end of what it got.
+    let padding = (4 - plain_buffer.len() % 4) % 4;
+    if padding > 0 && plain_buffer.len() >= 4 {
+      plain_buffer[3] = (plain_buffer[3] & !0b11) | padding as u8;
+      plain_buffer.resize(plain_buffer.len() + padding, 0);
+    }
     // Get the key material for encrypting serialized payloads
     let EncodeSessionMaterials {
       key_id,

@@ -185,6 +185,55 @@ impl PointGrid {
         (best != u32::MAX).then_some((best, d1, d2))
     }
 
+    /// [`Self::nearest_two`], or when no point lies within `radius`, a lower bound on the squared
+    /// distance from `q` to every point of the grid (0 when `q` is not finite): the nearest of the
+    /// points in the cells visited and the edges of those cells, beyond which the others lie.
+    pub fn nearest_two_or_bound(&self, q: &Vec2, radius: f64) -> Result<(u32, f64, f64), f64> {
+        let r2 = radius * radius;
+        let Some(range) = self.cell_range(q, radius) else {
+            let finite = q.x.is_finite() && q.y.is_finite();
+            return Err(if finite { r2 } else { 0.0 });
+        };
+        let (mut best, mut d1, mut d2, mut beyond) = (u32::MAX, r2, r2, f64::INFINITY);
+        self.visit(q, radius, |i, d, _, _| {
+            if d < d1 {
+                d2 = d1;
+                d1 = d;
+                best = i;
+            } else if d < d2 {
+                d2 = d;
+            } else {
+                beyond = beyond.min(d);
+            }
+        });
+        if best != u32::MAX {
+            return Ok((best, d1, d2));
+        }
+        let edge = self.range_edge(q, range);
+        Err(beyond.min(edge * edge))
+    }
+
+    /// The distance from `q` to the nearest edge of the cells `(x0, x1, y0, y1)` that has grid
+    /// cells beyond it (less [`CELL_MARGIN`]): every point outside those cells lies at least that
+    /// far from `q`.
+    fn range_edge(&self, q: &Vec2, (x0, x1, y0, y1): (usize, usize, usize, usize)) -> f64 {
+        let mut edge = f64::INFINITY;
+        let (ox, oy, c) = (self.origin.x, self.origin.y, self.cell);
+        if x0 > 0 {
+            edge = edge.min(q.x - (ox + x0 as f64 * c));
+        }
+        if x1 + 1 < self.width {
+            edge = edge.min(ox + (x1 + 1) as f64 * c - q.x);
+        }
+        if y0 > 0 {
+            edge = edge.min(q.y - (oy + y0 as f64 * c));
+        }
+        if y1 + 1 < self.height {
+            edge = edge.min(oy + (y1 + 1) as f64 * c - q.y);
+        }
+        (edge - CELL_MARGIN).max(0.0)
+    }
+
     /// The `k` nearest points within `radius` of `q` (index, squared distance) into `out`, in no
     /// particular order; ties at the `k`-th distance broken by the smaller index. Collecting and
     /// selecting is faster than keeping a sorted list of `k`: dense facades put tens of points within
@@ -218,6 +267,11 @@ pub fn finite_bounds(points: &[Vec2]) -> Option<(Vec2, Vec2)> {
         );
     (lo.x <= hi.x && lo.y <= hi.y).then_some((lo, hi))
 }
+
+/// Margin on a distance to a cell's edge, m: a point's cell index comes from rounded arithmetic,
+/// so a point may lie this much outside its cell (far more than the rounding of coordinates of a
+/// few kilometres).
+const CELL_MARGIN: f64 = 1e-6;
 
 /// `v.floor()` as an integer, inline: without SSE4.1 the float `floor` is a library call, and the
 /// grid takes four per query. Saturates for values beyond `i64`.
@@ -269,6 +323,15 @@ mod tests {
                         assert_eq!((points[i as usize] - q).norm_squared(), d1);
                         let second = within.get(1).map_or(r2, |e| e.1.min(r2));
                         assert_eq!(d2, second);
+                    }
+                }
+                // With nothing within reach, the bound lies between the reach and the nearest.
+                match grid.nearest_two_or_bound(&q, radius) {
+                    Ok(n) => assert_eq!(Some(n), grid.nearest_two(&q, radius)),
+                    Err(bound) => {
+                        assert_eq!(grid.nearest_two(&q, radius), None);
+                        assert!(bound >= (radius - 1e-6) * (radius - 1e-6), "{bound}");
+                        assert!(bound <= all[0].1, "{bound} > {}", all[0].1);
                     }
                 }
                 let mut all_within = Vec::new();

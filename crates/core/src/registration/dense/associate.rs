@@ -21,12 +21,33 @@ pub fn associate(
 /// round that has moved the point by `delta` keeps the nearest without a tree query when the
 /// nearest is still closer than `second - delta`: no other target point can have come that close
 /// (triangle inequality), so the pairs are exactly those of a fresh query. The rounds move points
-/// by millimetres, so most of a round's queries are saved.
+/// by millimetres, so most of a round's queries are saved. A point with no target point within
+/// reach remembers how far the nearest one was at least, and is not queried again while it stays
+/// beyond the reach of the round (by [`NOTHING_MARGIN`]).
 #[derive(Default)]
 pub(super) struct NearestMemory {
-    /// Per source point: (nearest target index, second-nearest distance, position at the query).
-    entries: Vec<Option<(u32, f64, Vec2)>>,
+    /// Per source point, what the last query found.
+    entries: Vec<Remembered>,
 }
+
+/// What a query found for one source point ([`NearestMemory`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+enum Remembered {
+    /// Not queried yet.
+    #[default]
+    Unknown,
+    /// The nearest target point, the distance of the second nearest (capped at the query's
+    /// reach) and where the source point was.
+    Nearest(u32, f64, Vec2),
+    /// No target point within reach: every one lay at least this far from where the source point
+    /// was.
+    Nothing(f64, Vec2),
+}
+
+/// Margin of the test that a point with no target point within reach still has none, m: far more
+/// than the rounding of the distances, so that a point kept out is one a fresh query finds nothing
+/// for.
+const NOTHING_MARGIN: f64 = 1e-6;
 
 /// [`associate`], remembering nearest neighbours across calls in `memory` (see [`NearestMemory`]).
 pub(super) fn associate_with(
@@ -41,36 +62,19 @@ pub(super) fn associate_with(
     let max_sq = cfg.max_distance * cfg.max_distance;
     let gate_sq = cfg.gate * cfg.gate;
     if let Some(m) = memory.as_deref_mut() {
-        m.entries.resize(source.len(), None);
+        m.entries.resize(source.len(), Remembered::Unknown);
     }
     let mut pairs = Vec::with_capacity(source.len());
     for (i, (x, cx)) in source.points.iter().zip(&source.covs).enumerate() {
         let q = (t * nalgebra::Point2::from(*x)).coords;
-        let (j, dist_sq) = match memory.as_deref_mut() {
-            None => match tree.nearest_two(&q, cfg.max_distance) {
-                Some((j, d, _)) => (j as usize, d),
-                None => continue,
-            },
-            Some(m) => {
-                let kept = m.entries[i].and_then(|(j, second, at)| {
-                    let y = target.points.get(j as usize)?;
-                    let d = (y - q).norm();
-                    (d < second - (q - at).norm()).then_some((j as usize, d * d))
-                });
-                match kept {
-                    Some(k) => k,
-                    None => {
-                        // Only partners within `max_distance` count: a second nearest beyond it
-                        // is remembered at that distance (still a valid bound for the test above).
-                        let Some((j, d1, d2)) = tree.nearest_two(&q, cfg.max_distance) else {
-                            m.entries[i] = None;
-                            continue;
-                        };
-                        m.entries[i] = Some((j, d2.sqrt(), q));
-                        (j as usize, d1)
-                    }
-                }
-            }
+        let found = match memory.as_deref_mut() {
+            None => tree
+                .nearest_two(&q, cfg.max_distance)
+                .map(|(j, d, _)| (j as usize, d)),
+            Some(m) => remembered_nearest(&mut m.entries[i], tree, target, &q, cfg.max_distance),
+        };
+        let Some((j, dist_sq)) = found else {
+            continue;
         };
         if dist_sq > max_sq {
             continue;
@@ -88,6 +92,47 @@ pub(super) fn associate_with(
         }
     }
     pairs
+}
+
+/// The nearest target point within `reach` of `q` (index, squared distance) as a fresh query
+/// finds it, from what `entry` remembers when that settles it, else from a query that `entry` then
+/// remembers (see [`NearestMemory`]).
+#[inline]
+fn remembered_nearest(
+    entry: &mut Remembered,
+    tree: &TargetTree,
+    target: &PointSet2,
+    q: &Vec2,
+    reach: f64,
+) -> Option<(usize, f64)> {
+    match *entry {
+        Remembered::Nearest(j, second, at) => {
+            if let Some(y) = target.points.get(j as usize) {
+                let d = (y - q).norm();
+                if d < second - (q - at).norm() {
+                    return Some((j as usize, d * d));
+                }
+            }
+        }
+        Remembered::Nothing(beyond, at) => {
+            if beyond - (q - at).norm() > reach + NOTHING_MARGIN {
+                return None;
+            }
+        }
+        Remembered::Unknown => {}
+    }
+    // Only partners within `reach` count: a second nearest beyond it is remembered at that
+    // distance (still a valid bound for the test above).
+    match tree.nearest_two_or_bound(q, reach) {
+        Ok((j, d1, d2)) => {
+            *entry = Remembered::Nearest(j, d2.sqrt(), *q);
+            Some((j as usize, d1))
+        }
+        Err(bound) => {
+            *entry = Remembered::Nothing(bound.sqrt(), *q);
+            None
+        }
+    }
 }
 
 /// Virtual partners of the soft rounds (see [`DenseConfig::soft_rounds`]) under `t`: for each
@@ -210,13 +255,14 @@ mod tests {
             assert_eq!(kept, fresh, "step {step}");
             assert!(fresh.len() > 100, "step {step}: {} pairs", fresh.len());
             // An entry left as it was is a query saved.
+            let known = |e: &&Remembered| matches!(e, Remembered::Nearest(..));
             let saved = before
                 .iter()
                 .zip(&memory.entries)
-                .filter(|(a, b)| a.is_some() && a == b)
+                .filter(|(a, b)| known(a) && a == b)
                 .count();
-            // Points with no target point within `max_distance` have nothing to remember.
-            let remembered = before.iter().filter(|e| e.is_some()).count();
+            // Points with no target point within `max_distance` have no nearest to remember.
+            let remembered = before.iter().filter(known).count();
             match step {
                 0 => assert_eq!(saved, 0, "nothing to remember yet"),
                 15 => assert!(saved < remembered / 2, "the jump: {saved} saved"),

@@ -159,7 +159,18 @@ pub fn score_peak(
 ) -> Vec3 {
     // A micrometre over the farthest move, for the rounding of the moved points.
     let near = Neighbourhoods::new(source, target, tree, t, 4.0 * sigma + max_offset + 1e-6);
-    let score = |v: &Vec3| near.fit_score(source, weights, &(t * se2_exp(v)), sigma);
+    // The translations scored so far: the search comes back to some (the one it left, and the
+    // finer steps' neighbours), and the same translation scores the same.
+    let mut scored: Vec<(Vec3, f64)> = Vec::with_capacity(32);
+    let mut score = |v: &Vec3| {
+        let bits = |a: &Vec3| a.map(f64::to_bits);
+        if let Some(&(_, s)) = scored.iter().find(|(u, _)| bits(u) == bits(v)) {
+            return s;
+        }
+        let s = near.fit_score(source, weights, &(t * se2_exp(v)), sigma);
+        scored.push((*v, s));
+        s
+    };
     let (mut at, mut best) = (Vec3::zeros(), score(&Vec3::zeros()));
     let (mut step, finest) = PEAK_STEPS;
     while step >= finest {
@@ -218,15 +229,35 @@ impl Neighbourhoods {
         let reach = 4.0 * sigma;
         let r2 = reach * reach;
         let nearest = |i: usize, q: &Vec2| {
-            let mut d1 = r2;
-            for p in &self.coords[self.start[i]..self.start[i + 1]] {
-                let (dx, dy) = (p[0] - q.x, p[1] - q.y);
-                d1 = d1.min(dx * dx + dy * dy);
-            }
+            let d1 = nearest_in(&self.coords[self.start[i]..self.start[i + 1]], q, r2);
             (d1 < r2).then_some(d1)
         };
         score_by(source, Some(weights), t, sigma, nearest).0
     }
+}
+
+/// The smallest squared distance from `q` to `points`, and `cap` when all are farther. Four
+/// running minima, merged at the end: the compiler turns them into vector compares (a minimum is
+/// exact in any order), where one running minimum waits on the previous compare.
+#[inline]
+fn nearest_in(points: &[[f64; 2]], q: &Vec2, cap: f64) -> f64 {
+    let mut lanes = [cap; 4];
+    let mut chunks = points.chunks_exact(4);
+    for chunk in &mut chunks {
+        for (lane, p) in lanes.iter_mut().zip(chunk) {
+            let (dx, dy) = (p[0] - q.x, p[1] - q.y);
+            let d = dx * dx + dy * dy;
+            *lane = if d < *lane { d } else { *lane };
+        }
+    }
+    for p in chunks.remainder() {
+        let (dx, dy) = (p[0] - q.x, p[1] - q.y);
+        let d = dx * dx + dy * dy;
+        lanes[0] = if d < lanes[0] { d } else { lanes[0] };
+    }
+    let [a, b, c, d] = lanes;
+    let (ab, cd) = (if b < a { b } else { a }, if d < c { d } else { c });
+    if cd < ab { cd } else { ab }
 }
 
 /// Width of the fit score that picks the winner among a registration's refined hypotheses, m: the

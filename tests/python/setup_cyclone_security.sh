@@ -31,6 +31,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 unset PYTHONPATH PYTHONHOME CYCLONEDDS_HOME CYCLONEDDS_URI
 
 say() { printf '[setup_cyclone_security] %s\n' "$*" >&2; }
+# shellcheck source=system_packages.sh
+source "$here/system_packages.sh"
 die() {
     printf '[setup_cyclone_security] ERROR: %s\n' "$*" >&2
     exit 1
@@ -45,19 +47,8 @@ system_deps() {
     for p in "${packages[@]}"; do
         [ -n "$(installed_version "$p")" ] || missing+=("$p")
     done
-    if ! "$python" -c 'import venv, ensurepip' >/dev/null 2>&1; then
-        [ "$(command -v "$python")" = /usr/bin/python3 ] || die "'$python' lacks the venv/ensurepip modules"
-        missing+=(python3-venv)
-    fi
-    [ ${#missing[@]} -eq 0 ] && return 0
-    if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null 2>&1; then
-        die "missing system packages: ${missing[*]}; install them (apt-get install -y ${missing[*]}) or run this as root on Debian/Ubuntu"
-    fi
-    say "installing system packages with apt-get: ${missing[*]}"
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq || say "apt-get update failed; trying with the package lists at hand"
-    apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null ||
-        die "apt-get install ${missing[*]} failed"
+    need_venv_module missing "$python"
+    install_packages "${missing[@]}"
 }
 
 if [ "${1:-}" = --system-deps ]; then

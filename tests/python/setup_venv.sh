@@ -32,6 +32,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 unset PYTHONPATH PYTHONHOME AMENT_PREFIX_PATH CMAKE_PREFIX_PATH COLCON_PREFIX_PATH
 
 say() { printf '[setup_venv] %s\n' "$*"; }
+# shellcheck source=system_packages.sh
+source "$here/system_packages.sh"
 die() {
     printf '[setup_venv] ERROR: %s\n' "$*" >&2
     exit 1
@@ -60,21 +62,9 @@ system_deps() {
     # open3d-cpu (examples/peers.py) links the system's libusb-1.0 when it imports.
     PATH=$PATH:/sbin:/usr/sbin ldconfig -p 2>/dev/null | grep -q 'libusb-1\.0\.so\.0' || missing+=(libusb-1.0-0)
     command -v "$python" >/dev/null 2>&1 || die "no '$python' on PATH (set DCLOC_PYTHON to a CPython 3.11)"
-    # Debian's own python3 has venv/ensurepip only with python3-venv (pyenv builds always have them).
-    if ! "$python" -c 'import venv, ensurepip' >/dev/null 2>&1; then
-        [ "$(command -v "$python")" = /usr/bin/python3 ] || die "'$python' lacks the venv/ensurepip modules"
-        missing+=(python3-venv)
-    fi
+    need_venv_module missing "$python"
     [ ${#missing[@]} -eq 0 ] && return 0
-    if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null 2>&1; then
-        die "missing system packages: ${missing[*]}; install them (apt-get install -y ${missing[*]}) or run this as root on Debian/Ubuntu"
-    fi
-    say "installing system packages with apt-get: ${missing[*]}"
-    export DEBIAN_FRONTEND=noninteractive
-    # A fresh machine may have no package lists yet; a failed update is fine when the lists are there.
-    apt-get update -qq || say "apt-get update failed; trying with the package lists at hand"
-    apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null ||
-        die "apt-get install ${missing[*]} failed"
+    install_packages "${missing[@]}"
     stage_done "system packages (apt-get)"
 }
 

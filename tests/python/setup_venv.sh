@@ -122,7 +122,8 @@ else
     rm -f "$stamp"
     "$python" -m venv --clear "$venv" || die "'$python -m venv' failed"
     stage_done "venv created"
-    "$venv/bin/python" -m pip install --no-input --quiet --progress-bar off -r "$requirements" ||
+    # No wheel cache: the wheels (open3d, gtsam, the ROS 2 ones) would take their size on the disk twice.
+    "$venv/bin/python" -m pip install --no-input --quiet --progress-bar off --no-cache-dir -r "$requirements" ||
         die "pip install -r $requirements failed"
     stage_done "pip install (pinned wheels)"
 

@@ -12,20 +12,18 @@
 //! runs alone on a domain of its own, on loopback.
 
 mod common;
+#[path = "common/fleet_dds.rs"]
+mod fleet_dds;
 use common::{interrupt, text};
-use std::net::Ipv4Addr;
+use fleet_dds::{fleet_keyframe, keyframe_writer};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
-use dc_loc::msgs::dc_loc::Keyframe;
 use dc_loc::msgs::sensor_msgs::PointCloud2;
 use dc_loc::ros::convert::DiagnosticArray;
 use rustdds::policy::Reliability;
-use rustdds::{
-    DomainParticipant, DomainParticipantBuilder, DomainParticipantSecurityConfigFiles,
-    QosPolicyBuilder, TopicKind,
-};
+use rustdds::{DomainParticipant, QosPolicyBuilder, TopicKind};
 
 /// The keystore's domain, where the secured node runs (and the nodes that never start); the
 /// unsecured node runs on the next one, so that it is never the outsider the secured test watches
@@ -186,16 +184,10 @@ fn permissive_without_a_keystore_runs_unsecured() {
     );
 }
 
-/// A participant on loopback, secured with `enclave` of `ks` when given.
+/// A participant on loopback in [`DOMAIN`], secured with `enclave` of `ks` when given.
 fn participant(secured: Option<(&Path, &str)>) -> DomainParticipant {
-    let mut b = DomainParticipantBuilder::new(DOMAIN).with_only_networks([Ipv4Addr::LOCALHOST]);
-    if let Some((ks, enclave)) = secured {
-        let dir = ks.join("enclaves").join(enclave);
-        b = b.builtin_security(
-            DomainParticipantSecurityConfigFiles::with_ros_default_names(dir, String::new()),
-        );
-    }
-    b.build().expect("participant")
+    let dir = secured.map(|(ks, enclave)| ks.join("enclaves").join(enclave));
+    fleet_dds::participant(DOMAIN, dir.as_deref())
 }
 
 /// What one participant sees and does: reads `/diagnostics`, writes radar clouds.
@@ -342,60 +334,6 @@ fn listener_enclave(dir: &Path, ks: &Path) {
         "make_keystore.sh: {}",
         text(&out.stderr)
     );
-}
-
-/// A writer of fleet keyframes on `participant`, with the QoS the nodes' fleet readers ask for
-/// (reliable, transient local); the access control's refusal when its permissions do not allow it.
-fn keyframe_writer(
-    participant: &DomainParticipant,
-) -> Result<rustdds::no_key::DataWriter<Keyframe>, String> {
-    let qos = QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: rustdds::Duration::from_millis(100),
-        })
-        .durability(rustdds::policy::Durability::TransientLocal)
-        .history(rustdds::policy::History::KeepLast { depth: 100 })
-        .build();
-    let topic = participant
-        .create_topic(
-            "rt/dc_loc/keyframes".into(),
-            "dc_loc::msg::dds_::Keyframe_".into(),
-            &qos,
-            TopicKind::NoKey,
-        )
-        .map_err(|e| format!("{e:?}"))?;
-    participant
-        .create_publisher(&qos)
-        .map_err(|e| format!("{e:?}"))?
-        .create_datawriter_no_key_cdr(&topic, None)
-        .map_err(|e| format!("{e:?}"))
-}
-
-/// Robot `robot`'s keyframe `id` as the fleet topic carries it: forty points around the origin.
-fn fleet_keyframe(robot: i32, id: u64) -> Keyframe {
-    use dc_loc::keyframe_db::{KeyframeRecord, quantise_cov, quantise_point};
-    use dc_loc::math::{Iso2, Mat2, Stamp, Vec2};
-    let pts: Vec<Vec2> = (0..40)
-        .map(|i| Vec2::new(5.0 + i as f64, (i % 7) as f64))
-        .collect();
-    let place = dc_loc::place::PlaceConfig::default();
-    let record = KeyframeRecord {
-        id,
-        session: 0,
-        stamp: Stamp::from_secs_f64(100.0 + id as f64),
-        t_odom_body: Iso2::identity(),
-        odom_pose: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-        path_distance: 5.0 * id as f64,
-        points: pts.iter().filter_map(|&p| quantise_point(p)).collect(),
-        covs: pts
-            .iter()
-            .map(|_| quantise_cov(&Mat2::new(0.04, 0.0, 0.0, 0.04)))
-            .collect(),
-        rays: Vec::new(),
-        place: dc_loc::place::PlaceDescriptor::from_points(&pts, &place),
-    };
-    let fleet = dc_loc::fleet::FleetState::default();
-    dc_loc::fleet::wire::encode(robot, &record, &fleet, 0, "base_link")
 }
 
 /// Who may add keyframes to a secured fleet's maps is what the keystore's permissions say: a member

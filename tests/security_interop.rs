@@ -163,15 +163,7 @@ fn replay(drive: &Drive, security: &Security) -> BTreeMap<String, String> {
     let replayer = Replayer::new(DOMAIN, &drive.radar_topics, Some(security));
     rt.block_on(async {
         replayer.wait_for_node().await;
-        let start = Instant::now();
-        let first = drive.messages[0].0;
-        for (t, m) in &drive.messages {
-            let due = start + Duration::from_secs_f64(t.secs_since(first) / RATE);
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                tokio::time::sleep(wait).await;
-            }
-            replayer.publish(m).await;
-        }
+        replayer.play(&drive.messages, RATE).await;
         // Three diagnostics periods for the final counters.
         tokio::time::sleep(Duration::from_millis(1600)).await;
     });

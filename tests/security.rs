@@ -6,7 +6,8 @@
 //!   reads its `/diagnostics` and gets its clouds to it, while an unsecured participant on the same
 //!   domain reads nothing and none of its clouds is received;
 //! - only enclaves whose permissions allow publishing on the fleet topic add keyframes to a secured
-//!   fleet node's map.
+//!   fleet node's map;
+//! - with `node.fleet_enclave`, a keyframe's robot id is taken only from that robot's enclave.
 //!
 //! The participants here are rustdds's, secured with the keystore's enclaves as the node is; the node
 //! runs alone on a domain of its own, on loopback.
@@ -393,6 +394,94 @@ fn only_enclaves_allowed_to_publish_on_the_fleet_topic_add_keyframes() {
         "{member_counts}"
     );
     assert_eq!(value(&d, "fleet.robot_6"), None, "robot 6 reached the node");
+}
+
+/// The enclaves `/fleet/robot_5` and `/fleet/robot_6` in the keystore `ks`, each allowed every topic.
+fn robot_enclaves(ks: &Path) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
+    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
+    let out = Command::new("bash")
+        .env("ROS_DOMAIN_ID", DOMAIN.to_string())
+        .arg(&script)
+        .args(["--payload-protection", &protection])
+        .arg(ks)
+        .args(["/fleet/robot_5", "/fleet/robot_6"])
+        .output()
+        .expect("cannot run make_keystore.sh");
+    assert!(
+        out.status.success(),
+        "make_keystore.sh: {}",
+        text(&out.stderr)
+    );
+}
+
+/// With `node.fleet_enclave`, a keyframe's robot id must be its sender's identity: robot 5's enclave
+/// gets its own keyframes into the map, while the keyframes it sends as robot 6, and those another
+/// member of the keystore (`/observer`) sends as robot 5, are dropped as `keyframe_identity`.
+#[test]
+fn with_fleet_enclave_a_robot_id_is_taken_only_from_its_enclave() {
+    let _domain = on_domain();
+    let dir = scratch("fleet_identity");
+    let ks = keystore(&dir);
+    robot_enclaves(&ks);
+    let child = start(
+        DOMAIN,
+        &dir.join("map.dcmap"),
+        &[
+            "--enclave",
+            "/dc_loc",
+            "-p",
+            "node.fleet:=true",
+            "-p",
+            "node.fleet_enclave:=/fleet/robot_{robot}",
+            "-p",
+            "node.diagnostics_period:=0.5",
+        ],
+        &pairs(&enforce(&ks)),
+    );
+    let robot_5 = participant(Some((&ks, "fleet/robot_5")));
+    let robot_5_writer = keyframe_writer(&robot_5).unwrap();
+    let observer = participant(Some((&ks, "observer")));
+    let observer_writer = keyframe_writer(&observer).unwrap();
+    let mut diagnostics = Peer::new(participant(Some((&ks, "observer"))));
+    let mut seen = None;
+    let t0 = Instant::now();
+    let mut id = 0;
+    while t0.elapsed() < Duration::from_secs(8) {
+        robot_5_writer.write(fleet_keyframe(5, id), None).unwrap();
+        robot_5_writer.write(fleet_keyframe(6, id), None).unwrap();
+        observer_writer
+            .write(fleet_keyframe(5, 1000 + id), None)
+            .unwrap();
+        id += 1;
+        diagnostics.take(&mut seen);
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let (code, err) = interrupt(child);
+    assert_eq!(code, Some(0), "{err}");
+    let d = seen.expect("no diagnostics read");
+    let robot_5_counts = value(&d, "fleet.robot_5").expect("no keyframe of robot 5");
+    let refused: u64 = value(&d, "keyframe_identity")
+        .expect("no keyframe_identity count")
+        .parse()
+        .unwrap();
+    println!(
+        "sent {id} keyframes of each kind: robot 5 {robot_5_counts}; keyframe_identity {refused}"
+    );
+    let received: u64 = robot_5_counts
+        .strip_prefix("received ")
+        .and_then(|r| r.split(',').next()?.parse().ok())
+        .unwrap();
+    // Robot 5's own keyframes (those sent before the handshake completed are lost), none of the others.
+    assert!(received > 0 && received <= id, "{robot_5_counts}");
+    assert_eq!(value(&d, "fleet.robot_6"), None, "robot 6 reached the node");
+    assert!(refused >= received, "{refused} refused, {received} taken");
+    // The warning names the sender's certificate and the one wanted.
+    assert!(
+        err.contains("keyframe from the certificate CN=/")
+            && err.contains("wants CN=/fleet/robot_"),
+        "no keyframe_identity warning naming the certificates: {err}"
+    );
 }
 
 /// Copies a keystore (its files and symlinks' targets) from `from` to `to`.

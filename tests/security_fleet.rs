@@ -1,6 +1,7 @@
 //! A fleet of three nodes on a secured DDS domain (SROS2, Enforce, one keystore made by
-//! `launch_scripts/make_keystore.sh`, each robot's node with an enclave of its own), against the same
-//! fleet unsecured.
+//! `launch_scripts/make_keystore.sh`, each robot's node with an enclave of its own, `/robot_<k>`, and
+//! each robot's keyframes taken only from its enclave: `node.fleet_enclave:=/robot_{robot}`), against
+//! the same fleet unsecured.
 //!
 //! Three robots of one simulated world (`sim::fleet` on the short block of tests/common, five radars of
 //! the nuScenes car; robot 1 drives the loop the other way round) are replayed one after the other, each
@@ -275,6 +276,10 @@ fn run_fleet(robots: &[Robot], dir: &Path, domain: u16, ks: Option<&Path>) -> Ru
             ]
             .map(String::from)
             .to_vec();
+            if ks.is_some() {
+                // Each robot's keyframes only from its own enclave.
+                extra.extend(["-p".into(), "node.fleet_enclave:=/robot_{robot}".into()]);
+            }
             let mut topics = r.drive.radar_topics.clone();
             topics.push("/odom".into());
             for t in topics {

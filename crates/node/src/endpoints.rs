@@ -7,6 +7,7 @@ use std::sync::Mutex;
 use std::sync::mpsc::SyncSender;
 use std::time::Duration;
 
+use ros2_client::dds::rustdds::DomainParticipant;
 use ros2_client::{
     MessageTypeName, Name, Node, Publisher, QosProfile, Server, ServiceMapping, ServiceTypeName,
     Subscription,
@@ -18,6 +19,7 @@ use super::args::RosArgs;
 use super::backends::{Float64MultiArray, PoseGraph};
 use super::convert::{DiagnosticArray, MarkerArray};
 use super::error::{NodeError, dds};
+use super::fleet_identity::FleetIdentity;
 use super::inputs::{self, RadarSubscription, Reception, TopicRadars};
 use super::services::{
     self, PoseWithCovarianceStamped, SaveRequest, TriggerRequest, TriggerResponse,
@@ -79,19 +81,30 @@ pub struct Subscriptions {
     save_map: Server<TriggerRequest, TriggerResponse>,
     /// `~/markers` and `~/submap`, resolved: their readers are counted.
     map_views: [String; 2],
-    /// `node.fleet_topic`, when `node.fleet` is on: the other robots' keyframes.
-    keyframes: Option<(String, Subscription<KeyframeMsg>, FleetSettings)>,
+    /// `node.fleet_topic`, when `node.fleet` is on: the other robots' keyframes, and the check of their
+    /// senders' identities (`node.fleet_enclave`).
+    keyframes: Option<FleetSubscription>,
 }
+
+/// The fleet topic, its subscription, the fleet settings and the check of the senders' identities.
+type FleetSubscription = (
+    String,
+    Subscription<KeyframeMsg>,
+    FleetSettings,
+    Option<FleetIdentity>,
+);
 
 impl Subscriptions {
     /// Subscribes the radars (one subscription per topic), the pose input of `odometry.source` (the
     /// odometry topic, nothing, or the gyro), with sim time `/clock`, and with `node.fleet` the
-    /// fleet's keyframes.
+    /// fleet's keyframes (their senders' identities read from `secured`, the node's participant when
+    /// the domain is secured).
     pub fn new(
         node: &mut Node,
         ros_args: &RosArgs,
         cfg: &Config,
         settings: &NodeSettings,
+        secured: Option<DomainParticipant>,
     ) -> Result<Self, NodeError> {
         let use_sim_time = settings.use_sim_time;
         // The radars sharing a topic share its message type (the configuration's check).
@@ -157,7 +170,8 @@ impl Subscriptions {
                 .create_subscription(&t, Some(qos))
                 .map_err(dds("fleet subscription"))?;
             log::info!("other robots' keyframes on {topic}");
-            Some((topic, sub, fleet.clone()))
+            let identity = FleetIdentity::new(&fleet.enclave, secured);
+            Some((topic, sub, fleet.clone(), identity))
         } else {
             None
         };
@@ -193,18 +207,24 @@ impl Subscriptions {
         for (topic, radars, sub) in &self.radars {
             let shared = r.shared.clone();
             match sub {
-                RadarSubscription::Cloud(sub) => {
-                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |c| {
+                RadarSubscription::Cloud(sub) => tasks.push(Box::pin(inputs::take(
+                    topic,
+                    sub,
+                    r.clone(),
+                    move |c, _| {
                         let input = inputs::radar_input(topic, radars, &limits, &shared, c);
                         inputs::trigger_stamped(topic, stamps, input)
-                    })))
-                }
-                RadarSubscription::Scan(sub) => {
-                    tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |s| {
+                    },
+                ))),
+                RadarSubscription::Scan(sub) => tasks.push(Box::pin(inputs::take(
+                    topic,
+                    sub,
+                    r.clone(),
+                    move |s, _| {
                         let input = inputs::radar_scan(topic, radars, &limits, &shared, s);
                         inputs::trigger_stamped(topic, stamps, input)
-                    })))
-                }
+                    },
+                ))),
             }
         }
         for (topic, radars, sub) in &self.triggers {
@@ -218,25 +238,36 @@ impl Subscriptions {
         }
         if let Some((topic, sub)) = &self.odometry {
             let shared = r.shared.clone();
-            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |o| {
-                inputs::odometry_input(topic, &shared, o)
-            })));
+            tasks.push(Box::pin(inputs::take(
+                topic,
+                sub,
+                r.clone(),
+                move |o, _| inputs::odometry_input(topic, &shared, o),
+            )));
         }
         if let Some((topic, sub)) = &self.imu {
             let shared = r.shared.clone();
-            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |m| {
-                inputs::imu_input(topic, &shared, m)
-            })));
+            tasks.push(Box::pin(inputs::take(
+                topic,
+                sub,
+                r.clone(),
+                move |m, _| inputs::imu_input(topic, &shared, m),
+            )));
         }
         if let Some(sub) = &self.clock {
             tasks.push(Box::pin(inputs::clock(sub, r.shared.clone())));
         }
-        if let Some((topic, sub, fleet)) = &self.keyframes {
+        if let Some((topic, sub, fleet, identity)) = &self.keyframes {
             let shared = r.shared.clone();
             let mut gate = inputs::FleetGate::new(fleet);
-            tasks.push(Box::pin(inputs::take(topic, sub, r.clone(), move |k| {
-                inputs::keyframe_input(topic, &mut gate, &shared, k)
-            })));
+            tasks.push(Box::pin(inputs::take(
+                topic,
+                sub,
+                r.clone(),
+                move |k, info| {
+                    inputs::keyframe_input(topic, &mut gate, identity.as_ref(), &shared, (k, info))
+                },
+            )));
         }
         let counts = inputs::publisher_counts(
             node,

@@ -9,9 +9,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures::StreamExt;
-use ros2_client::{Node, Subscription};
+use ros2_client::{MessageInfo, Node, Subscription};
 use serde::de::DeserializeOwned;
 
+use super::fleet_identity::FleetIdentity;
 use super::shared::{Inbox, Shared, Work, lock, receive_time};
 use dc_loc_core::input::imu_input as gyro_input;
 use dc_loc_core::input::{Input, InputLimits, header_stamp, odometry_pose, radar_scan_input};
@@ -82,15 +83,15 @@ pub struct Reception {
 pub async fn take<M, F>(topic: &str, sub: &Subscription<M>, r: Reception, mut convert: F)
 where
     M: Stamped + DeserializeOwned + 'static,
-    F: FnMut(M) -> Result<(Input, Option<String>), Refusal>,
+    F: FnMut(M, &MessageInfo) -> Result<(Input, Option<String>), Refusal>,
 {
     let mut stream = std::pin::pin!(sub.async_stream());
     while let Some(item) = stream.next().await {
         let arrived = Instant::now();
-        let Some(msg) = received(topic, item, &r) else {
+        let Some((msg, info)) = received(topic, item, &r) else {
             continue;
         };
-        match convert(msg) {
+        match convert(msg, &info) {
             Ok((input, odom_frame)) => r.inbox.send(Work::Input {
                 input: Box::new(input),
                 odom_frame,
@@ -108,9 +109,9 @@ fn received<M: Stamped, I, E: std::fmt::Debug>(
     topic: &str,
     item: Result<(M, I), E>,
     r: &Reception,
-) -> Option<M> {
-    let mut msg = match item {
-        Ok((m, _)) => m,
+) -> Option<(M, I)> {
+    let (mut msg, info) = match item {
+        Ok(m) => m,
         Err(e) => {
             r.shared.drop_msg("undecodable", &format!("{topic}: {e:?}"));
             return None;
@@ -124,7 +125,7 @@ fn received<M: Stamped, I, E: std::fmt::Debug>(
     if Stamp::from(header.stamp) == Stamp(0) {
         header.stamp = receive_time(&r.shared, r.use_sim_time).into();
     }
-    Some(msg)
+    Some((msg, info))
 }
 
 /// The radars on one topic: (index in `radar_names`, name, expected `frame_id`; empty accepts any).
@@ -208,7 +209,7 @@ pub async fn triggers(
 ) {
     let mut stream = std::pin::pin!(sub.async_stream());
     while let Some(item) = stream.next().await {
-        let Some(header) = received(topic, item, &r) else {
+        let Some((header, _)) = received(topic, item, &r) else {
             continue;
         };
         r.shared.count_received("trigger");
@@ -277,15 +278,23 @@ impl FleetGate {
     }
 }
 
-/// Another robot's keyframe as the input (the pipeline decodes and checks it), refused beyond
+/// Another robot's keyframe as the input (the pipeline decodes and checks it), refused when its
+/// sender is not the robot's enclave (`keyframe_identity`, with `node.fleet_enclave`) and beyond
 /// `node.fleet_rate` for its robot (`keyframe_over_rate`, counted under the robot).
 pub fn keyframe_input(
     topic: &str,
     gate: &mut FleetGate,
+    identity: Option<&FleetIdentity>,
     shared: &Shared,
-    msg: KeyframeMsg,
+    (msg, info): (KeyframeMsg, &MessageInfo),
 ) -> Result<(Input, Option<String>), Refusal> {
     shared.count_received("keyframes");
+    if let Some(identity) = identity {
+        let sender = info.publisher_gid();
+        identity
+            .check(msg.robot_id, sender)
+            .map_err(|detail| ("keyframe_identity", format!("{topic}: {detail}")))?;
+    }
     if !gate.pass(msg.robot_id, Instant::now()) {
         *lock(&shared.fleet_flood).entry(msg.robot_id).or_default() += 1;
         let detail = format!(

@@ -18,6 +18,7 @@ pub mod convert;
 pub mod diagnostics;
 pub mod endpoints;
 pub mod error;
+pub mod fleet_identity;
 pub mod inputs;
 pub mod map_store;
 pub mod merge;

@@ -168,7 +168,8 @@ fn run(ros_args: &RosArgs) -> Result<(), NodeError> {
         Some(m) => m,
         None => load_map(&cfg).map_err(NodeError::Map)?,
     };
-    let subs = Subscriptions::new(&mut node, ros_args, &cfg, &settings)?;
+    let secured = enclave.is_some().then(|| context.domain_participant());
+    let subs = Subscriptions::new(&mut node, ros_args, &cfg, &settings, secured)?;
     let outputs = outputs(&mut node, ros_args, &cfg)?;
 
     let shared = Arc::new(Shared::new(Duration::from_secs_f64(settings.warn_interval)));

@@ -68,6 +68,8 @@ pub struct FleetSettings {
     /// `node.fleet_rate`: keyframes per second taken from one robot beyond a burst of
     /// `node.fleet_history`.
     pub rate: f64,
+    /// `node.fleet_enclave`: the enclave robot `{robot}`'s keyframes must come from (empty: any).
+    pub enclave: String,
 }
 
 impl Default for FleetSettings {
@@ -78,6 +80,7 @@ impl Default for FleetSettings {
             history: 1000,
             points: dc_loc_core::fleet::wire::DEFAULT_WIRE_POINTS,
             rate: 10.0,
+            enclave: String::new(),
         }
     }
 }
@@ -91,6 +94,11 @@ impl FleetSettings {
         v.count("node.fleet_history", self.history, 1, 100_000);
         v.count("node.fleet_points", self.points, 10, 100_000);
         v.range("node.fleet_rate", self.rate, Range::POSITIVE.up_to(1000.0));
+        v.require(
+            "node.fleet_enclave",
+            self.enclave.is_empty() || self.enclave.contains("{robot}"),
+            || format!("`{}` does not hold `{{robot}}`", self.enclave),
+        );
     }
 
     /// The settings as `(name, value)` parameters.
@@ -101,6 +109,10 @@ impl FleetSettings {
             ("node.fleet_history".into(), Value::from(self.history)),
             ("node.fleet_points".into(), Value::from(self.points)),
             ("node.fleet_rate".into(), Value::from(self.rate)),
+            (
+                "node.fleet_enclave".into(),
+                Value::from(self.enclave.clone()),
+            ),
         ]
     }
 
@@ -127,6 +139,12 @@ impl FleetSettings {
             "node.fleet_points" => self.points = count()?,
             "node.fleet_rate" => {
                 self.rate = v.as_f64().ok_or_else(|| type_error(name, "a number", v))?
+            }
+            "node.fleet_enclave" => {
+                self.enclave = v
+                    .as_str()
+                    .ok_or_else(|| type_error(name, "a string", v))?
+                    .to_string()
             }
             _ => return Ok(false),
         }
@@ -335,6 +353,14 @@ pub const NODE_PARAMS: &[NodeParam] = &[
         doc: "Keyframes per second taken from one robot beyond a burst of `node.fleet_history`; more \
               are dropped and counted under that robot (`/diagnostics`, `fleet`): a robot that floods \
               the topic cannot starve the node.",
+    },
+    NodeParam {
+        name: "node.fleet_enclave",
+        doc: "On a secured domain, the enclave each robot's keyframes must come from, `{robot}` \
+              standing for its `node.robot_id` (e.g. `/fleet/robot_{robot}`): a keyframe is taken \
+              only from a participant that authenticated with that enclave's certificate (its common \
+              name), others are dropped as `keyframe_identity`. Empty (default): any member of the \
+              keystore allowed to publish on the fleet topic may send any robot's keyframes.",
     },
     NodeParam {
         name: "node.pose_graph_output",

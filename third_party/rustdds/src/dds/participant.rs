@@ -525,6 +525,14 @@ impl DomainParticipant {
     self.dpi.lock().unwrap().domain_id()
   }
 
+  /// The subject name (RFC 4514, e.g. `CN=/robot_1`) of the identity certificate that the remote
+  /// participant `remote` authenticated with. `None` without security, before the participant's
+  /// handshake completes, or for an unknown participant.
+  #[cfg(feature = "security")]
+  pub fn authenticated_subject_name(&self, remote: GuidPrefix) -> Option<String> {
+    self.dpi.lock().unwrap().authenticated_subject_name(remote)
+  }
+
   /// # Examples
   ///
   /// ```
@@ -1059,6 +1067,11 @@ impl DomainParticipantDisc {
 
   pub fn domain_id(&self) -> u16 {
     self.dpi.domain_id()
+  }
+
+  #[cfg(feature = "security")]
+  pub fn authenticated_subject_name(&self, remote: GuidPrefix) -> Option<String> {
+    self.dpi.authenticated_subject_name(remote)
   }
 
   pub fn participant_id(&self) -> u16 {
@@ -1672,6 +1685,12 @@ impl DomainParticipantInner {
 
   pub fn domain_id(&self) -> u16 {
     self.domain_info.domain_id
+  }
+
+  #[cfg(feature = "security")]
+  pub fn authenticated_subject_name(&self, remote: GuidPrefix) -> Option<String> {
+    let plugins = self.security_plugins_handle.as_ref()?;
+    plugins.get_plugins().authenticated_subject_name(remote)
   }
 
   pub fn participant_id(&self) -> u16 {

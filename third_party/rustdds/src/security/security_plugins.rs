@@ -460,6 +460,24 @@ impl SecurityPlugins {
       .get_authenticated_peer_credential_token(handshake_handle)
   }
 
+  /// The subject name (RFC 4514) of the identity certificate that the remote participant
+  /// authenticated with; `None` before its handshake completes.
+  pub fn authenticated_subject_name(&self, remote_participant_guidp: GuidPrefix) -> Option<String> {
+    use super::{
+      authentication::authentication_builtin::types::AUTHENTICATED_PEER_TOKEN_IDENTITY_CERTIFICATE_PROPERTY_NAME,
+      certificate::Certificate,
+    };
+    let token = self
+      .get_authenticated_peer_credential_token(remote_participant_guidp)
+      .ok()?;
+    let properties = token.data_holder.binary_properties_as_map();
+    let pem = &properties
+      .get(AUTHENTICATED_PEER_TOKEN_IDENTITY_CERTIFICATE_PROPERTY_NAME)?
+      .value;
+    let certificate = Certificate::from_pem(pem).ok()?;
+    Some(certificate.subject_name().serialize())
+  }
+
   pub fn get_shared_secret(
     &self,
     remote_participant_guidp: GuidPrefix,

@@ -7,9 +7,9 @@
 //! With `--secure`, one run measures the node twice on the same drive: unsecured, then on a secured
 //! domain (SROS2, Enforce) with a keystore made by `launch_scripts/make_keystore.sh` in a scratch
 //! directory, the node and the replaying participant each with an enclave of it; then it prints the
-//! ratios secured / unsecured of CPU share and latencies. The keystore protects every DATA submessage
-//! (`metadata_protection_kind: ENCRYPT`), not the payloads inside them once more
-//! (`--payload-protection NONE`).
+//! ratios secured / unsecured of CPU share and latencies. The keystore has sros2's governance: every
+//! DATA submessage is encrypted (`metadata_protection_kind: ENCRYPT`), and every payload inside it once
+//! more (`data_protection_kind: ENCRYPT`).
 //!
 //! ```text
 //! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] [--secure] \
@@ -223,8 +223,11 @@ fn main() {
     };
     if secure {
         let keystore = dir.join("keystore");
-        make_keystore(&keystore, domain, "NONE", &["/dc_loc", "/replayer"]);
-        println!("keystore {} (payload protection NONE)", keystore.display());
+        make_keystore(&keystore, domain, "ENCRYPT", &["/dc_loc", "/replayer"]);
+        println!(
+            "keystore {} (sros2's governance: payloads encrypted)",
+            keystore.display()
+        );
         println!("\n-- unsecured --");
         let plain = run.measure(None);
         print_summary("unsecured", radars, messages, &plain);

@@ -4,7 +4,8 @@
 //! - Permissive without a keystore warns and runs unsecured, as ROS 2 does;
 //! - a secured node talks to participants of its keystore and to no one else: a secured observer
 //!   reads its `/diagnostics` and gets its clouds to it, while an unsecured participant on the same
-//!   domain reads nothing and none of its clouds is received;
+//!   domain, and one with an identity of another keystore (another CA), read nothing and none of their
+//!   clouds is received;
 //! - only enclaves whose permissions allow publishing on the fleet topic add keyframes to a secured
 //!   fleet node's map;
 //! - with `node.fleet_enclave`, a keyframe's robot id is taken only from that robot's enclave.
@@ -275,28 +276,35 @@ fn a_secured_node_talks_only_to_its_keystore() {
     );
     let mut member = Peer::new(participant(Some((&ks, "observer"))));
     let mut outsider = Peer::new(participant(None));
-    let (mut member_seen, mut outsider_seen) = (None, None);
-    let (mut member_n, mut outsider_n) = (0, 0);
+    // A stranger with an identity of another keystore (its own CA, the same enclave names).
+    let other_ks = keystore(&dir.join("other"));
+    let mut stranger = Peer::new(participant(Some((&other_ks, "observer"))));
+    let (mut member_seen, mut outsider_seen, mut stranger_seen) = (None, None, None);
+    let (mut member_n, mut outsider_n, mut stranger_n) = (0, 0, 0);
     let t0 = Instant::now();
-    // Each sends a cloud every 100 ms for 8 s, the member's in the radar's frame, the outsider's in
-    // a frame of its own: the node counts the first as `front.received`, would refuse the second as
-    // `unknown_frame`.
+    // Each sends a cloud every 100 ms for 8 s, the member's in the radar's frame, the outsider's and
+    // the stranger's in frames of their own: the node counts the first as `front.received`, would
+    // refuse the others as `unknown_frame`.
     let mut sent = 0;
     while t0.elapsed() < Duration::from_secs(8) {
         member.send_cloud("radar");
         outsider.send_cloud("outsider");
+        stranger.send_cloud("stranger");
         sent += 1;
         member_n += member.take(&mut member_seen);
         outsider_n += outsider.take(&mut outsider_seen);
+        stranger_n += stranger.take(&mut stranger_seen);
         std::thread::sleep(Duration::from_millis(100));
     }
     let (code, err) = interrupt(child);
     assert_eq!(code, Some(0), "{err}");
     println!(
-        "sent {sent} clouds from each; diagnostics read: member {member_n}, outsider {outsider_n}"
+        "sent {sent} clouds from each; diagnostics read: member {member_n}, outsider {outsider_n}, \
+         stranger {stranger_n}"
     );
     assert!(err.contains("DDS security with the enclave"), "{err}");
     assert_eq!(outsider_n, 0, "the outsider read the node's diagnostics");
+    assert_eq!(stranger_n, 0, "the stranger read the node's diagnostics");
     let d = member_seen.expect("the member read no diagnostics");
     let received: u64 = value(&d, "front.received")
         .expect("front.received")
@@ -307,7 +315,10 @@ fn a_secured_node_talks_only_to_its_keystore() {
     // The member's clouds arrive (those sent before the handshake completed are lost); none of the
     // outsider's does.
     assert!(received > 0 && received <= sent, "{received} of {sent}");
-    assert_eq!(refused, 0, "the outsider's clouds reached the node");
+    assert_eq!(
+        refused, 0,
+        "the outsider's or the stranger's clouds reached the node"
+    );
 }
 
 /// An enclave `/listener` in the keystore `ks` whose permissions let it read the fleet's keyframes and

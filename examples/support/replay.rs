@@ -80,7 +80,12 @@ impl Drive {
     /// Simulates [`DRIVE`] into `dir` and reads it back.
     pub fn simulate(dir: &Path) -> Drive {
         let cfg: SimConfig = yaml_serde::from_str(DRIVE).expect("drive config");
-        let drive = dc_loc::sim::simulate(&cfg).expect("simulate");
+        Drive::simulate_config(&cfg, dir)
+    }
+
+    /// Simulates the drive of `cfg` into `dir` and reads it back.
+    pub fn simulate_config(cfg: &SimConfig, dir: &Path) -> Drive {
+        let drive = dc_loc::sim::simulate(cfg).expect("simulate");
         let summary = export_drive(&drive, dir).expect("export");
         let reader = BagReader::open(&summary.bag_dir).expect("bag");
         let radar_topics: Vec<String> = reader
@@ -180,7 +185,20 @@ pub fn start_node(
     security: Option<&Security>,
     stderr: Stdio,
 ) -> Child {
-    let mut command = Command::new(bin);
+    start_node_with(Command::new(bin), params, extra, domain, security, stderr)
+}
+
+/// As [`start_node`], the node run by `command` (the node's binary, or a wrapper such as `taskset -c 0
+/// BIN`, with any environment of the caller's own, e.g. `RAYON_NUM_THREADS`).
+pub fn start_node_with(
+    mut command: Command,
+    params: &Path,
+    extra: &[String],
+    domain: u16,
+    security: Option<&Security>,
+    stderr: Stdio,
+) -> Child {
+    let shown = format!("{command:?}");
     command
         .args(["--ros-args", "--params-file"])
         .arg(params)
@@ -203,7 +221,7 @@ pub fn start_node(
         .stdout(Stdio::null())
         .stderr(stderr)
         .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {bin}: {e}"))
+        .unwrap_or_else(|e| panic!("cannot start {shown}: {e}"))
 }
 
 /// SIGINT, then waits for the node.
@@ -212,6 +230,23 @@ pub fn stop_node(mut node: Child) -> Option<i32> {
         .args(["-INT", &node.id().to_string()])
         .status();
     node.wait().ok().and_then(|s| s.code())
+}
+
+/// A ROS 2 context of `domain` on loopback, secured with `security`'s enclave when given.
+pub fn context(domain: u16, security: Option<&Security>) -> Context {
+    let mut builder =
+        DomainParticipantBuilder::new(domain).with_only_networks([Ipv4Addr::LOCALHOST]);
+    if let Some(s) = security {
+        // The enclave's files under sros2's names; no PKCS#11 key.
+        builder = builder.builtin_security(
+            DomainParticipantSecurityConfigFiles::with_ros_default_names(
+                s.enclave_dir(),
+                String::new(),
+            ),
+        );
+    }
+    let dp = builder.build().expect("participant");
+    Context::from_domain_participant(dp).expect("context")
 }
 
 /// The newest value of every `/diagnostics` key, and when the newest message came.
@@ -234,19 +269,18 @@ impl Replayer {
     /// Publishers for `radar_topics` and `/odom`, and a `/diagnostics` subscriber, in `domain`,
     /// secured with `security`'s enclave when given (call inside a tokio runtime: [`runtime`]).
     pub fn new(domain: u16, radar_topics: &[String], security: Option<&Security>) -> Replayer {
-        let mut builder =
-            DomainParticipantBuilder::new(domain).with_only_networks([Ipv4Addr::LOCALHOST]);
-        if let Some(s) = security {
-            // The enclave's files under sros2's names; no PKCS#11 key.
-            builder = builder.builtin_security(
-                DomainParticipantSecurityConfigFiles::with_ros_default_names(
-                    s.enclave_dir(),
-                    String::new(),
-                ),
-            );
-        }
-        let dp = builder.build().expect("participant");
-        let context = Context::from_domain_participant(dp).expect("context");
+        Replayer::in_namespace(domain, "", radar_topics, security)
+    }
+
+    /// As [`Replayer::new`], each topic of the drive published under `namespace` (e.g. `/robot_1`:
+    /// `/odom` goes to `/robot_1/odom`).
+    pub fn in_namespace(
+        domain: u16,
+        namespace: &str,
+        radar_topics: &[String],
+        security: Option<&Security>,
+    ) -> Replayer {
+        let context = context(domain, security);
         let mut node = context
             .new_node(
                 NodeName::new("/", "dc_loc_replayer").expect("name"),
@@ -269,9 +303,12 @@ impl Replayer {
         };
         let cloud_topics: Vec<_> = radar_topics
             .iter()
-            .map(|t| (t.clone(), topic(t, "sensor_msgs", "PointCloud2")))
+            .map(|t| {
+                let cloud = topic(&format!("{namespace}{t}"), "sensor_msgs", "PointCloud2");
+                (t.clone(), cloud)
+            })
             .collect();
-        let odom_topic = topic("/odom", "nav_msgs", "Odometry");
+        let odom_topic = topic(&format!("{namespace}/odom"), "nav_msgs", "Odometry");
         let diag_topic = topic("/diagnostics", "diagnostic_msgs", "DiagnosticArray");
         let clouds = cloud_topics
             .into_iter()
@@ -337,6 +374,21 @@ impl Replayer {
             Message::Odometry(o) => {
                 let _ = self.odometry.async_publish((**o).clone()).await;
             }
+        }
+    }
+
+    /// Publishes `messages` at `rate` times the pace of their log times.
+    pub async fn play(&self, messages: &[(Stamp, Message)], rate: f64) {
+        let Some(first) = messages.first().map(|m| m.0) else {
+            return;
+        };
+        let start = Instant::now();
+        for (t, m) in messages {
+            let due = start + Duration::from_secs_f64(t.secs_since(first) / rate);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                tokio::time::sleep(wait).await;
+            }
+            self.publish(m).await;
         }
     }
 

@@ -23,9 +23,9 @@
 //!   map keyframe, and its map file's bytes per keyframe.
 //! - `cargo bench --bench keyframe_db` (`DC_LOC_BENCH_MAP=100000`): the load time of a 100,000-keyframe map.
 //!
-//! `--quick` (a few minutes): peers.py on at most 30 pairs of a world, the soak for 2 minutes instead of
-//! 5, and the load of a 20,000-keyframe map scaled to 100,000 (its line says so). The node runs are
-//! the same in both. DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), in domains
+//! `--quick` (23 minutes on a loaded 2-core machine, most of it simulating drives): peers.py on at most
+//! 30 pairs of a world, the soak for 2 minutes instead of 5, and the load of a 20,000-keyframe map
+//! scaled to 100,000 (its line says so). The node runs are the same in both. DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), in domains
 //! ROS_DOMAIN_ID (default 70) and the one after it. Every tool's output goes to a log in the scratch
 //! directory, which the run prints and keeps.
 

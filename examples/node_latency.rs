@@ -11,9 +11,24 @@
 //! DATA submessage is encrypted (`metadata_protection_kind: ENCRYPT`), and every payload inside it once
 //! more (`data_protection_kind: ENCRYPT`).
 //!
+//! With `--one-core`, each node runs on one core: its process pinned to CPU 0 (`taskset -c 0`) and its
+//! thread pool cut to one thread (`RAYON_NUM_THREADS=1`; the node's other threads are fixed: one tokio
+//! thread for DDS reception and timers, the pipeline's worker, the map store's and `/rosout`'s writers,
+//! and rustdds's own). The CPU share is of one core in every mode.
+//!
+//! With `--fleet N`, N nodes on one domain exchange keyframes (`-p node.fleet:=true`, each its own
+//! `node.robot_id` and namespace `/robot_k`): the drive's world driven once by each of N robots
+//! (`sim::fleet::fleet`, every other robot the other way round), all replayed at the same time, each
+//! robot's messages into its own node. Each node's CPU share is over its own robot's replay. The nodes
+//! publish on one `/diagnostics` topic, so the summary gives the CPU of each and the fleet counts.
+//!
+//! `--json OUT` writes every run's figures (CPU, wall time, threads, the last `/diagnostics` values) to
+//! OUT, for `examples/budgets.rs`.
+//!
 //! ```text
 //! cargo build --release && cargo run --release --example node_latency -- [--rate 1.0] [--secure] \
-//!     [--node target/release/dc_loc] [--params FILE] [-- NODE ROS ARGS, e.g. -p node.sync_timeout:=0.01]
+//!     [--one-core] [--fleet 3] [--json OUT] [--node target/release/dc_loc] [--params FILE] \
+//!     [-- NODE ROS ARGS, e.g. -p node.sync_timeout:=0.01]
 //! ```
 //! DDS stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; domain ROS_DOMAIN_ID, default 77).
 //! Prints one line per five seconds and a summary per run; the figures go into README_NODE.md.
@@ -23,11 +38,13 @@ mod replay;
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use dc_loc::sim::SimConfig;
 use replay::{
-    Drive, Replayer, Security, arg, cpu_seconds, make_keystore, node_args, scratch, start_node,
-    stop_node,
+    DRIVE, Drive, Replayer, Security, arg, cpu_seconds, make_keystore, node_args, proc_status,
+    scratch, start_node_with, stop_node,
 };
 
 /// The `/diagnostics` keys whose secured / unsecured ratio `--secure` prints.
@@ -45,12 +62,24 @@ const COMPARED: [&str; 6] = [
 struct Figures {
     cpu: f64,
     wall: f64,
+    threads: u64,
     values: BTreeMap<String, String>,
 }
 
 impl Figures {
     fn cpu_share(&self) -> f64 {
         self.cpu / self.wall
+    }
+
+    fn json(&self, label: &str) -> serde_json::Value {
+        serde_json::json!({
+            "label": label,
+            "cpu_seconds": self.cpu,
+            "wall_seconds": self.wall,
+            "cpu_share": self.cpu_share(),
+            "threads": self.threads,
+            "values": self.values,
+        })
     }
 
     fn get(&self, key: &str) -> &str {
@@ -69,19 +98,34 @@ struct Run<'a> {
     params: &'a Path,
     domain: u16,
     rate: f64,
+    one_core: bool,
+}
+
+/// The command that runs the node: its binary, or with `one_core` the binary pinned to CPU 0 with one
+/// rayon thread.
+fn node_command(bin: &str, one_core: bool) -> Command {
+    if one_core {
+        let mut c = Command::new("taskset");
+        c.args(["-c", "0", bin]).env("RAYON_NUM_THREADS", "1");
+        c
+    } else {
+        let mut c = Command::new(bin);
+        c.env_remove("RAYON_NUM_THREADS");
+        c
+    }
 }
 
 impl Run<'_> {
     /// Starts the node (secured with `security`'s enclave `/dc_loc` when given, the replayer then with
     /// its enclave `/replayer`), replays the drive in real time times `rate`, and stops the node.
     fn measure(&self, security: Option<&Security>) -> Figures {
-        let node = start_node(
-            self.node_bin,
+        let node = start_node_with(
+            node_command(self.node_bin, self.one_core),
             self.params,
             &node_args(),
             self.domain,
             security,
-            std::process::Stdio::inherit(),
+            Stdio::inherit(),
         );
         let pid = node.id();
         let rt = replay::runtime();
@@ -93,6 +137,7 @@ impl Run<'_> {
             replayer_security.as_ref(),
         );
         let (cpu, wall) = rt.block_on(self.replay(&replayer, pid));
+        let threads = proc_status(pid, "Threads").unwrap_or(0);
         let values = replayer
             .latest
             .lock()
@@ -100,7 +145,12 @@ impl Run<'_> {
             .0
             .clone();
         stop_node(node);
-        Figures { cpu, wall, values }
+        Figures {
+            cpu,
+            wall,
+            threads,
+            values,
+        }
     }
 
     /// Publishes the drive's messages at their times; returns the node's CPU time and the wall time
@@ -145,7 +195,7 @@ fn print_summary(label: &str, radars: usize, messages: usize, f: &Figures) {
          arrival -> processed and published (last 2000 inputs): p50 {} ms, p99 {} ms, max {} ms\n\
          arrival -> loop closure published: p50 {} ms, p99 {} ms, max {} ms\n\
          keyframe processing: p50 {} ms, p99 {} ms\n\
-         node CPU: {:.1} s in {:.1} s = {:.0} % of one core\n\
+         node CPU: {:.1} s in {:.1} s = {:.1} % of one core ({} threads)\n\
          queue depth max {}, dropped reception_queue_full {}, keyframes {}, closures {}",
         f.wall,
         g("latency_ms.p50"),
@@ -159,6 +209,7 @@ fn print_summary(label: &str, radars: usize, messages: usize, f: &Figures) {
         f.cpu,
         f.wall,
         100.0 * f.cpu_share(),
+        f.threads,
         g("queue_depth_max"),
         g("reception_queue_full"),
         g("keyframes"),
@@ -194,17 +245,175 @@ fn print_ratios(plain: &Figures, secured: &Figures) {
     );
 }
 
+/// A fleet of `robots` nodes on one domain, each robot's drive replayed into its own node, all at once:
+/// each node's figures (CPU over its own robot's replay).
+fn measure_fleet(
+    robots: u32,
+    dir: &Path,
+    node_bin: &str,
+    domain: u16,
+    rate: f64,
+    one_core: bool,
+) -> Vec<Figures> {
+    let cfg: SimConfig = yaml_serde::from_str(DRIVE).expect("drive config");
+    let configs = dc_loc::sim::fleet::fleet(&cfg, robots).expect("fleet");
+    let drives: Vec<Drive> = configs
+        .iter()
+        .enumerate()
+        .map(|(k, c)| Drive::simulate_config(c, &dir.join(format!("robot_{k}"))))
+        .collect();
+    for (k, d) in drives.iter().enumerate() {
+        println!(
+            "robot {k}: {} messages over {:.0} s",
+            d.messages.len(),
+            d.duration()
+        );
+    }
+    let nodes: Vec<_> = drives
+        .iter()
+        .enumerate()
+        .map(|(k, d)| {
+            let ns = format!("/robot_{k}");
+            // The parameters under the node's full name; the drive's topics (absolute in them) remapped
+            // into the robot's namespace, where its replayer publishes.
+            let text = std::fs::read_to_string(&d.summary.params_file).expect("params");
+            assert!(text.contains("\ndc_loc:"), "no top-level dc_loc: section");
+            let params = dir.join(format!("robot_{k}.yaml"));
+            std::fs::write(
+                &params,
+                text.replacen("\ndc_loc:", &format!("\n{ns}/dc_loc:"), 1),
+            )
+            .expect("params");
+            let mut extra: Vec<String> = vec![
+                "-r".into(),
+                format!("__ns:={ns}"),
+                "-p".into(),
+                format!("node.robot_id:={k}"),
+                "-p".into(),
+                "node.fleet:=true".into(),
+            ];
+            for t in d.radar_topics.iter().map(String::as_str).chain(["/odom"]) {
+                extra.extend(["-r".into(), format!("{t}:={ns}{t}")]);
+            }
+            extra.extend(node_args());
+            start_node_with(
+                node_command(node_bin, one_core),
+                &params,
+                &extra,
+                domain,
+                None,
+                Stdio::inherit(),
+            )
+        })
+        .collect();
+    let pids: Vec<u32> = nodes.iter().map(|n| n.id()).collect();
+    let rt = replay::runtime();
+    let _entered = rt.enter();
+    let replayers: Vec<Replayer> = drives
+        .iter()
+        .enumerate()
+        .map(|(k, d)| Replayer::in_namespace(domain, &format!("/robot_{k}"), &d.radar_topics, None))
+        .collect();
+    let measured: Vec<(f64, f64, u64)> = rt.block_on(async {
+        for r in &replayers {
+            r.wait_for_node().await;
+        }
+        let plays = replayers
+            .iter()
+            .zip(&drives)
+            .zip(&pids)
+            .map(|((r, d), &pid)| async move {
+                let cpu0 = cpu_seconds(pid).unwrap_or(0.0);
+                let start = Instant::now();
+                r.play(&d.messages, rate).await;
+                let wall = start.elapsed().as_secs_f64();
+                let cpu = cpu_seconds(pid).unwrap_or(0.0) - cpu0;
+                (cpu, wall, proc_status(pid, "Threads").unwrap_or(0))
+            });
+        let out = futures::future::join_all(plays).await;
+        // Two more diagnostics periods for the final figures.
+        tokio::time::sleep(Duration::from_millis(2500)).await;
+        out
+    });
+    // The nodes share `/diagnostics`: every replayer heard all of them; the first one's values.
+    let values = replayers[0]
+        .latest
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .0
+        .clone();
+    for n in nodes {
+        stop_node(n);
+    }
+    measured
+        .into_iter()
+        .map(|(cpu, wall, threads)| Figures {
+            cpu,
+            wall,
+            threads,
+            values: values.clone(),
+        })
+        .collect()
+}
+
+fn print_fleet(figures: &[Figures]) {
+    println!("\nsummary (fleet of {}):", figures.len());
+    for (k, f) in figures.iter().enumerate() {
+        println!(
+            "  node {k}: CPU {:.1} s in {:.1} s = {:.1} % of one core ({} threads)",
+            f.cpu,
+            f.wall,
+            100.0 * f.cpu_share(),
+            f.threads
+        );
+    }
+    if let Some(f) = figures.first() {
+        for (k, v) in f.values.iter().filter(|(k, _)| k.starts_with("fleet.")) {
+            println!("  {k}: {v}");
+        }
+    }
+}
+
+fn write_json(path: Option<String>, mode: &str, runs: serde_json::Value) {
+    if let Some(path) = path {
+        let body = serde_json::json!({ "mode": mode, "runs": runs });
+        std::fs::write(&path, format!("{body:#}\n"))
+            .unwrap_or_else(|e| panic!("cannot write {path}: {e}"));
+    }
+}
+
 fn main() {
     let rate: f64 = arg("--rate").and_then(|r| r.parse().ok()).unwrap_or(1.0);
     let node_bin = arg("--node").unwrap_or_else(|| "target/release/dc_loc".into());
-    let secure = std::env::args()
-        .take_while(|a| a != "--")
-        .any(|a| a == "--secure");
+    let flag = |name: &str| {
+        std::env::args()
+            .take_while(|a| a != "--")
+            .any(|a| a == name)
+    };
+    let (secure, one_core) = (flag("--secure"), flag("--one-core"));
+    let fleet: Option<u32> = arg("--fleet").and_then(|n| n.parse().ok());
+    let json = arg("--json");
     let domain: u16 = std::env::var("ROS_DOMAIN_ID")
         .ok()
         .and_then(|d| d.parse().ok())
         .unwrap_or(77);
     let dir = scratch("node_latency");
+    if one_core {
+        println!("one core: each node pinned to CPU 0, RAYON_NUM_THREADS=1");
+    }
+    if let Some(robots) = fleet {
+        println!("fleet of {robots} nodes, replayed at {rate}x");
+        let figures = measure_fleet(robots, &dir, &node_bin, domain, rate, one_core);
+        print_fleet(&figures);
+        let runs = figures
+            .iter()
+            .enumerate()
+            .map(|(k, f)| f.json(&format!("robot_{k}")))
+            .collect();
+        write_json(json, "fleet", serde_json::Value::Array(runs));
+        let _ = std::fs::remove_dir_all(&dir);
+        return;
+    }
     let drive = Drive::simulate(&dir);
     let radars = drive.radar_topics.len();
     let messages = drive.messages.len();
@@ -220,6 +429,7 @@ fn main() {
         params: &params,
         domain,
         rate,
+        one_core,
     };
     if secure {
         let keystore = dir.join("keystore");
@@ -235,9 +445,16 @@ fn main() {
         let secured = run.measure(Some(&Security::new(&keystore, "/dc_loc")));
         print_summary("secured", radars, messages, &secured);
         print_ratios(&plain, &secured);
+        let runs = vec![plain.json("unsecured"), secured.json("secured")];
+        write_json(json, "secure", serde_json::Value::Array(runs));
     } else {
         let figures = run.measure(None);
         print_summary("unsecured", radars, messages, &figures);
+        write_json(
+            json,
+            "single",
+            serde_json::Value::Array(vec![figures.json("unsecured")]),
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

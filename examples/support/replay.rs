@@ -185,7 +185,20 @@ pub fn start_node(
     security: Option<&Security>,
     stderr: Stdio,
 ) -> Child {
-    let mut command = Command::new(bin);
+    start_node_with(Command::new(bin), params, extra, domain, security, stderr)
+}
+
+/// As [`start_node`], the node run by `command` (the node's binary, or a wrapper such as `taskset -c 0
+/// BIN`, with any environment of the caller's own, e.g. `RAYON_NUM_THREADS`).
+pub fn start_node_with(
+    mut command: Command,
+    params: &Path,
+    extra: &[String],
+    domain: u16,
+    security: Option<&Security>,
+    stderr: Stdio,
+) -> Child {
+    let shown = format!("{command:?}");
     command
         .args(["--ros-args", "--params-file"])
         .arg(params)
@@ -208,7 +221,7 @@ pub fn start_node(
         .stdout(Stdio::null())
         .stderr(stderr)
         .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {bin}: {e}"))
+        .unwrap_or_else(|e| panic!("cannot start {shown}: {e}"))
 }
 
 /// SIGINT, then waits for the node.

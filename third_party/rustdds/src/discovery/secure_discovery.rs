@@ -1414,8 +1414,9 @@ impl SecureDiscovery {
     discovery_db: &Arc<RwLock<DiscoveryDB>>,
     discovery_updated_sender: &WakeSender<DiscoveryNotificationType>,
   ) {
-    let mut db = discovery_db_write(discovery_db);
-    db.update_authentication_status(participant_guid_prefix, new_status);
+    // The write lock is released before the notification: its channel is bounded, and the event loop
+    // that drains it reads the discovery DB first, so sending while holding the lock can deadlock.
+    discovery_db_write(discovery_db).update_authentication_status(participant_guid_prefix, new_status);
 
     send_discovery_notification(
       discovery_updated_sender,

@@ -47,19 +47,30 @@ fn scratch(name: &str) -> PathBuf {
 /// governance (payloads encrypted); `DC_LOC_PAYLOAD_PROTECTION=NONE` (or `SIGN`) makes it with that
 /// payload protection instead.
 fn keystore(dir: &Path) -> PathBuf {
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
-    let ks = dir.join(format!("keystore_{protection}"));
-    if ks.join("enclaves/observer/permissions.p7s").is_file() {
-        return ks;
+    let ks = dir.join(format!("keystore_{}", protection()));
+    if !ks.join("enclaves/observer/permissions.p7s").is_file() {
+        make_keystore(&ks, &[], &["/dc_loc", "/observer"]);
     }
+    ks
+}
+
+/// The payload protection the keystores are made with (`DC_LOC_PAYLOAD_PROTECTION`, else sros2's).
+fn protection() -> String {
+    std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into())
+}
+
+/// Runs `launch_scripts/make_keystore.sh` for [`DOMAIN`] (sros2 writes the governance and
+/// permissions for the domain of ROS_DOMAIN_ID): the keystore `ks`, made or extended with `enclaves`,
+/// the script's `options` before them.
+fn make_keystore(ks: &Path, options: &[&str], enclaves: &[&str]) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
-    // sros2 writes the governance and permissions for the domain of ROS_DOMAIN_ID.
     let out = Command::new("bash")
         .env("ROS_DOMAIN_ID", DOMAIN.to_string())
         .arg(&script)
-        .args(["--payload-protection", &protection])
-        .arg(&ks)
-        .args(["/dc_loc", "/observer"])
+        .args(["--payload-protection", &protection()])
+        .args(options)
+        .arg(ks)
+        .args(enclaves)
         .output()
         .expect("cannot run make_keystore.sh");
     assert!(
@@ -68,7 +79,6 @@ fn keystore(dir: &Path) -> PathBuf {
         text(&out.stdout),
         text(&out.stderr)
     );
-    ks
 }
 
 fn node(domain: u16, security: &[(&str, &str)]) -> Command {
@@ -338,22 +348,7 @@ fn listener_enclave(dir: &Path, ks: &Path) {
         "subscribe /dc_loc/keyframes\nsubscribe /diagnostics\n",
     )
     .unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
-    let out = Command::new("bash")
-        .env("ROS_DOMAIN_ID", DOMAIN.to_string())
-        .arg(&script)
-        .args(["--payload-protection", &protection, "--topics"])
-        .arg(&topics)
-        .arg(ks)
-        .arg("/listener")
-        .output()
-        .expect("cannot run make_keystore.sh");
-    assert!(
-        out.status.success(),
-        "make_keystore.sh: {}",
-        text(&out.stderr)
-    );
+    make_keystore(ks, &["--topics", topics.to_str().unwrap()], &["/listener"]);
 }
 
 /// Who may add keyframes to a secured fleet's maps is what the keystore's permissions say: a member
@@ -424,21 +419,7 @@ fn only_enclaves_allowed_to_publish_on_the_fleet_topic_add_keyframes() {
 
 /// The enclaves `/fleet/robot_5` and `/fleet/robot_6` in the keystore `ks`, each allowed every topic.
 fn robot_enclaves(ks: &Path) {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch_scripts/make_keystore.sh");
-    let protection = std::env::var("DC_LOC_PAYLOAD_PROTECTION").unwrap_or("ENCRYPT".into());
-    let out = Command::new("bash")
-        .env("ROS_DOMAIN_ID", DOMAIN.to_string())
-        .arg(&script)
-        .args(["--payload-protection", &protection])
-        .arg(ks)
-        .args(["/fleet/robot_5", "/fleet/robot_6"])
-        .output()
-        .expect("cannot run make_keystore.sh");
-    assert!(
-        out.status.success(),
-        "make_keystore.sh: {}",
-        text(&out.stderr)
-    );
+    make_keystore(ks, &[], &["/fleet/robot_5", "/fleet/robot_6"]);
 }
 
 /// With `node.fleet_enclave`, a keyframe's robot id must be its sender's identity: robot 5's enclave

@@ -14,30 +14,15 @@ mod common;
 mod replay;
 
 use std::collections::BTreeMap;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use replay::{Drive, Replayer, start_node, stop_node};
+use replay::{Drive, start_node, stop_node};
 
 const DOMAIN: u16 = 74;
 const RATE: f64 = 5.0;
 
 fn count(values: &BTreeMap<String, String>, key: &str) -> u64 {
     values.get(key).map_or(0, |v| v.parse().unwrap_or(0))
-}
-
-/// Replays the drive into the node at [`RATE`]; the node's last `/diagnostics` values.
-fn replay(drive: &Drive) -> BTreeMap<String, String> {
-    let rt = replay::runtime();
-    let _entered = rt.enter();
-    let replayer = Replayer::new(DOMAIN, &drive.radar_topics, None);
-    rt.block_on(async {
-        replayer.wait_for_node().await;
-        replayer.play(&drive.messages, RATE).await;
-        // Three diagnostics periods for the final counters.
-        tokio::time::sleep(Duration::from_millis(1600)).await;
-    });
-    let latest = replayer.latest.lock().unwrap_or_else(|e| e.into_inner());
-    latest.0.clone()
 }
 
 #[test]
@@ -60,7 +45,7 @@ fn a_spent_keyframe_budget_trims_the_live_search_and_counts_it() {
         log.into(),
     );
     let t0 = Instant::now();
-    let values = replay(&drive);
+    let values = replay::replay_drive(DOMAIN, &drive, RATE, None);
     let code = stop_node(node);
     let log = std::fs::read_to_string(&log_path).unwrap();
     let tail: Vec<&str> = log.lines().rev().take(20).collect();

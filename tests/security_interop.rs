@@ -33,7 +33,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use replay::{Drive, Replayer, Security, make_keystore, start_node, stop_node};
+use replay::{Drive, Security, make_keystore, start_node, stop_node};
 use serde_json::Value;
 
 /// The keystore's domain (below the range 51..101 that the Python tests reserve from, and used by no
@@ -156,21 +156,6 @@ fn keystore(dir: &Path) -> PathBuf {
     ks
 }
 
-/// Replays the drive into the node at [`RATE`]; returns the node's last `/diagnostics` values.
-fn replay(drive: &Drive, security: &Security) -> BTreeMap<String, String> {
-    let rt = replay::runtime();
-    let _entered = rt.enter();
-    let replayer = Replayer::new(DOMAIN, &drive.radar_topics, Some(security));
-    rt.block_on(async {
-        replayer.wait_for_node().await;
-        replayer.play(&drive.messages, RATE).await;
-        // Three diagnostics periods for the final counters.
-        tokio::time::sleep(Duration::from_millis(1600)).await;
-    });
-    let latest = replayer.latest.lock().unwrap_or_else(|e| e.into_inner());
-    latest.0.clone()
-}
-
 fn count(values: &BTreeMap<String, String>, key: &str) -> u64 {
     values.get(key).map_or(0, |v| v.parse().unwrap())
 }
@@ -211,7 +196,8 @@ fn a_secured_cyclone_peer_reads_the_closures_and_an_unsecured_one_nothing() {
         "cyclone_outsider".into(),
     ]);
     let t0 = Instant::now();
-    let diagnostics = replay(&drive, &Security::new(&ks, "/replayer"));
+    let diagnostics =
+        replay::replay_drive(DOMAIN, &drive, RATE, Some(&Security::new(&ks, "/replayer")));
     let member = member.finish();
     let outsider = outsider.finish();
     let code = stop_node(node);

@@ -399,6 +399,27 @@ impl Replayer {
     }
 }
 
+/// Replays `drive` into the node on `domain` at `rate` times real time (secured with `security`'s
+/// enclave when given); returns the node's last `/diagnostics` values, read three diagnostics
+/// periods (of 0.5 s) after the last message.
+pub fn replay_drive(
+    domain: u16,
+    drive: &Drive,
+    rate: f64,
+    security: Option<&Security>,
+) -> BTreeMap<String, String> {
+    let rt = runtime();
+    let _entered = rt.enter();
+    let replayer = Replayer::new(domain, &drive.radar_topics, security);
+    rt.block_on(async {
+        replayer.wait_for_node().await;
+        replayer.play(&drive.messages, rate).await;
+        tokio::time::sleep(Duration::from_millis(1600)).await;
+    });
+    let latest = replayer.latest.lock().unwrap_or_else(|e| e.into_inner());
+    latest.0.clone()
+}
+
 /// The runtime the replay runs on (one thread, with timers).
 pub fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_current_thread()
